@@ -1,0 +1,57 @@
+# diekf: one-command set-up on a fresh Debian 12 machine.
+#   make demo   -- the main job (see README)
+#   make test   -- build everything and run every test
+# An out-of-tree catkin workspace is created in $(WS) (git-ignored), with src/diekf pointing here.
+
+SHELL := /bin/bash
+# Debian's python3 first: catkin's helper scripts import Debian's Python modules.
+export PATH := /usr/bin:/bin:/usr/sbin:/sbin:$(PATH)
+export PYTHONNOUSERSITE := 1
+unexport PYTHONPATH PYTHONHOME VIRTUAL_ENV
+
+WS ?= $(CURDIR)/.ws
+JOBS ?= 2
+BUILD_TYPE ?= Release
+CMAKE_ARGS ?=
+SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
+
+APT_PACKAGES := build-essential cmake catkin ros-base-dev libnodeletlib-dev libcv-bridge-dev \
+  libimage-transport-dev librosbag-dev librostest-dev libtf2-ros-dev libopencv-dev libeigen3-dev \
+  libyaml-cpp-dev libgtest-dev libgmock-dev libbenchmark-dev python3-matplotlib python3-numpy python3-yaml \
+  ros-message-generation ros-message-runtime libdiagnostic-updater-dev libstd-srvs-dev \
+  libnav-msgs-dev libshape-msgs-dev libvisualization-msgs-dev libdiagnostic-msgs-dev \
+  libtf2-geometry-msgs-dev rosbag python3-rosbag rostest roslaunch nodelet valgrind
+
+.PHONY: all deps workspace build test demo benchmark benchmark-core clean
+
+all: build
+
+# Install what is missing (apt-get; sudo when not root). Quiet when everything is there.
+deps:
+	@missing=$$(for p in $(APT_PACKAGES); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q '^install ok installed' || echo $$p; done); \
+	if [ -n "$$missing" ]; then \
+	  echo "Installing: $$missing"; \
+	  $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $$missing; \
+	fi
+
+workspace:
+	@mkdir -p $(WS)/src
+	@ln -sfn $(CURDIR) $(WS)/src/diekf
+
+build: deps workspace
+	cd $(WS) && catkin_make -DCMAKE_BUILD_TYPE=$(BUILD_TYPE) $(CMAKE_ARGS) -j$(JOBS)
+
+test: build
+	cd $(WS) && catkin_make -DCMAKE_BUILD_TYPE=$(BUILD_TYPE) $(CMAKE_ARGS) -j$(JOBS) tests
+	rm -rf $(WS)/build/test_results
+	cd $(WS) && source devel/setup.bash && catkin_make -j1 run_tests
+	cd $(WS) && catkin_test_results build/test_results
+
+demo: build
+	cd $(WS) && source devel/setup.bash && scripts_dir=$(CURDIR)/scripts && bash $(CURDIR)/scripts/demo.sh
+
+benchmark-core: build
+	cd $(WS) && catkin_make -j$(JOBS) diekf_benchmark && ./devel/lib/diekf/diekf_benchmark
+
+clean:
+	rm -rf $(WS)

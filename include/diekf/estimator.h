@@ -1,0 +1,79 @@
+// Estimator facade: the only class the ROS layer and the offline tools talk to. Feed raw IMU samples (IMU frame,
+// 500 Hz) and images (camera clock) in any realistic interleaving; read one FrameResult per processed image.
+// Single-threaded; the caller serialises calls.
+#pragma once
+
+#include <deque>
+#include <memory>
+#include <string>
+
+#include <opencv2/core.hpp>
+
+#include "diekf/camera_model.h"
+#include "diekf/params.h"
+#include "diekf/state.h"
+
+namespace diekf {
+
+enum class FilterStatus { kInitializing, kTracking, kReset };
+const char* toString(FilterStatus status);
+
+/// What happened at one image.
+struct FrameResult {
+  double t_s = 0.0;                  ///< image stamp on the IMU clock, s
+  State state;                       ///< posterior state
+  ErrorCov covariance = ErrorCov::Zero();
+  FilterStatus status = FilterStatus::kInitializing;
+  bool update_applied = false;       ///< false for the first frame after (re)start or a skipped update
+  int passes = 0;                    ///< Gauss-Newton passes used
+  double update_ms = 0.0;            ///< wall time of preprocessing + iterations + covariance update, ms
+  double photometric_rms = 0.0;      ///< RMS of the final residual (normalised intensity units, or px for LK)
+  double valid_ratio = 0.0;          ///< fraction of pixels (or features) used
+  std::string message;               ///< why initializing / reset / skipped (empty when tracking normally)
+
+  double distance_m() const { return state.distance_m(); }
+  double height_m() const { return state.height_m(); }
+  Vec3 velocity_mps() const { return state.velocity_mps(); }
+  /// 1-sigma of distance, m (first-order from alpha's variance).
+  double sigma_distance_m() const;
+  /// 1-sigma of each velocity axis, m/s (first-order from alpha and vartheta).
+  Vec3 sigma_velocity_mps() const;
+};
+
+class Estimator {
+ public:
+  Estimator(const CameraModel& camera, const EstimatorParams& params);
+  ~Estimator();
+  Estimator(const Estimator&) = delete;
+  Estimator& operator=(const Estimator&) = delete;
+
+  /// Raw IMU sample in the IMU frame, IMU clock. Non-finite or out-of-order samples are rejected (returns false).
+  bool addImu(const ImuSample& raw_imu);
+  /// Image at the calibration resolution, stamp on the camera clock (timeshift applied inside). The image is
+  /// converted to grey if needed and processed as soon as filtered IMU data covers its stamp.
+  bool addImage(double t_cam_s, const cv::Mat& image);
+  /// Pops the oldest unread result; false when none is waiting.
+  bool popResult(FrameResult* out);
+
+  /// Back to the initial state; the next image becomes the new reference.
+  void reset(const std::string& reason);
+
+  const State& state() const;
+  const ErrorCov& covariance() const;
+  FilterStatus status() const;
+  /// Time of the current state estimate (IMU clock), s.
+  double stateTime() const;
+  const EstimatorParams& params() const;
+  /// Pinhole intrinsics of the working image.
+  const PinholeK& workingK() const;
+  /// Photometric residual of the last update at working resolution (CV_32FC1; empty before the first update).
+  const cv::Mat& lastResidualImage() const;
+  /// Human-readable reason of the last warning (rejected input etc.); empty if none since the last call.
+  std::string takeWarning();
+
+ private:
+  struct Impl;
+  std::unique_ptr<Impl> impl_;
+};
+
+}  // namespace diekf

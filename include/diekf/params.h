@@ -1,0 +1,102 @@
+// Every tuning parameter of the core, with units. The ROS layer and the offline tools fill this struct from
+// the same YAML keys (config/*.yaml); defaults follow the method's paper where it states them.
+#pragma once
+
+#include <string>
+
+#include "diekf/types.h"
+
+namespace diekf {
+
+enum class UpdateMode { kIterated, kEkf, kFeature };  ///< "iekf", "ekf" (one pass), "lk"
+
+struct InitParams {
+  double alpha0_inv_m = 10.0;                   ///< initial inverse distance, 1/m
+  Vec3 vartheta0_inv_s = Vec3::Zero();          ///< initial velocity over distance, 1/s
+  Vec3 mu0 = Vec3(0.2, -0.1, 0.97);             ///< initial plane normal in C (normalised on use)
+  Vec3 g0 = Vec3(0.0, 0.0, 1.0);                ///< initial gravity direction in C (normalised on use)
+  bool g0_from_accel = true;                    ///< initialise g from the first filtered accelerometer samples
+  double sigma_alpha0_inv_m = 5.0;              ///< 1-sigma of alpha0, 1/m
+  double sigma_vartheta0_inv_s = 1.0;           ///< 1-sigma of each vartheta0 axis, 1/s
+  double sigma_mu0_rad = 0.5;                   ///< 1-sigma of each tangent axis of mu0, rad
+  double sigma_g0_rad = 0.1;                    ///< 1-sigma of each tangent axis of g0, rad
+  double sigma_ba0_mps2 = 0.1;                  ///< 1-sigma of the initial accelerometer bias, m/s^2
+  double sigma_bw0_radps = 0.01;                ///< 1-sigma of the initial gyroscope bias, rad/s
+};
+
+struct ImuParams {
+  double accel_noise_density = 2.0e-2;          ///< m/s^2/sqrt(Hz) (Kalibr accelerometer_noise_density)
+  double gyro_noise_density = 1.7e-3;           ///< rad/s/sqrt(Hz) (Kalibr gyroscope_noise_density)
+  double accel_random_walk = 2.0e-3;            ///< m/s^3/sqrt(Hz) (Kalibr accelerometer_random_walk)
+  double gyro_random_walk = 2.0e-5;             ///< rad/s^2/sqrt(Hz) (Kalibr gyroscope_random_walk)
+  double input_rate_hz = 500.0;                 ///< nominal raw IMU rate, Hz
+  double lowpass_cutoff_hz = 20.0;              ///< Butterworth cutoff, Hz
+  int lowpass_order = 4;                        ///< Butterworth order (even, 2..8; 0 disables filtering)
+  int decimation_factor = 5;                    ///< keep every n-th filtered sample (500 Hz -> 100 Hz)
+  bool compensate_filter_delay = true;          ///< shift output stamps back by the filter's group delay
+  bool lever_arm_compensation = true;           ///< add w x (w x r) for the IMU-camera translation
+  double gravity_mps2 = 9.81;                   ///< magnitude of gravity, m/s^2
+};
+
+struct ProcessNoiseParams {
+  double alpha_inv_m_per_sqrt_s = 0.01;         ///< random-walk density on alpha, (1/m)/sqrt(s)
+  double vartheta_inv_s_per_sqrt_s = 0.05;      ///< random-walk density on vartheta, (1/s)/sqrt(s)
+  double mu_rad_per_sqrt_s = 0.005;             ///< random-walk density on the normal, rad/sqrt(s)
+  double g_rad_per_sqrt_s = 0.001;              ///< random-walk density on gravity, rad/sqrt(s)
+};
+
+struct PreprocessParams {
+  int working_width_px = 90;                    ///< width of the image the update works on, px
+  int working_height_px = 0;                    ///< height, px; 0 keeps the calibration's aspect ratio
+  double blur_sigma_px = 0.8;                   ///< Gaussian blur at working resolution, px (0 = off)
+  bool normalize_brightness = true;             ///< zero-mean, unit-variance intensity per frame
+  int border_px = 1;                            ///< pixels at the border excluded from the update, px
+};
+
+struct PhotometricParams {
+  int max_passes = 3;                           ///< Gauss-Newton passes per image (1 = plain EKF)
+  double stop_threshold = 0.05;                 ///< stop iterating when |delta| < this
+  double intensity_noise_sigma = 0.3;           ///< photometric noise 1-sigma in normalised intensity units
+  bool gradient_weighting = false;              ///< weight pixels by gradient magnitude
+  double huber_threshold = 0.0;                 ///< Huber threshold on residual / sigma (0 = off)
+  double min_valid_ratio = 0.3;                 ///< skip the update if fewer pixels stay in view
+  int pixel_stride = 1;                         ///< use every n-th pixel in x and y
+};
+
+struct FeatureParams {
+  int max_corners = 50;                         ///< corners detected in the reference image
+  double quality_level = 0.01;                  ///< goodFeaturesToTrack quality level
+  double min_distance_px = 5.0;                 ///< minimum corner spacing at working resolution, px
+  int window_px = 11;                           ///< LK window size, px
+  int pyramid_levels = 3;                       ///< LK pyramid levels
+  double pixel_noise_sigma_px = 0.5;            ///< 1-sigma of a tracked corner position, px
+  double huber_threshold_px = 1.0;              ///< Huber threshold on innovation, px
+  int working_width_px = 376;                   ///< resolution the baseline tracks at, px
+};
+
+struct DivergenceParams {
+  double min_distance_m = 0.05;                 ///< reset when d falls below, m
+  double max_distance_m = 50.0;                 ///< reset when d exceeds, m
+  double max_sigma_distance_m = 10.0;           ///< reset when 1-sigma of d exceeds, m
+  double max_photometric_rms = 3.0;             ///< residual RMS considered bad (normalised units)
+  int bad_frames_before_reset = 30;             ///< consecutive bad frames before a reset
+};
+
+struct EstimatorParams {
+  UpdateMode mode = UpdateMode::kIterated;
+  InitParams init;
+  ImuParams imu;
+  ProcessNoiseParams process;
+  PreprocessParams preprocess;
+  PhotometricParams photometric;
+  FeatureParams feature;
+  DivergenceParams divergence;
+  double max_imu_gap_s = 0.05;                  ///< larger IMU gaps are bridged by holding the last sample
+  int max_queued_images = 8;                    ///< images waiting for IMU coverage before the oldest is dropped
+};
+
+/// "iekf" | "ekf" | "lk" -> mode; throws std::invalid_argument naming the value otherwise.
+UpdateMode parseUpdateMode(const std::string& name);
+const char* toString(UpdateMode mode);
+
+}  // namespace diekf

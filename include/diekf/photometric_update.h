@@ -1,0 +1,42 @@
+// Iterated photometric update (ALGORITHM.md §3): whole-image residual between the reference and current
+// working images under the continuous homography of the plane, Gauss-Newton gain in information form.
+#pragma once
+
+#include "diekf/image_preprocessor.h"
+#include "diekf/params.h"
+#include "diekf/state.h"
+
+namespace diekf {
+
+struct UpdateStats {
+  bool applied = false;          ///< false if skipped (too few valid pixels, non-finite system)
+  int passes = 0;                ///< Gauss-Newton passes run
+  double rms_residual = 0.0;     ///< RMS residual at the final estimate
+  double valid_ratio = 0.0;      ///< fraction of pixels inside the bounds mask
+  double last_step_norm = 0.0;   ///< |delta| of the last pass
+};
+
+/// Observed error-state columns: vartheta (3), mu (2), b_w (3).
+using WarpJacobian = Eigen::Matrix<double, 2, 8>;
+
+/// Position in the reference image of current-image pixel (x, y) and its Jacobian w.r.t. the observed error
+/// state [d_vartheta, d_mu, d_b_w]. `gyro_mean_C` is the raw mean gyro over the interval (bias subtracted inside).
+Vec2 warpToReference(const State& x, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s, double px,
+                     double py, WarpJacobian* J = nullptr);
+
+class PhotometricUpdate {
+ public:
+  PhotometricUpdate(const PhotometricParams& params, const PreprocessParams& preprocess);
+  /// Updates x and P in place from the pair (ref, cur) separated by dt_s.
+  UpdateStats update(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PinholeK& K,
+                     const Vec3& gyro_mean_C, double dt_s, State* x, ErrorCov* P);
+  /// Residual I_c(p) - I_r(p_r) at the final estimate of the last update (CV_32FC1, 0 outside the mask).
+  const cv::Mat& residualImage() const { return residual_; }
+
+ private:
+  PhotometricParams params_;
+  PreprocessParams preprocess_;
+  cv::Mat residual_;
+};
+
+}  // namespace diekf

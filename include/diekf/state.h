@@ -1,0 +1,31 @@
+// Filter state x = (alpha, vartheta, mu, g, b_a, b_w), all in the camera frame C, and its manifold operations.
+#pragma once
+
+#include "diekf/types.h"
+#include "diekf/unit_vector.h"
+
+namespace diekf {
+
+struct State {
+  double alpha = 10.0;               ///< inverse distance 1/d to the plane, 1/m
+  Vec3 vartheta = Vec3::Zero();      ///< velocity over distance v/d, 1/s
+  UnitVector mu;                     ///< plane normal, camera -> plane
+  UnitVector g;                      ///< gravity direction (down)
+  Vec3 b_a = Vec3::Zero();           ///< accelerometer bias in C, m/s^2
+  Vec3 b_w = Vec3::Zero();           ///< gyroscope bias in C, rad/s
+
+  /// x [+] delta (vector parts add, S^2 parts use UnitVector::boxplus).
+  State boxplus(const ErrorVec& delta) const;
+  /// this [-] other.
+  ErrorVec boxminus(const State& other) const;
+  /// L = d((this [+] d) [-] ref)/d d at d = 0: identity except the two 2x2 S^2 blocks.
+  ErrorCov boxminusJacobian(const State& ref) const;
+
+  double distance_m() const { return 1.0 / alpha; }
+  Vec3 velocity_mps() const { return vartheta / alpha; }
+  /// Height along gravity h = d / (mu . g), m.
+  double height_m() const { return distance_m() / mu.vector().dot(g.vector()); }
+  bool allFinite() const;
+};
+
+}  // namespace diekf

@@ -1,0 +1,41 @@
+#include "diekf/state.h"
+
+#include <cmath>
+
+namespace diekf {
+
+State State::boxplus(const ErrorVec& delta) const {
+  State out;
+  out.alpha = alpha + delta(ErrIdx::kAlpha);
+  out.vartheta = vartheta + delta.segment<3>(ErrIdx::kVartheta);
+  out.mu = mu.boxplus(delta.segment<2>(ErrIdx::kMu));
+  out.g = g.boxplus(delta.segment<2>(ErrIdx::kG));
+  out.b_a = b_a + delta.segment<3>(ErrIdx::kBa);
+  out.b_w = b_w + delta.segment<3>(ErrIdx::kBw);
+  return out;
+}
+
+ErrorVec State::boxminus(const State& other) const {
+  ErrorVec e;
+  e(ErrIdx::kAlpha) = alpha - other.alpha;
+  e.segment<3>(ErrIdx::kVartheta) = vartheta - other.vartheta;
+  e.segment<2>(ErrIdx::kMu) = mu.boxminus(other.mu);
+  e.segment<2>(ErrIdx::kG) = g.boxminus(other.g);
+  e.segment<3>(ErrIdx::kBa) = b_a - other.b_a;
+  e.segment<3>(ErrIdx::kBw) = b_w - other.b_w;
+  return e;
+}
+
+ErrorCov State::boxminusJacobian(const State& ref) const {
+  ErrorCov L = ErrorCov::Identity();
+  L.block<2, 2>(ErrIdx::kMu, ErrIdx::kMu) = mu.boxminusJacobian(ref.mu);
+  L.block<2, 2>(ErrIdx::kG, ErrIdx::kG) = g.boxminusJacobian(ref.g);
+  return L;
+}
+
+bool State::allFinite() const {
+  return std::isfinite(alpha) && vartheta.allFinite() && mu.quaternion().coeffs().allFinite() &&
+         g.quaternion().coeffs().allFinite() && b_a.allFinite() && b_w.allFinite();
+}
+
+}  // namespace diekf
