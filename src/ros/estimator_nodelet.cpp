@@ -80,7 +80,14 @@ void EstimatorNodelet::onInit() {
   setUpOutputs();
   ready_ = true;
   worker_ = std::thread(&EstimatorNodelet::workerLoop, this);
-  setUpInputs();
+  try {
+    setUpInputs();
+  } catch (const std::exception& e) {  // e.g. the requested image_transport plugin is not installed
+    ready_ = false;
+    init_error_ = std::string("cannot subscribe to the inputs: ") + e.what();
+    NODELET_FATAL("diekf: %s", init_error_.c_str());
+    return;
+  }
   NODELET_INFO("diekf: %s, camera '%s' %dx%d from %s; image %s, IMU %s, mode %s", getName().c_str(),
                settings_.camera_name.c_str(), camera_->K.width, camera_->K.height, settings_.camchain_file.c_str(),
                settings_.image_topic.c_str(), settings_.imu_topic.c_str(), diekf::toString(params_.mode));
@@ -412,6 +419,10 @@ void EstimatorNodelet::drainResults() {
 }
 
 void EstimatorNodelet::publishResult(const diekf::FrameResult& r) {
+  if (!(std::isfinite(r.t_s) && r.t_s >= 0.0)) {
+    NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: estimate with an invalid stamp (%f s) not published", r.t_s);
+    return;
+  }
   std_msgs::Header header;
   header.stamp = ros::Time(r.t_s);
   header.frame_id = settings_.camera_frame;
@@ -431,6 +442,9 @@ void EstimatorNodelet::publishResult(const diekf::FrameResult& r) {
     range_pub_.publish(range);
   }
 
+  // After the estimator's own divergence reset the velocity starts again from its prior: do not integrate
+  // across (x, y and yaw stay where they were).
+  if (r.status == diekf::FilterStatus::kReset) odometry_->restart();
   const BodyPose& pose = odometry_->addFrame(r.t_s, r.state, r.covariance);
   nav_msgs::Odometry odom;
   if (fillOdometry(pose, settings_.odom_frame, settings_.base_frame, &odom)) {
