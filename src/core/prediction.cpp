@@ -149,13 +149,23 @@ void predict(const Vec3& accel_C, const Vec3& gyro_C, double dt_s, const ImuPara
   *x = out;
 
   const NoiseVec sigma = discreteNoiseSigmas(imu, process, dt_s);
-  // G Q G^T with Q diagonal: scale G's columns by sigma, then multiply by its own transpose.
-  const NoiseJacobian Gs = G * sigma.asDiagonal();
-  ErrorCov FP;
-  FP.noalias() = F * (*P);
+  // Exploit the structure: the bias rows of F are [0 I] and the bias rows of G only hold the random-walk
+  // identities (whose columns are zero in the other rows). With F_top the first 8 rows of F and X = F_top P:
+  //   P'_top,top = X F_top^T + G_top Q G_top^T,  P'_top,bias = X_bias,  P'_bias,bias = P_bias,bias + Q_walk.
+  constexpr int kTop = ErrIdx::kBa;  // alpha, vartheta, mu, g
+  constexpr int kBias = kErrorDim - kTop;
+  const Eigen::Matrix<double, kTop, kErrorDim> F_top = F.topRows<kTop>();
+  const Eigen::Matrix<double, kTop, kNoiseDim> Gs_top = G.topRows<kTop>() * sigma.asDiagonal();
+  Eigen::Matrix<double, kTop, kErrorDim> X;
+  X.noalias() = F_top * (*P);
   ErrorCov Pn;
-  Pn.noalias() = FP * F.transpose();
-  Pn.noalias() += Gs * Gs.transpose();
+  Pn.topLeftCorner<kTop, kTop>().noalias() = X * F_top.transpose();
+  Pn.topLeftCorner<kTop, kTop>().noalias() += Gs_top * Gs_top.transpose();
+  Pn.topRightCorner<kTop, kBias>() = X.rightCols<kBias>();
+  Pn.bottomLeftCorner<kBias, kTop>() = X.rightCols<kBias>().transpose();
+  Pn.bottomRightCorner<kBias, kBias>() = P->bottomRightCorner<kBias, kBias>();
+  Pn.diagonal().segment<3>(ErrIdx::kBa) += sigma.segment<3>(NoiseIdx::kBaWalk).cwiseAbs2();
+  Pn.diagonal().segment<3>(ErrIdx::kBw) += sigma.segment<3>(NoiseIdx::kBwWalk).cwiseAbs2();
   *P = 0.5 * (Pn + Pn.transpose());
 }
 

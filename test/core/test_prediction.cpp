@@ -216,6 +216,32 @@ TEST(Prediction, NoiseGrowthIndependentOfStepSize) {
   EXPECT_DOUBLE_EQ(x.alpha, State().alpha);
 }
 
+TEST(Prediction, CovarianceStepEqualsDenseFormula) {
+  // predict() exploits the structure of F and G; it must equal F P F^T + G Q G^T computed densely.
+  std::mt19937 rng(13);
+  std::normal_distribution<double> n(0.0, 1.0);
+  ImuParams imu;
+  imu.gravity_mps2 = kG0;
+  ProcessNoiseParams proc;
+  for (int trial = 0; trial < 5; ++trial) {
+    const Case c = randomCase(rng, 0.01, 1.0);
+    Eigen::Matrix<double, kErrorDim, kErrorDim> A;
+    for (int i = 0; i < kErrorDim; ++i)
+      for (int j = 0; j < kErrorDim; ++j) A(i, j) = n(rng);
+    const ErrorCov P0 = A * A.transpose() * 0.01 + ErrorCov::Identity() * 1e-3;
+    ErrorCov F;
+    NoiseJacobian G;
+    predictionJacobians(c.x, c.accel_C, c.gyro_C, c.dt_s, kG0, &F, &G);
+    const NoiseVec sigma = discreteNoiseSigmas(imu, proc, c.dt_s);
+    const ErrorCov expected = F * P0 * F.transpose() + G * sigma.cwiseAbs2().asDiagonal() * G.transpose();
+    State x = c.x;
+    ErrorCov P = P0;
+    predict(c.accel_C, c.gyro_C, c.dt_s, imu, proc, &x, &P);
+    EXPECT_LT((P - expected).cwiseAbs().maxCoeff(), 1e-12 * expected.cwiseAbs().maxCoeff());
+    EXPECT_LT(x.boxminus(predictState(c.x, c.accel_C, c.gyro_C, c.dt_s, kG0)).norm(), 1e-15);
+  }
+}
+
 TEST(Prediction, CovarianceStaysSymmetricPositiveDefinite) {
   std::mt19937 rng(12);
   std::normal_distribution<double> n(0.0, 1.0);
