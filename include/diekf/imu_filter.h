@@ -60,7 +60,6 @@ class ImuPreprocessor {
   bool primed_ = false;
   int counter_ = 0;
   Vec3 last_gyro_C_ = Vec3::Zero();  // filtered gyro of the previous raw sample, rad/s
-  double last_t_s_ = 0.0;            // stamp of the previous raw sample, s
 };
 
 }  // namespace diekf

@@ -89,7 +89,6 @@ void ImuPreprocessor::reset() {
     st.z2.setZero();
   }
   last_gyro_C_.setZero();
-  last_t_s_ = 0.0;
 }
 
 void ImuPreprocessor::prime(const Vec6& in) {
@@ -134,7 +133,6 @@ bool ImuPreprocessor::push(const ImuSample& raw_imu, ImuSample* out) {
   // Backward difference at the nominal input period (robust to stamp jitter; the filter is designed for it).
   const Vec3 w_dot = (w - last_gyro_C_) * params_.input_rate_hz;  // rad/s^2
   last_gyro_C_ = w;
-  last_t_s_ = raw_imu.t_s;
 
   const bool emit = (counter_ == 0);
   counter_ = (counter_ + 1) % params_.decimation_factor;
