@@ -9,7 +9,8 @@
 //   weights w_i = 1/n + d (x_i - m) / sum_k (x_k - m)^2   (m = mean tap position, d = c - m),
 // so the weights sum to one and the weighted tap centroid is exactly c (up to the 1/16 px quantisation of d
 // that lets pixels share tap sets). With n = 2, step = 1 this is bilinear interpolation. Per frame the
-// resampling is one pass over a table of (base offset, x tap set, y tap set), 8 bytes per working pixel.
+// resampling is one pass over a table of (output index, base offset, x tap set, y tap set), 12 bytes per
+// working pixel, grouped by tap counts so each group runs an unrolled kernel.
 //
 // Then, at working resolution: separable Gaussian blur (radius ceil(3 sigma), replicated border), brightness
 // normalisation (zero mean, unit variance; a uniform image gives zeros), central-difference gradients.
