@@ -225,11 +225,11 @@ Entry vec3(const std::string& key, std::function<Vec3&(EstimatorParams&)> field,
 }
 
 UpdateMode modeFromName(const std::string& origin, const std::string& key, const std::string& name) {
-  // Same names as parseUpdateMode (params.h).
-  if (name == "iekf") return UpdateMode::kIterated;
-  if (name == "ekf") return UpdateMode::kEkf;
-  if (name == "lk") return UpdateMode::kFeature;
-  failKey(origin, key, "unknown mode '" + name + "' (expected iekf, ekf or lk)");
+  try {
+    return parseUpdateMode(name);
+  } catch (const std::invalid_argument& e) {
+    failKey(origin, key, e.what());
+  }
 }
 
 #define DIEKF_FIELD(type, expr) [](EstimatorParams& p) -> type& { return p.expr; }
