@@ -46,6 +46,10 @@ class Renderer {
   cv::Mat applySensor(const std::vector<float>& radiance, double gain, const SensorOptions& opt,
                       std::uint64_t noise_seed) const;
 
+  /// renderRadiance + applySensor, both split over the render threads.
+  cv::Mat renderImage(const std::vector<CameraPose>& poses, const Plane& plane, const Texture& tex, double gain,
+                      const SensorOptions& opt, std::uint64_t noise_seed) const;
+
   /// Largest image displacement (pixels) of ground points seen at `a` when viewed from `b` (sampled grid).
   double motionPixels(const CameraPose& a, const CameraPose& b, const Plane& plane) const;
 
@@ -58,6 +62,8 @@ class Renderer {
     float footprint;     // |r| * angular size of the pixel (rad)
     float inv_norm;      // 1 / |r|
   };
+  void sensorRows(const float* radiance, double gain, const SensorOptions& opt, std::uint64_t noise_seed,
+                  cv::Mat* img, int row0, int row1) const;
   void renderRows(const std::vector<CameraPose>& poses, const Plane& plane, const Texture& tex, float* out,
                   int row0, int row1) const;
 

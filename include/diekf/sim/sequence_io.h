@@ -30,16 +30,17 @@ struct TopicNames {
   std::string world_frame = "world";
 };
 
-/// MYNT EYE S left camera (752x480, radtan) with a downward mount: R_CI = diag(1, -1, -1) (camera x = IMU x,
-/// i.e. the image is turned 90 deg about the optical axis against a "forward = image up" mount) slightly
-/// misaligned, the camera a few cm from the IMU. `scale` scales the resolution and intrinsics (tests).
+/// MYNT EYE S left camera (752x480, radtan) looking down from a flat-mounted IMU (x forward, y left, z up):
+/// x_C = y_I, y_C = x_I, z_C = -z_I (turned 90 deg about the optical axis against the IMU axes), misaligned by
+/// ~0.8 deg, camera centre a few cm from the IMU. `scale` scales the resolution and intrinsics (tests).
 CameraModel myntEyeSimCamera(double scale = 1.0);
 
 /// Kalibr camchain YAML with cam0 (throws std::runtime_error naming the file on failure).
 void writeCamchainYaml(const std::string& path, const CameraModel& cam, const std::string& rostopic);
 /// Kalibr IMU YAML (noise densities, random walks, update rate, topic).
 void writeImuYaml(const std::string& path, const ImuNoiseParams& noise, const std::string& rostopic);
-/// Reads the noise densities and rate of a Kalibr IMU YAML; throws naming the file and key.
+/// Reads the noise densities and rate of a Kalibr IMU YAML (flat, or nested under imu0); throws naming the
+/// file and key.
 ImuNoiseParams readImuYaml(const std::string& path);
 
 /// Stamp on the bag clock: `start_s` + `t_s` with nanosecond rounding.

@@ -27,7 +27,7 @@ struct SimulationOptions {
   double fps = 30.0;                ///< image rate (Hz)
   double exposure_ms = 4.0;         ///< exposure time (ms); motion blur integrates over it
   int max_subframes = 8;            ///< cap on sub-frame renders per image
-  double blur_step_px = 0.75;       ///< image motion between two sub-frames (px)
+  double blur_step_px = 1.0;        ///< image motion between two sub-frames (px)
   double scale = 1.0;               ///< resolution/intrinsics scale of the 752x480 camera
   int threads = 2;
   double gain_ramp = 0.0;           ///< slow brightness change: relative amplitude (e.g. 0.2 = +-20 %)

@@ -31,6 +31,9 @@ class Texture {
   inline float sample(double u_m, double v_m, float footprint_m) const;
   /// Bilinear sample of one pyramid level.
   inline float sampleLevel(int level, double u_m, double v_m) const;
+  /// Fast path: trilinear sample at level-0 texel coordinates (xt = u / texelU, yt = v / texelV; texel i's
+  /// centre at i + 0.5) and level of detail `lod` = log2(footprint / texel size).
+  inline float sampleTexel(float xt, float yt, float lod) const;
 
   int levels() const { return static_cast<int>(levels_.size()); }
   int width(int level = 0) const { return levels_[level].w; }
@@ -40,14 +43,17 @@ class Texture {
   double tileV() const { return texel_v_m_ * levels_[0].h; }  ///< tile period along v (m)
   double texelV() const { return texel_v_m_; }
   float mean() const { return mean_; }
+  float invTexelGeo() const { return inv_texel_geo_m_; }  ///< 1 / sqrt(texelU texelV) (1/m)
   const std::vector<float>& data(int level = 0) const { return levels_[level].px; }
 
  private:
   struct Level {
     int w = 0, h = 0;
     double inv_su = 0.0, inv_sv = 0.0;  // 1 / texel size at this level (1/m)
+    float sx = 1.f, sy = 1.f;           // level-0 texel coordinates -> this level's
     std::vector<float> px;
   };
+  inline float bilinearTexel(const Level& L, float xt, float yt) const;
   std::vector<Level> levels_;
   double texel_u_m_ = 0.0, texel_v_m_ = 0.0;
   float inv_texel_geo_m_ = 0.f;  // 1 / sqrt(su sv)
@@ -79,6 +85,35 @@ inline float Texture::sampleLevel(int level, double u_m, double v_m) const {
   const float a = r0[x0] + fx * (r0[x1] - r0[x0]);
   const float b = r1[x0] + fx * (r1[x1] - r1[x0]);
   return a + fy * (b - a);
+}
+
+inline float Texture::bilinearTexel(const Level& L, float xt, float yt) const {
+  float x = xt * L.sx - 0.5f, y = yt * L.sy - 0.5f;
+  x = x < -1e9f ? -1e9f : (x > 1e9f ? 1e9f : x);
+  y = y < -1e9f ? -1e9f : (y > 1e9f ? 1e9f : y);
+  int ix = static_cast<int>(x), iy = static_cast<int>(y);
+  ix -= (x < static_cast<float>(ix));  // floor
+  iy -= (y < static_cast<float>(iy));
+  const float fx = x - static_cast<float>(ix), fy = y - static_cast<float>(iy);
+  const int mw = L.w - 1, mh = L.h - 1;
+  const int x0 = ix & mw, y0 = iy & mh, x1 = (x0 + 1) & mw, y1 = (y0 + 1) & mh;
+  const float* r0 = L.px.data() + static_cast<std::size_t>(y0) * L.w;
+  const float* r1 = L.px.data() + static_cast<std::size_t>(y1) * L.w;
+  const float a = r0[x0] + fx * (r0[x1] - r0[x0]);
+  const float b = r1[x0] + fx * (r1[x1] - r1[x0]);
+  return a + fy * (b - a);
+}
+
+inline float Texture::sampleTexel(float xt, float yt, float lod) const {
+  if (!(lod > 0.f)) return bilinearTexel(levels_[0], xt, yt);
+  const int top = static_cast<int>(levels_.size()) - 1;
+  if (lod >= static_cast<float>(top)) return bilinearTexel(levels_[top], xt, yt);
+  const int l0 = static_cast<int>(lod);
+  const float f = lod - static_cast<float>(l0);
+  const float a = bilinearTexel(levels_[l0], xt, yt);
+  if (f < 1.f / 64.f) return a;
+  const float b = bilinearTexel(levels_[l0 + 1], xt, yt);
+  return a + f * (b - a);
 }
 
 inline float Texture::sample(double u_m, double v_m, float footprint_m) const {

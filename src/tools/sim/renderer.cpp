@@ -91,31 +91,34 @@ void Renderer::renderRows(const std::vector<CameraPose>& poses, const Plane& pla
   const Eigen::Vector3d origin = -plane.e_m * plane.n;  // a point on the plane (texture origin)
   const float inv_n = 1.0f / static_cast<float>(poses.size());
   const float miss = tex.mean();
+  const double isu = 1.0 / tex.texelU(), isv = 1.0 / tex.texelV();
   for (std::size_t k = 0; k < poses.size(); ++k) {
     const CameraPose& P = poses[k];
+    // Everything in level-0 texel units: X(r) = p + lambda R r, lambda = -dist / (n_C . r).
     const Eigen::Vector3d nC = P.R_WC.transpose() * plane.n;
-    const Eigen::Vector3d aC = P.R_WC.transpose() * t1, bC = P.R_WC.transpose() * t2;
+    const Eigen::Vector3d aC = P.R_WC.transpose() * t1 * isu, bC = P.R_WC.transpose() * t2 * isv;
     const double dist = plane.n.dot(P.p_WC) + plane.e_m;  // > 0 on the normal's side
-    const double uc = std::fmod(t1.dot(P.p_WC - origin), tex.tileU());
-    const double vc = std::fmod(t2.dot(P.p_WC - origin), tex.tileV());
-    const double nx = nC.x(), ny = nC.y(), nz = nC.z();
-    const double ax = aC.x(), ay = aC.y(), az = aC.z(), bx = bC.x(), by = bC.y(), bz = bC.z();
+    const float uc = static_cast<float>(std::fmod(t1.dot(P.p_WC - origin), tex.tileU()) * isu);
+    const float vc = static_cast<float>(std::fmod(t2.dot(P.p_WC - origin), tex.tileV()) * isv);
+    const float nx = static_cast<float>(nC.x()), ny = static_cast<float>(nC.y()), nz = static_cast<float>(nC.z());
+    const float ax = static_cast<float>(aC.x()), ay = static_cast<float>(aC.y()), az = static_cast<float>(aC.z());
+    const float bx = static_cast<float>(bC.x()), by = static_cast<float>(bC.y()), bz = static_cast<float>(bC.z());
+    const float fdist = static_cast<float>(dist), fp_scale = tex.invTexelGeo();
+    const bool above = dist > 0.0;
     for (int v = row0; v < row1; ++v) {
       const RayEntry* re = &rays_[static_cast<std::size_t>(v) * width_];
       float* o = out + static_cast<std::size_t>(v) * width_;
       for (int u = 0; u < width_; ++u) {
         const RayEntry& e = re[u];
-        const double dn = nx * e.x + ny * e.y + nz;  // n . r (r = (x, y, 1) in C)
-        float val;
-        if (dist > 0.0 && dn < -1e-9) {
-          const double lambda = -dist / dn;
-          const double uu = uc + lambda * (ax * e.x + ay * e.y + az);
-          const double vv = vc + lambda * (bx * e.x + by * e.y + bz);
-          const float cos_inc = static_cast<float>(-dn) * e.inv_norm;
-          const float fp = static_cast<float>(lambda) * e.footprint / std::sqrt(cos_inc);
-          val = tex.sample(uu, vv, fp);
-        } else {
-          val = miss;
+        const float dn = nx * e.x + ny * e.y + nz;  // n . r (r = (x, y, 1) in C)
+        float val = miss;
+        if (above && dn < -1e-6f) {
+          const float lambda = -fdist / dn;
+          const float xt = uc + lambda * (ax * e.x + ay * e.y + az);
+          const float yt = vc + lambda * (bx * e.x + by * e.y + bz);
+          // Footprint: distance x angular size, stretched by 1/sqrt(cos incidence) (area-equivalent side).
+          const float fp = lambda * e.footprint * fp_scale / std::sqrt(-dn * e.inv_norm);
+          val = tex.sampleTexel(xt, yt, fastLog2(fp));
         }
         if (k == 0)
           o[u] = val * inv_n;
@@ -147,21 +150,43 @@ void Renderer::renderRadiance(const std::vector<CameraPose>& poses, const Plane&
 cv::Mat Renderer::applySensor(const std::vector<float>& radiance, double gain, const SensorOptions& opt,
                               std::uint64_t noise_seed) const {
   cv::Mat img(height_, width_, CV_8UC1);
+  sensorRows(radiance.data(), gain, opt, noise_seed, &img, 0, height_);
+  return img;
+}
+
+void Renderer::sensorRows(const float* radiance, double gain, const SensorOptions& opt, std::uint64_t noise_seed,
+                          cv::Mat* img, int row0, int row1) const {
   const float g = static_cast<float>(gain), vig = static_cast<float>(opt.vignetting);
   const float read2 = static_cast<float>(opt.read_noise_dn * opt.read_noise_dn);
   const float shot = static_cast<float>(opt.shot_noise_dn);
-  for (int v = 0; v < height_; ++v) {
+  for (int v = row0; v < row1; ++v) {
     const std::size_t off = mix(noise_seed * 1000003ull + static_cast<std::uint64_t>(v)) % (kNoiseTableSize - width_);
     const float* nz = &noise_table_[off];
-    const float* rad = &radiance[static_cast<std::size_t>(v) * width_];
+    const float* rad = radiance + static_cast<std::size_t>(v) * width_;
     const float* r2 = &vignette_r2_[static_cast<std::size_t>(v) * width_];
-    unsigned char* row = img.ptr<unsigned char>(v);
+    unsigned char* row = img->ptr<unsigned char>(v);
     for (int u = 0; u < width_; ++u) {
       float s = g * (1.0f - vig * r2[u]) * rad[u];
       if (opt.noise) s += nz[u] * std::sqrt(read2 + shot * std::max(s, 0.0f));
       row[u] = static_cast<unsigned char>(std::clamp(s + 0.5f, 0.0f, 255.0f));
     }
   }
+}
+
+cv::Mat Renderer::renderImage(const std::vector<CameraPose>& poses, const Plane& plane, const Texture& tex,
+                              double gain, const SensorOptions& opt, std::uint64_t noise_seed) const {
+  if (poses.empty()) throw std::invalid_argument("renderImage: no pose");
+  cv::Mat img(height_, width_, CV_8UC1);
+  std::vector<float> rad(static_cast<std::size_t>(width_) * height_);
+  const auto work = [&](int r0, int r1) {
+    renderRows(poses, plane, tex, rad.data(), r0, r1);
+    sensorRows(rad.data(), gain, opt, noise_seed, &img, r0, r1);
+  };
+  const int n = std::min(threads_, height_);
+  std::vector<std::thread> pool;
+  for (int i = 1; i < n; ++i) pool.emplace_back(work, height_ * i / n, height_ * (i + 1) / n);
+  work(0, height_ / std::max(n, 1));
+  for (auto& t : pool) t.join();
   return img;
 }
 

@@ -45,9 +45,10 @@ CameraModel myntEyeSimCamera(double scale) {
   cam.K.height = static_cast<int>(std::lround(480 * scale));
   cam.distortion = DistortionModel::kRadTan;
   cam.distortion_coeffs = Vec4(-0.3178, 0.0962, -0.00011, 0.00033);
-  // IMU frame: x forward, y left, z up. Camera looks down (z_C = -z_I), x_C = x_I, y_C = -y_I.
+  // IMU frame (flat-mounted): x forward, y left, z up. Camera looks down (z_C = -z_I) and is turned 90 deg
+  // about its optical axis against the IMU: x_C = y_I (image right = body left), y_C = x_I (image down = forward).
   Mat3 R_CI;
-  R_CI << 1, 0, 0, 0, -1, 0, 0, 0, -1;
+  R_CI << 0, 1, 0, 1, 0, 0, 0, 0, -1;
   // Mounting error ~1 deg about a fixed oblique axis.
   const Mat3 R_err = Eigen::AngleAxisd(0.8 * M_PI / 180.0, Vec3(0.6, -0.3, 0.74).normalized()).toRotationMatrix();
   R_CI = R_err * R_CI;
@@ -99,6 +100,7 @@ ImuNoiseParams readImuYaml(const std::string& path) {
   } catch (const std::exception& e) {
     throw std::runtime_error("cannot parse '" + path + "': " + e.what());
   }
+  if (root["imu0"]) root = root["imu0"];  // camchain-imucam style nesting is accepted too
   ImuNoiseParams n;
   const auto get = [&](const char* key, double* out) {
     if (!root[key]) throw std::runtime_error("'" + path + "': missing key '" + key + "'");

@@ -297,7 +297,6 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
     }
   };
 
-  std::vector<float> radiance;
   std::vector<CameraPose> subposes;
   long subframes_total = 0;
   for (int f = 0; f < n_frames; ++f) {
@@ -326,8 +325,8 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
       subposes.push_back(cameraPose(traj.evaluate(ts), cam));
     }
     subframes_total += n_sub;
-    renderer.renderRadiance(subposes, plane, tex, &radiance);
-    const cv::Mat img = renderer.applySensor(radiance, gain, opt.sensor, opt.seed * 7919ull + static_cast<std::uint64_t>(f));
+    const cv::Mat img =
+        renderer.renderImage(subposes, plane, tex, gain, opt.sensor, opt.seed * 7919ull + static_cast<std::uint64_t>(f));
     const std::int64_t stamp = clock.toNs(t);
     if (opt.camera_info) bag.writeCameraInfo(stamp, cam, static_cast<std::uint32_t>(f));
     bag.writeImage(stamp, img, static_cast<std::uint32_t>(f));

@@ -97,6 +97,8 @@ Texture::Texture(std::vector<float> level0, int width, int height, double texel_
     n.h = p.h / fy;
     n.inv_su = p.inv_su / fx;
     n.inv_sv = p.inv_sv / fy;
+    n.sx = p.sx / fx;
+    n.sy = p.sy / fy;
     n.px.resize(static_cast<std::size_t>(n.w) * n.h);
     for (int y = 0; y < n.h; ++y)
       for (int x = 0; x < n.w; ++x) {

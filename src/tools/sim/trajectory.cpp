@@ -67,6 +67,9 @@ void motion(const TrajectoryParams& p, double t, Eigen::Vector3d m[4]) {
   m[3] = s3 * raw[0] + 3 * s2 * raw[1] + 3 * s1 * raw[2] + s[0] * raw[3];
 }
 
+/// Peak acceleration of a dash with peak speed v (m/s^2): faster dashes are also more aggressive.
+double dashAccelLimit(double v_mps) { return 2.0 + 1.5 * v_mps; }
+
 }  // namespace
 
 Plane Plane::inclined(double incline_deg, double axis_azimuth_deg) {
@@ -227,7 +230,12 @@ TrajectoryParams makePresetTrajectory(const PresetSpec& spec, double duration_s,
   // Dashes: about one per 20 s, spread over the flight after the fade-in, random horizontal directions.
   const double t_start = P.hover_s + P.ramp_s + 3.0;
   const double t_end = duration_s - 3.0;
-  const int n_dash = t_end > t_start ? std::max(1, static_cast<int>(std::round(duration_s / 20.0))) : 0;
+  // A Gaussian dash of peak speed v and width tau adds about 2.41 v^2 tau (m^2/s) to the integral of speed^2:
+  // keep the dashes below ~half of the target mean-square speed, at most one per 20 s.
+  const double v_d = spec.max_speed_mps, tau_d = v_d / (std::exp(-0.5) * dashAccelLimit(v_d));
+  const double dash_energy = 2.41 * v_d * v_d * tau_d;
+  const int n_by_energy = static_cast<int>(0.5 * spec.rms_speed_mps * spec.rms_speed_mps * duration_s / dash_energy);
+  const int n_dash = t_end > t_start ? std::clamp(n_by_energy, 1, std::max(1, static_cast<int>(duration_s / 20.0))) : 0;
   std::vector<Eigen::Vector3d> dash_dirs;
   for (int i = 0; i < n_dash; ++i) {
     DashTerm d;
@@ -244,7 +252,7 @@ TrajectoryParams makePresetTrajectory(const PresetSpec& spec, double duration_s,
   std::vector<SineTerm> base(P.sines.begin(), P.sines.end());
   for (int iter = 0; iter < 40; ++iter) {
     for (std::size_t i = n_vertical; i < P.sines.size(); ++i) P.sines[i].amplitude_m = base[i].amplitude_m * sine_scale;
-    const double a_lim = 2.0 + 1.1 * dash_speed;  // peak dash acceleration (m/s^2)
+    const double a_lim = dashAccelLimit(dash_speed);
     for (std::size_t i = 0; i < P.dashes.size(); ++i) {
       DashTerm& d = P.dashes[i];
       d.tau_s = std::max(0.2, dash_speed / (std::exp(-0.5) * a_lim));
