@@ -130,20 +130,21 @@ Texture Texture::natural(std::uint64_t seed, double texel_m, int tile_px) {
   std::uniform_real_distribution<double> uni(0.0, 1.0);
   std::vector<float> img(static_cast<std::size_t>(n) * n, 0.f);
 
-  // Soil / dirt: fBm from ~0.5 m down to a few texels.
-  float amp = 1.0f;
+  // Soil / dirt: value-noise octaves with feature sizes from ~0.5 m down to a few texels; the centimetre
+  // scales carry most of the energy (the patterns the camera tracks), the large scales give gentle shading.
   for (int cells = 8; cells <= n / 2; cells *= 2) {
+    const double feature_m = texel_m * n / cells;
+    const float amp = feature_m > 0.12 ? 0.3f : feature_m > 0.012 ? 0.5f : feature_m > 0.005 ? 0.3f : 0.15f;
     addValueNoise(&img, n, n, cells, amp, &rng);
-    amp *= 0.6f;
   }
   const double tile_m = n * texel_m;
   const double px_per_m = 1.0 / texel_m;
 
   // Leaf blobs: soft ellipses 1-6 cm, darker or lighter than the soil, with a midrib.
-  const int n_leaves = static_cast<int>(250.0 * tile_m * tile_m);
+  const int n_leaves = static_cast<int>(450.0 * tile_m * tile_m);
   for (int i = 0; i < n_leaves; ++i) {
     const double cx = uni(rng) * n, cy = uni(rng) * n;
-    const double a = (0.01 + 0.05 * uni(rng) * uni(rng)) * px_per_m * 0.5;  // semi-major (px)
+    const double a = (0.02 + 0.06 * uni(rng) * uni(rng)) * px_per_m * 0.5;  // semi-major (px)
     const double b = a * (0.3 + 0.4 * uni(rng));
     const double th = uni(rng) * 2.0 * M_PI, c = std::cos(th), s = std::sin(th);
     const float delta = static_cast<float>((uni(rng) < 0.6 ? -1.0 : 1.0) * (0.6 + 0.9 * uni(rng)));
@@ -156,7 +157,7 @@ Texture Texture::natural(std::uint64_t seed, double texel_m, int tile_px) {
     });
   }
   // Grass blades: thin strokes 2-8 cm, mostly lighter, 1-2 texels wide.
-  const int n_blades = static_cast<int>(1200.0 * tile_m * tile_m);
+  const int n_blades = static_cast<int>(1500.0 * tile_m * tile_m);
   for (int i = 0; i < n_blades; ++i) {
     const double cx = uni(rng) * n, cy = uni(rng) * n;
     const double len = (0.02 + 0.06 * uni(rng)) * px_per_m;
