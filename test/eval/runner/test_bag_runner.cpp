@@ -207,7 +207,9 @@ TEST(BagRunner, SyntheticFlightProducesEstimatesGroundTruthAndEvaluation) {
   int updated = 0;
   for (std::size_t i = 0; i < est.size(); ++i) {
     EXPECT_TRUE(est[i].allFinite()) << "row " << i;
-    if (i > 0) EXPECT_GT(est[i].t_s, est[i - 1].t_s);
+    if (i > 0) {
+      EXPECT_GT(est[i].t_s, est[i - 1].t_s);
+    }
     EXPECT_GE(est[i].t_s, kT0);
     if (est[i].updateApplied()) ++updated;
   }
