@@ -96,18 +96,34 @@ BagTopics listTopics(const rosbag::Bag& bag) {
   return topics;
 }
 
+/// The topic to read: the explicit one; else the calibration file's, then the MYNT EYE default, then the bag's only
+/// topic of that type. Throws naming what was looked for and listing the bag's topics when none fits.
 std::string chooseTopic(const std::string& explicit_topic, const std::string& calibration_topic,
                         const char* fallback, const char* type, const char* what, const BagTopics& topics,
-                        const std::string& bag_path) {
-  std::string topic = explicit_topic;
-  if (topic.empty()) {
-    topic = (!calibration_topic.empty() && topics.has(calibration_topic, type)) ? calibration_topic : fallback;
+                        const std::string& bag_path, bool quiet) {
+  std::vector<std::string> tried;
+  if (!explicit_topic.empty()) {
+    if (topics.has(explicit_topic, type)) return explicit_topic;
+    tried.push_back(explicit_topic);
+  } else {
+    for (const std::string& candidate : {calibration_topic, std::string(fallback)}) {
+      if (candidate.empty()) continue;
+      if (topics.has(candidate, type)) return candidate;
+      tried.push_back(candidate);
+    }
+    std::vector<std::string> of_type;
+    for (const auto& kv : topics.type_of) {
+      if (kv.second == type) of_type.push_back(kv.first);
+    }
+    if (of_type.size() == 1) {
+      if (!quiet) std::cerr << kProgram << ": using the bag's only " << type << " topic " << of_type[0] << "\n";
+      return of_type[0];
+    }
   }
-  if (!topics.has(topic, type)) {
-    throw RunError("bag '" + bag_path + "' has no " + what + " topic '" + topic + "' of type " + type +
-                   "; its topics: " + topics.describe());
-  }
-  return topic;
+  std::string looked;
+  for (const std::string& t : tried) looked += (looked.empty() ? "'" : " or '") + t + "'";
+  throw RunError("bag '" + bag_path + "' has no " + what + " topic " + looked + " of type " + type +
+                 "; its topics: " + topics.describe());
 }
 
 double stampOf(const ros::Time& header_stamp, const ros::Time& record_time) {
@@ -209,9 +225,9 @@ int run(const RunnerOptions& o) {
   }
   const BagTopics topics = listTopics(bag);
   const std::string image_topic = chooseTopic(o.image_topic, camera.rostopic, kDefaultImageTopic,
-                                              "sensor_msgs/Image", "image", topics, o.bag);
+                                              "sensor_msgs/Image", "image", topics, o.bag, o.quiet);
   const std::string imu_topic = chooseTopic(o.imu_topic, o.imu.empty() ? std::string() : kalibrImuTopic(o.imu),
-                                            kDefaultImuTopic, "sensor_msgs/Imu", "IMU", topics, o.bag);
+                                            kDefaultImuTopic, "sensor_msgs/Imu", "IMU", topics, o.bag, o.quiet);
   const bool has_poses = topics.has(o.pose_topic, "geometry_msgs/PoseStamped");
   const bool has_plane = topics.has(o.plane_topic, "shape_msgs/Plane");
 
