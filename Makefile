@@ -20,8 +20,7 @@ APT_PACKAGES := build-essential cmake catkin ros-base-dev libnodeletlib-dev libc
   libyaml-cpp-dev libgtest-dev libgmock-dev libbenchmark-dev python3-matplotlib python3-numpy python3-yaml \
   ros-message-generation ros-message-runtime libdiagnostic-updater-dev libstd-srvs-dev \
   libnav-msgs-dev libshape-msgs-dev libvisualization-msgs-dev libdiagnostic-msgs-dev \
-  libtf2-geometry-msgs-dev python3-rosbag python3-rostest python3-roslaunch libnodeletlib-tools valgrind \
-  python3-tf2-msgs image-transport-tools
+  libtf2-geometry-msgs-dev python3-rosbag python3-rostest python3-roslaunch libnodeletlib-tools ros-base-python-dev rosbash valgrind
 
 .PHONY: all deps workspace build test demo benchmark benchmark-core clean
 

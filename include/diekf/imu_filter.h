@@ -1,6 +1,17 @@
 // IMU preprocessing: rotate raw readings into the camera frame (with the lever-arm term), low-pass filter
 // (Butterworth, cascaded biquads) and decimate (500 Hz -> 100 Hz by default), with the filter's delay
 // compensated in the output stamps.
+//
+// Pipeline per raw sample (IMU frame I):
+//   1. rotate: f_C = R_CI f_I, w_C = R_CI w_I (R_CI from T_cam_imu, p_C = R_CI p_I + t_CI);
+//   2. low-pass both 3-vectors with a Butterworth of `lowpass_order` (bilinear transform, prewarped cutoff,
+//      designed for `input_rate_hz`), primed from the first sample so there is no start-up transient;
+//   3. on every `decimation_factor`-th sample (the first one included), emit the filtered values, adding the
+//      lever-arm term to the specific force: f_cam = f_imu + dw/dt x r + w x (w x r), r = -t_CI the vector from
+//      the IMU origin to the camera centre in C, w and dw/dt from the filtered gyro (dw/dt by a backward
+//      difference at the input rate). The linear dw/dt term commutes with the filter; the centripetal term is
+//      evaluated on the filtered rate so that gyro noise is not rectified into an offset;
+//   4. stamp = raw stamp - delay_s() when `compensate_filter_delay` (the filter's group delay at 0 Hz).
 #pragma once
 
 #include <vector>
@@ -12,6 +23,8 @@ namespace diekf {
 
 class ImuPreprocessor {
  public:
+  /// Throws std::invalid_argument on an unusable configuration (rate <= 0, cutoff outside (0, rate/2),
+  /// order < 0, decimation < 1).
   ImuPreprocessor(const Eigen::Isometry3d& T_cam_imu, const ImuParams& params);
 
   /// Feeds one raw sample (IMU frame, IMU clock). Returns true and fills `out` (camera frame, stamp on the IMU
@@ -21,16 +34,22 @@ class ImuPreprocessor {
   void reset();
   /// Low-frequency group delay of the filter, s (subtracted from output stamps when compensation is on).
   double delay_s() const { return delay_s_; }
+  /// Number of second-order (or, for odd orders, one first-order) sections of the designed filter.
+  int numSections() const { return static_cast<int>(sections_.size()); }
+  /// Magnitude of the designed filter's frequency response at f_hz (input-rate design), for diagnostics.
+  double magnitudeResponse(double f_hz) const;
 
  private:
+  using Vec6 = Eigen::Matrix<double, 6, 1>;
   struct Biquad {
     double b0 = 1, b1 = 0, b2 = 0, a1 = 0, a2 = 0;  // normalised (a0 = 1)
   };
   struct BiquadState {
-    Eigen::Matrix<double, 6, 1> z1 = Eigen::Matrix<double, 6, 1>::Zero();
-    Eigen::Matrix<double, 6, 1> z2 = Eigen::Matrix<double, 6, 1>::Zero();
+    Vec6 z1 = Vec6::Zero();  // transposed direct form II memory
+    Vec6 z2 = Vec6::Zero();
   };
-  Eigen::Matrix<double, 6, 1> filter(const Eigen::Matrix<double, 6, 1>& in);
+  Vec6 filter(const Vec6& in);
+  void prime(const Vec6& in);
 
   ImuParams params_;
   Mat3 R_CI_;
@@ -40,8 +59,7 @@ class ImuPreprocessor {
   double delay_s_ = 0.0;
   bool primed_ = false;
   int counter_ = 0;
-  Vec3 last_gyro_C_ = Vec3::Zero();
-  double last_t_s_ = 0.0;
+  Vec3 last_gyro_C_ = Vec3::Zero();  // filtered gyro of the previous raw sample, rad/s
 };
 
 }  // namespace diekf

@@ -43,8 +43,13 @@ class YamlParamSource : public ParamSource {
 };
 
 /// Fills `params` from every key `source` has (absent keys keep their value); validates ranges and throws
-/// std::runtime_error naming the origin and key of a bad value.
+/// std::runtime_error naming the origin and key of a bad value. `params` is unchanged when it throws.
+/// Keys mirror the struct: "mode", "init/alpha0_inv_m", "imu/lowpass_cutoff_hz", ..., "max_queued_images"
+/// (the full list: estimatorParamKeys(); documented with units in config/estimator.yaml).
 void loadEstimatorParams(const ParamSource& source, EstimatorParams* params);
+
+/// Every key loadEstimatorParams reads, in table order (one per field of EstimatorParams).
+std::vector<std::string> estimatorParamKeys();
 
 /// Noise densities and rate from a Kalibr IMU YAML (imu0 or top-level keys). Throws naming file and key.
 void loadKalibrImuYaml(const std::string& path, ImuParams* imu);

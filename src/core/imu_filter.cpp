@@ -1,0 +1,151 @@
+#include "diekf/imu_filter.h"
+
+#include <cmath>
+#include <complex>
+#include <stdexcept>
+#include <string>
+
+namespace diekf {
+
+ImuPreprocessor::ImuPreprocessor(const Eigen::Isometry3d& T_cam_imu, const ImuParams& params)
+    : params_(params) {
+  if (!(params.input_rate_hz > 0.0)) {
+    throw std::invalid_argument("ImuPreprocessor: input_rate_hz must be > 0, got " +
+                                std::to_string(params.input_rate_hz));
+  }
+  if (params.decimation_factor < 1) {
+    throw std::invalid_argument("ImuPreprocessor: decimation_factor must be >= 1, got " +
+                                std::to_string(params.decimation_factor));
+  }
+  if (params.lowpass_order < 0) {
+    throw std::invalid_argument("ImuPreprocessor: lowpass_order must be >= 0, got " +
+                                std::to_string(params.lowpass_order));
+  }
+  const double fs = params.input_rate_hz;  // Hz
+  if (params.lowpass_order > 0 && !(params.lowpass_cutoff_hz > 0.0 && params.lowpass_cutoff_hz < 0.5 * fs)) {
+    throw std::invalid_argument("ImuPreprocessor: lowpass_cutoff_hz must be in (0, input_rate_hz/2), got " +
+                                std::to_string(params.lowpass_cutoff_hz));
+  }
+
+  // Extrinsics: p_C = R_CI p_I + t_CI. The camera centre (p_C = 0) sits at p_I = -R_CI^T t_CI, i.e. at
+  // r = R_CI p_I = -t_CI from the IMU origin, expressed in C.
+  R_CI_ = T_cam_imu.linear();
+  r_imu_to_cam_C_ = -T_cam_imu.translation();
+
+  // Butterworth low-pass: analog prototype sections s'^2 + 2 sin(theta_k) s' + 1 (theta_k = (2k+1) pi / (2N)),
+  // plus s' + 1 for odd N, with s' = s / Omega_c. Bilinear transform with the cutoff prewarped:
+  // s' = (1/K) (1 - z^-1) / (1 + z^-1), K = tan(pi fc / fs), so the digital -3 dB point is exactly fc.
+  const int order = params.lowpass_order;
+  if (order > 0) {
+    const double K = std::tan(M_PI * params.lowpass_cutoff_hz / fs);
+    const double K2 = K * K;
+    for (int k = 0; k < order / 2; ++k) {
+      const double c = 2.0 * std::sin((2.0 * k + 1.0) * M_PI / (2.0 * order));
+      const double a0 = 1.0 + c * K + K2;
+      Biquad bq;
+      bq.b0 = K2 / a0;
+      bq.b1 = 2.0 * K2 / a0;
+      bq.b2 = K2 / a0;
+      bq.a1 = 2.0 * (K2 - 1.0) / a0;
+      bq.a2 = (1.0 - c * K + K2) / a0;
+      sections_.push_back(bq);
+    }
+    if (order % 2 == 1) {
+      Biquad fo;  // first-order section K (1 + z^-1) / ((1 + K) + (K - 1) z^-1)
+      fo.b0 = K / (1.0 + K);
+      fo.b1 = K / (1.0 + K);
+      fo.b2 = 0.0;
+      fo.a1 = (K - 1.0) / (K + 1.0);
+      fo.a2 = 0.0;
+      sections_.push_back(fo);
+    }
+  }
+  states_.resize(sections_.size());
+
+  // Group delay at 0 Hz of B(z)/A(z): sum n b_n / sum b_n - sum n a_n / sum a_n, in samples (exact for the
+  // designed coefficients; approaches sum_k 2 sin(theta_k) / Omega_c for fc << fs).
+  double delay_samples = 0.0;
+  for (const Biquad& s : sections_) {
+    delay_samples += (s.b1 + 2.0 * s.b2) / (s.b0 + s.b1 + s.b2) - (s.a1 + 2.0 * s.a2) / (1.0 + s.a1 + s.a2);
+  }
+  delay_s_ = delay_samples / fs;
+}
+
+double ImuPreprocessor::magnitudeResponse(double f_hz) const {
+  const double omega = 2.0 * M_PI * f_hz / params_.input_rate_hz;  // rad/sample
+  const std::complex<double> z1 = std::polar(1.0, -omega);          // z^-1
+  std::complex<double> h(1.0, 0.0);
+  for (const Biquad& s : sections_) {
+    h *= (s.b0 + s.b1 * z1 + s.b2 * z1 * z1) / (1.0 + s.a1 * z1 + s.a2 * z1 * z1);
+  }
+  return std::abs(h);
+}
+
+void ImuPreprocessor::reset() {
+  primed_ = false;
+  counter_ = 0;
+  for (BiquadState& st : states_) {
+    st.z1.setZero();
+    st.z2.setZero();
+  }
+  last_gyro_C_.setZero();
+}
+
+void ImuPreprocessor::prime(const Vec6& in) {
+  // Steady state of every section for the constant input `in`: y = gain x, and the transposed direct form II
+  // memories then are z1 = y - b0 x, z2 = b2 x - a2 y.
+  Vec6 x = in;
+  for (size_t i = 0; i < sections_.size(); ++i) {
+    const Biquad& s = sections_[i];
+    const double gain = (s.b0 + s.b1 + s.b2) / (1.0 + s.a1 + s.a2);
+    const Vec6 y = gain * x;
+    states_[i].z1 = y - s.b0 * x;
+    states_[i].z2 = s.b2 * x - s.a2 * y;
+    x = y;
+  }
+}
+
+ImuPreprocessor::Vec6 ImuPreprocessor::filter(const Vec6& in) {
+  Vec6 x = in;
+  for (size_t i = 0; i < sections_.size(); ++i) {
+    const Biquad& s = sections_[i];
+    BiquadState& st = states_[i];
+    const Vec6 y = s.b0 * x + st.z1;
+    st.z1 = s.b1 * x - s.a1 * y + st.z2;
+    st.z2 = s.b2 * x - s.a2 * y;
+    x = y;
+  }
+  return x;
+}
+
+bool ImuPreprocessor::push(const ImuSample& raw_imu, ImuSample* out) {
+  Vec6 in;
+  in.head<3>() = R_CI_ * raw_imu.accel_mps2;  // specific force at the IMU, in C, m/s^2
+  in.tail<3>() = R_CI_ * raw_imu.gyro_radps;  // body rate in C, rad/s
+  if (!primed_) {
+    prime(in);
+    primed_ = true;
+    counter_ = 0;
+    last_gyro_C_ = in.tail<3>();
+  }
+  const Vec6 y = filter(in);
+  const Vec3 w = y.tail<3>();
+  // Backward difference at the nominal input period (robust to stamp jitter; the filter is designed for it).
+  const Vec3 w_dot = (w - last_gyro_C_) * params_.input_rate_hz;  // rad/s^2
+  last_gyro_C_ = w;
+
+  const bool emit = (counter_ == 0);
+  counter_ = (counter_ + 1) % params_.decimation_factor;
+  if (!emit) return false;
+
+  out->accel_mps2 = y.head<3>();
+  if (params_.lever_arm_compensation) {
+    const Vec3& r = r_imu_to_cam_C_;
+    out->accel_mps2 += w_dot.cross(r) + w.cross(w.cross(r));
+  }
+  out->gyro_radps = w;
+  out->t_s = params_.compensate_filter_delay ? raw_imu.t_s - delay_s_ : raw_imu.t_s;
+  return true;
+}
+
+}  // namespace diekf

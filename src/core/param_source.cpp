@@ -1,0 +1,404 @@
+// YAML parameter source, the estimator's parameter key table, and the Kalibr IMU noise reader.
+#include "diekf/param_source.h"
+
+#include <yaml-cpp/yaml.h>
+
+#include <cmath>
+#include <functional>
+#include <sstream>
+#include <stdexcept>
+
+namespace diekf {
+
+// ------------------------------------------------------------------------------------------------------------
+// YamlParamSource
+// ------------------------------------------------------------------------------------------------------------
+struct YamlParamSource::Impl {
+  YAML::Node root;
+};
+
+namespace {
+
+[[noreturn]] void failKey(const std::string& origin, const std::string& key, const std::string& what) {
+  throw std::runtime_error(origin + ": key '" + key + "': " + what);
+}
+
+std::string show(const YAML::Node& n) {
+  if (n.IsScalar()) return "'" + n.Scalar() + "'";
+  if (n.IsSequence()) return "a list";
+  if (n.IsMap()) return "a map";
+  return "an empty value";
+}
+
+bool scalarToDouble(const YAML::Node& n, double* v) {
+  if (!n.IsScalar()) return false;
+  try {
+    *v = n.as<double>();
+  } catch (const YAML::Exception&) {
+    return false;
+  }
+  return std::isfinite(*v);
+}
+
+}  // namespace
+
+YamlParamSource::YamlParamSource(const std::string& path) : path_(path), impl_(new Impl) {
+  try {
+    impl_->root = YAML::LoadFile(path);
+  } catch (const YAML::BadFile&) {
+    delete impl_;
+    throw std::runtime_error(path + ": cannot open the parameter file");
+  } catch (const YAML::Exception& e) {
+    delete impl_;
+    throw std::runtime_error(path + ": cannot parse YAML: " + e.what());
+  }
+  if (!impl_->root.IsMap() && !impl_->root.IsNull()) {
+    delete impl_;
+    throw std::runtime_error(path + ": expected a YAML map of parameters at the top level");
+  }
+}
+
+YamlParamSource::~YamlParamSource() { delete impl_; }
+
+namespace {
+
+// Walks "a/b/c" through nested maps; returns an invalid node when a component is absent.
+YAML::Node lookup(const YAML::Node& root, const std::string& key, const std::string& origin) {
+  YAML::Node node = root;  // YAML::Node copies are references; reassigning below rebinds, not overwrites
+  std::size_t start = 0;
+  std::string walked;
+  while (true) {
+    const std::size_t slash = key.find('/', start);
+    const std::string part = key.substr(start, slash == std::string::npos ? std::string::npos : slash - start);
+    if (part.empty()) failKey(origin, key, "malformed key (empty component)");
+    if (!node.IsMap()) {
+      if (!node || node.IsNull()) return YAML::Node(YAML::NodeType::Undefined);
+      failKey(origin, key, "'" + walked + "' is " + show(node) + ", not a map");
+    }
+    const YAML::Node child = node[part];
+    if (!child) return YAML::Node(YAML::NodeType::Undefined);
+    walked += (walked.empty() ? "" : "/") + part;
+    node.reset(child);
+    if (slash == std::string::npos) return node;
+    start = slash + 1;
+  }
+}
+
+}  // namespace
+
+bool YamlParamSource::get(const std::string& key, double* value) const {
+  const YAML::Node n = lookup(impl_->root, key, path_);
+  if (!n.IsDefined()) return false;
+  double v = 0.0;
+  if (!scalarToDouble(n, &v)) failKey(path_, key, "expected a finite number, got " + show(n));
+  *value = v;
+  return true;
+}
+
+bool YamlParamSource::get(const std::string& key, int* value) const {
+  const YAML::Node n = lookup(impl_->root, key, path_);
+  if (!n.IsDefined()) return false;
+  double v = 0.0;
+  if (!scalarToDouble(n, &v) || v != std::floor(v) || std::abs(v) > 2147483647.0) {
+    failKey(path_, key, "expected an integer, got " + show(n));
+  }
+  *value = static_cast<int>(v);
+  return true;
+}
+
+bool YamlParamSource::get(const std::string& key, bool* value) const {
+  const YAML::Node n = lookup(impl_->root, key, path_);
+  if (!n.IsDefined()) return false;
+  bool v = false;
+  try {
+    if (!n.IsScalar()) throw YAML::Exception(YAML::Mark(), "");
+    v = n.as<bool>();
+  } catch (const YAML::Exception&) {
+    failKey(path_, key, "expected true or false, got " + show(n));
+  }
+  *value = v;
+  return true;
+}
+
+bool YamlParamSource::get(const std::string& key, std::string* value) const {
+  const YAML::Node n = lookup(impl_->root, key, path_);
+  if (!n.IsDefined()) return false;
+  if (!n.IsScalar()) failKey(path_, key, "expected a string, got " + show(n));
+  *value = n.Scalar();
+  return true;
+}
+
+bool YamlParamSource::get(const std::string& key, std::vector<double>* value) const {
+  const YAML::Node n = lookup(impl_->root, key, path_);
+  if (!n.IsDefined()) return false;
+  if (!n.IsSequence()) failKey(path_, key, "expected a list of numbers, got " + show(n));
+  std::vector<double> out;
+  for (std::size_t i = 0; i < n.size(); ++i) {
+    double v = 0.0;
+    if (!scalarToDouble(n[i], &v)) {
+      failKey(path_, key, "element " + std::to_string(i) + ": expected a finite number, got " + show(n[i]));
+    }
+    out.push_back(v);
+  }
+  *value = std::move(out);
+  return true;
+}
+
+// ------------------------------------------------------------------------------------------------------------
+// Estimator parameter table
+// ------------------------------------------------------------------------------------------------------------
+namespace {
+
+using Loader = std::function<void(const ParamSource&, EstimatorParams&)>;
+
+struct Entry {
+  std::string key;
+  Loader load;
+};
+
+std::string num(double v) {
+  std::ostringstream os;
+  os << v;
+  return os.str();
+}
+
+// Numeric range: lo/hi inclusive unless the *_open flag is set.
+struct Range {
+  double lo = -HUGE_VAL, hi = HUGE_VAL;
+  bool lo_open = false, hi_open = false;
+  std::string describe() const {
+    std::string s;
+    if (lo > -HUGE_VAL) s += std::string(lo_open ? "> " : ">= ") + num(lo);
+    if (hi < HUGE_VAL) s += std::string(s.empty() ? "" : " and ") + (hi_open ? "< " : "<= ") + num(hi);
+    return s;
+  }
+  bool contains(double v) const {
+    return (lo_open ? v > lo : v >= lo) && (hi_open ? v < hi : v <= hi);
+  }
+};
+
+Range positive(double hi = HUGE_VAL) { return Range{0.0, hi, true, false}; }
+Range nonNegative(double hi = HUGE_VAL) { return Range{0.0, hi, false, false}; }
+Range between(double lo, double hi) { return Range{lo, hi, false, false}; }
+
+void checkRange(const ParamSource& src, const std::string& key, double v, const Range& r) {
+  if (!r.contains(v)) failKey(src.origin(), key, "value " + num(v) + " out of range: must be " + r.describe());
+}
+
+Entry real(const std::string& key, std::function<double&(EstimatorParams&)> field, Range range) {
+  return {key, [=](const ParamSource& s, EstimatorParams& p) {
+            double v = 0.0;
+            if (!s.get(key, &v)) return;
+            checkRange(s, key, v, range);
+            field(p) = v;
+          }};
+}
+
+Entry integer(const std::string& key, std::function<int&(EstimatorParams&)> field, Range range) {
+  return {key, [=](const ParamSource& s, EstimatorParams& p) {
+            int v = 0;
+            if (!s.get(key, &v)) return;
+            checkRange(s, key, v, range);
+            field(p) = v;
+          }};
+}
+
+Entry flag(const std::string& key, std::function<bool&(EstimatorParams&)> field) {
+  return {key, [=](const ParamSource& s, EstimatorParams& p) {
+            bool v = false;
+            if (s.get(key, &v)) field(p) = v;
+          }};
+}
+
+// A 3-vector; `nonzero` requires a norm above 1e-6 (directions, normalised on use).
+Entry vec3(const std::string& key, std::function<Vec3&(EstimatorParams&)> field, bool nonzero) {
+  return {key, [=](const ParamSource& s, EstimatorParams& p) {
+            std::vector<double> v;
+            if (!s.get(key, &v)) return;
+            if (v.size() != 3) {
+              failKey(s.origin(), key, "expected a list of 3 numbers, got " + std::to_string(v.size()));
+            }
+            const Vec3 x(v[0], v[1], v[2]);
+            if (nonzero && !(x.norm() > 1e-6)) failKey(s.origin(), key, "direction must be non-zero");
+            field(p) = x;
+          }};
+}
+
+UpdateMode modeFromName(const std::string& origin, const std::string& key, const std::string& name) {
+  // Same names as parseUpdateMode (params.h).
+  if (name == "iekf") return UpdateMode::kIterated;
+  if (name == "ekf") return UpdateMode::kEkf;
+  if (name == "lk") return UpdateMode::kFeature;
+  failKey(origin, key, "unknown mode '" + name + "' (expected iekf, ekf or lk)");
+}
+
+#define DIEKF_FIELD(type, expr) [](EstimatorParams& p) -> type& { return p.expr; }
+
+const std::vector<Entry>& table() {
+  static const std::vector<Entry> entries = [] {
+    std::vector<Entry> t;
+    t.push_back({"mode", [](const ParamSource& s, EstimatorParams& p) {
+                   std::string name;
+                   if (s.get("mode", &name)) p.mode = modeFromName(s.origin(), "mode", name);
+                 }});
+    // init
+    t.push_back(real("init/alpha0_inv_m", DIEKF_FIELD(double, init.alpha0_inv_m), positive(1e4)));
+    t.push_back(vec3("init/vartheta0_inv_s", DIEKF_FIELD(Vec3, init.vartheta0_inv_s), false));
+    t.push_back(vec3("init/mu0", DIEKF_FIELD(Vec3, init.mu0), true));
+    t.push_back(vec3("init/g0", DIEKF_FIELD(Vec3, init.g0), true));
+    t.push_back(flag("init/g0_from_accel", DIEKF_FIELD(bool, init.g0_from_accel)));
+    t.push_back(real("init/sigma_alpha0_inv_m", DIEKF_FIELD(double, init.sigma_alpha0_inv_m), positive()));
+    t.push_back(real("init/sigma_vartheta0_inv_s", DIEKF_FIELD(double, init.sigma_vartheta0_inv_s), positive()));
+    t.push_back(real("init/sigma_mu0_rad", DIEKF_FIELD(double, init.sigma_mu0_rad), positive(M_PI)));
+    t.push_back(real("init/sigma_g0_rad", DIEKF_FIELD(double, init.sigma_g0_rad), positive(M_PI)));
+    t.push_back(real("init/sigma_ba0_mps2", DIEKF_FIELD(double, init.sigma_ba0_mps2), positive()));
+    t.push_back(real("init/sigma_bw0_radps", DIEKF_FIELD(double, init.sigma_bw0_radps), positive()));
+    // imu
+    t.push_back(real("imu/accel_noise_density", DIEKF_FIELD(double, imu.accel_noise_density), positive()));
+    t.push_back(real("imu/gyro_noise_density", DIEKF_FIELD(double, imu.gyro_noise_density), positive()));
+    t.push_back(real("imu/accel_random_walk", DIEKF_FIELD(double, imu.accel_random_walk), nonNegative()));
+    t.push_back(real("imu/gyro_random_walk", DIEKF_FIELD(double, imu.gyro_random_walk), nonNegative()));
+    t.push_back(real("imu/input_rate_hz", DIEKF_FIELD(double, imu.input_rate_hz), positive(1e5)));
+    t.push_back(real("imu/lowpass_cutoff_hz", DIEKF_FIELD(double, imu.lowpass_cutoff_hz), positive()));
+    t.push_back(integer("imu/lowpass_order", DIEKF_FIELD(int, imu.lowpass_order), between(0, 8)));
+    t.push_back(integer("imu/decimation_factor", DIEKF_FIELD(int, imu.decimation_factor), between(1, 1000)));
+    t.push_back(flag("imu/compensate_filter_delay", DIEKF_FIELD(bool, imu.compensate_filter_delay)));
+    t.push_back(flag("imu/lever_arm_compensation", DIEKF_FIELD(bool, imu.lever_arm_compensation)));
+    t.push_back(real("imu/gravity_mps2", DIEKF_FIELD(double, imu.gravity_mps2), between(1.0, 30.0)));
+    // process noise
+    t.push_back(real("process/alpha_inv_m_per_sqrt_s", DIEKF_FIELD(double, process.alpha_inv_m_per_sqrt_s),
+                     nonNegative()));
+    t.push_back(real("process/vartheta_inv_s_per_sqrt_s",
+                     DIEKF_FIELD(double, process.vartheta_inv_s_per_sqrt_s), nonNegative()));
+    t.push_back(real("process/mu_rad_per_sqrt_s", DIEKF_FIELD(double, process.mu_rad_per_sqrt_s), nonNegative()));
+    t.push_back(real("process/g_rad_per_sqrt_s", DIEKF_FIELD(double, process.g_rad_per_sqrt_s), nonNegative()));
+    // preprocess
+    t.push_back(integer("preprocess/working_width_px", DIEKF_FIELD(int, preprocess.working_width_px),
+                        between(3, 4096)));
+    t.push_back(integer("preprocess/working_height_px", DIEKF_FIELD(int, preprocess.working_height_px),
+                        between(0, 4096)));
+    t.push_back(real("preprocess/blur_sigma_px", DIEKF_FIELD(double, preprocess.blur_sigma_px), between(0.0, 20.0)));
+    t.push_back(flag("preprocess/normalize_brightness", DIEKF_FIELD(bool, preprocess.normalize_brightness)));
+    t.push_back(integer("preprocess/border_px", DIEKF_FIELD(int, preprocess.border_px), between(1, 100)));
+    // photometric update
+    t.push_back(integer("photometric/max_passes", DIEKF_FIELD(int, photometric.max_passes), between(1, 100)));
+    t.push_back(real("photometric/stop_threshold", DIEKF_FIELD(double, photometric.stop_threshold), positive()));
+    t.push_back(real("photometric/intensity_noise_sigma", DIEKF_FIELD(double, photometric.intensity_noise_sigma),
+                     positive()));
+    t.push_back(flag("photometric/gradient_weighting", DIEKF_FIELD(bool, photometric.gradient_weighting)));
+    t.push_back(real("photometric/huber_threshold", DIEKF_FIELD(double, photometric.huber_threshold),
+                     nonNegative()));
+    t.push_back(real("photometric/min_valid_ratio", DIEKF_FIELD(double, photometric.min_valid_ratio),
+                     between(0.0, 1.0)));
+    t.push_back(integer("photometric/pixel_stride", DIEKF_FIELD(int, photometric.pixel_stride), between(1, 64)));
+    // feature baseline
+    t.push_back(integer("feature/max_corners", DIEKF_FIELD(int, feature.max_corners), between(1, 100000)));
+    t.push_back(real("feature/quality_level", DIEKF_FIELD(double, feature.quality_level), Range{0.0, 1.0, true, false}));
+    t.push_back(real("feature/min_distance_px", DIEKF_FIELD(double, feature.min_distance_px), nonNegative()));
+    t.push_back(integer("feature/window_px", DIEKF_FIELD(int, feature.window_px), between(3, 255)));
+    t.push_back(integer("feature/pyramid_levels", DIEKF_FIELD(int, feature.pyramid_levels), between(0, 10)));
+    t.push_back(real("feature/pixel_noise_sigma_px", DIEKF_FIELD(double, feature.pixel_noise_sigma_px), positive()));
+    t.push_back(real("feature/huber_threshold_px", DIEKF_FIELD(double, feature.huber_threshold_px), nonNegative()));
+    t.push_back(integer("feature/working_width_px", DIEKF_FIELD(int, feature.working_width_px), between(8, 4096)));
+    // divergence handling
+    t.push_back(real("divergence/min_distance_m", DIEKF_FIELD(double, divergence.min_distance_m), positive()));
+    t.push_back(real("divergence/max_distance_m", DIEKF_FIELD(double, divergence.max_distance_m), positive()));
+    t.push_back(real("divergence/max_sigma_distance_m", DIEKF_FIELD(double, divergence.max_sigma_distance_m),
+                     positive()));
+    t.push_back(real("divergence/max_photometric_rms", DIEKF_FIELD(double, divergence.max_photometric_rms),
+                     positive()));
+    t.push_back(integer("divergence/bad_frames_before_reset", DIEKF_FIELD(int, divergence.bad_frames_before_reset),
+                        between(1, 1000000)));
+    // queueing
+    t.push_back(real("max_imu_gap_s", DIEKF_FIELD(double, max_imu_gap_s), positive()));
+    t.push_back(integer("max_queued_images", DIEKF_FIELD(int, max_queued_images), between(1, 10000)));
+    return t;
+  }();
+  return entries;
+}
+
+#undef DIEKF_FIELD
+
+// Checks that involve more than one key (reported against the key that was set in the source, if any).
+void checkConsistency(const ParamSource& s, const EstimatorParams& p) {
+  // Name the first key if the source sets it, else the second (which then is the one changed).
+  auto blame = [&](const std::string& a, const std::string& b) {
+    double unused = 0.0;
+    return s.get(a, &unused) ? a : b;
+  };
+  const ImuParams& imu = p.imu;
+  if (imu.lowpass_order % 2 != 0) {
+    failKey(s.origin(), "imu/lowpass_order",
+            "value " + std::to_string(imu.lowpass_order) + " must be even (0 disables the filter)");
+  }
+  if (imu.lowpass_order > 0 && !(imu.lowpass_cutoff_hz < 0.5 * imu.input_rate_hz)) {
+    failKey(s.origin(), blame("imu/lowpass_cutoff_hz", "imu/input_rate_hz"),
+            "lowpass_cutoff_hz " + num(imu.lowpass_cutoff_hz) + " must be below input_rate_hz / 2 = " +
+                num(0.5 * imu.input_rate_hz));
+  }
+  if (!(p.divergence.max_distance_m > p.divergence.min_distance_m)) {
+    failKey(s.origin(), blame("divergence/max_distance_m", "divergence/min_distance_m"),
+            "max_distance_m " + num(p.divergence.max_distance_m) + " must exceed min_distance_m " +
+                num(p.divergence.min_distance_m));
+  }
+  if (p.preprocess.working_height_px != 0 && p.preprocess.working_height_px < 3) {
+    failKey(s.origin(), "preprocess/working_height_px", "must be 0 (keep the aspect ratio) or >= 3");
+  }
+}
+
+}  // namespace
+
+std::vector<std::string> estimatorParamKeys() {
+  std::vector<std::string> keys;
+  for (const Entry& e : table()) keys.push_back(e.key);
+  return keys;
+}
+
+void loadEstimatorParams(const ParamSource& source, EstimatorParams* params) {
+  if (params == nullptr) throw std::invalid_argument("loadEstimatorParams: null params");
+  EstimatorParams p = *params;
+  for (const Entry& e : table()) e.load(source, p);
+  checkConsistency(source, p);
+  *params = p;
+}
+
+// ------------------------------------------------------------------------------------------------------------
+// Kalibr IMU YAML
+// ------------------------------------------------------------------------------------------------------------
+void loadKalibrImuYaml(const std::string& path, ImuParams* imu) {
+  if (imu == nullptr) throw std::invalid_argument("loadKalibrImuYaml: null imu");
+  YAML::Node root;
+  try {
+    root = YAML::LoadFile(path);
+  } catch (const YAML::BadFile&) {
+    throw std::runtime_error(path + ": cannot open the IMU file");
+  } catch (const YAML::Exception& e) {
+    throw std::runtime_error(path + ": cannot parse YAML: " + e.what());
+  }
+  if (!root.IsMap()) throw std::runtime_error(path + ": expected a YAML map at the top level");
+  std::string prefix;
+  YAML::Node m = root;
+  if (root["imu0"]) {
+    m.reset(root["imu0"]);
+    prefix = "imu0/";
+    if (!m.IsMap()) failKey(path, "imu0", "expected a map");
+  }
+  auto read = [&](const char* name) {
+    const YAML::Node n = m[name];
+    const std::string key = prefix + name;
+    if (!n || n.IsNull()) failKey(path, key, "missing");
+    double v = 0.0;
+    if (!scalarToDouble(n, &v)) failKey(path, key, "expected a finite number, got " + show(n));
+    if (!(v > 0.0)) failKey(path, key, "value " + num(v) + " must be > 0");
+    return v;
+  };
+  ImuParams out = *imu;
+  out.accel_noise_density = read("accelerometer_noise_density");
+  out.accel_random_walk = read("accelerometer_random_walk");
+  out.gyro_noise_density = read("gyroscope_noise_density");
+  out.gyro_random_walk = read("gyroscope_random_walk");
+  out.input_rate_hz = read("update_rate");
+  *imu = out;
+}
+
+}  // namespace diekf

@@ -1,0 +1,288 @@
+// ImagePreprocessor: working camera, geometry of the undistort-and-rescale, anti-aliasing, normalisation,
+// gradient definition, input validation, buffer reuse.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+#include <opencv2/core.hpp>
+
+#include "diekf/image_preprocessor.h"
+
+namespace diekf {
+namespace {
+
+CameraModel mynt() {
+  CameraModel m;
+  m.K = PinholeK{364.91, 364.97, 379.91, 245.53, 752, 480};
+  m.distortion = DistortionModel::kRadTan;
+  m.distortion_coeffs = Vec4(-0.3178, 0.0962, -0.00011, 0.00033);
+  return m;
+}
+
+CameraModel pinhole(int w, int h) {
+  CameraModel m;
+  m.K = PinholeK{0.5 * w, 0.5 * w, 0.5 * w - 0.5, 0.5 * h - 0.5, w, h};
+  return m;
+}
+
+cv::Mat texture(int w, int h, int seed) {
+  cv::Mat img(h, w, CV_8UC1);
+  cv::RNG rng(seed);
+  for (int y = 0; y < h; ++y)
+    for (int x = 0; x < w; ++x)
+      img.at<uint8_t>(y, x) = cv::saturate_cast<uint8_t>(
+          120.0 + 60.0 * std::sin(0.045 * x + 0.02 * y) * std::cos(0.03 * y) + rng.gaussian(15.0));
+  return img;
+}
+
+double stdDev(const cv::Mat& m, int border) {
+  cv::Scalar mean, sd;
+  cv::meanStdDev(m(cv::Rect(border, border, m.cols - 2 * border, m.rows - 2 * border)), mean, sd);
+  return sd[0];
+}
+
+TEST(ImagePreprocessor, WorkingCamera) {
+  PreprocessParams p;  // 90 wide, height from the aspect ratio
+  ImagePreprocessor pre(mynt(), p);
+  const PinholeK& K = pre.workingK();
+  EXPECT_EQ(K.width, 90);
+  EXPECT_EQ(K.height, 58);  // ceil(90 * 480 / 752) = ceil(57.45)
+  const double s = 90.0 / 752.0;
+  EXPECT_DOUBLE_EQ(K.fx, 364.91 * s);
+  EXPECT_DOUBLE_EQ(K.fy, 364.97 * s);
+  EXPECT_DOUBLE_EQ(K.cx, (379.91 + 0.5) * s - 0.5);
+  EXPECT_DOUBLE_EQ(K.cy, (245.53 + 0.5) * s - 0.5);
+  EXPECT_EQ(pre.workingSize(), cv::Size(90, 58));
+
+  p.working_height_px = 57;
+  ImagePreprocessor pre2(mynt(), p);
+  EXPECT_EQ(pre2.workingK().height, 57);
+  EXPECT_DOUBLE_EQ(pre2.workingK().fy, 364.97 * 57.0 / 480.0);
+  EXPECT_DOUBLE_EQ(pre2.workingK().cy, (245.53 + 0.5) * 57.0 / 480.0 - 0.5);
+
+  p.working_width_px = 376;
+  p.working_height_px = 0;
+  EXPECT_EQ(ImagePreprocessor(mynt(), p).workingK().height, 240);
+
+  p.working_width_px = 2;
+  EXPECT_THROW(ImagePreprocessor(mynt(), p), std::invalid_argument);
+}
+
+// A small bright blob around the projection of a 3-D point in the raw (distorted) image must appear at
+// K' p in the working image.
+void checkBlobGeometry(int working_width, double max_err_px) {
+  const CameraModel cam = mynt();
+  PreprocessParams p;
+  p.working_width_px = working_width;
+  ImagePreprocessor pre(cam, p);
+  const PinholeK& K = pre.workingK();
+  const double sigma_raw = 4.0;  // px
+  double worst = 0.0;
+  for (const Vec3& P : {Vec3(0.0, 0.0, 1.0), Vec3(0.31, -0.22, 1.3), Vec3(-0.55, 0.4, 1.1),
+                        Vec3(0.8, 0.45, 1.0), Vec3(-0.75, -0.45, 1.0), Vec3(0.02, 0.51, 1.2)}) {
+    Vec2 c_raw;
+    ASSERT_TRUE(cam.project(P, &c_raw));
+    cv::Mat raw(480, 752, CV_8UC1);
+    for (int y = 0; y < raw.rows; ++y)
+      for (int x = 0; x < raw.cols; ++x) {
+        const double r2 = (x - c_raw.x()) * (x - c_raw.x()) + (y - c_raw.y()) * (y - c_raw.y());
+        raw.at<uint8_t>(y, x) = cv::saturate_cast<uint8_t>(10.0 + 240.0 * std::exp(-0.5 * r2 / (sigma_raw * sigma_raw)));
+      }
+    PreprocessedFrame f;
+    pre.process(raw, 0.0, &f);
+    const Vec2 expected(K.fx * P.x() / P.z() + K.cx, K.fy * P.y() / P.z() + K.cy);
+    // Centroid of (I - background) in a window around the expected position.
+    double min_v = 1e9;
+    for (int y = 0; y < f.intensity.rows; ++y)
+      for (int x = 0; x < f.intensity.cols; ++x) min_v = std::min(min_v, double(f.intensity.at<float>(y, x)));
+    const int R = std::max(4, working_width / 15);
+    double sw = 0, sx = 0, sy = 0;
+    for (int y = int(expected.y()) - R; y <= int(expected.y()) + R + 1; ++y)
+      for (int x = int(expected.x()) - R; x <= int(expected.x()) + R + 1; ++x) {
+        ASSERT_TRUE(x >= 0 && y >= 0 && x < K.width && y < K.height) << "blob too close to the border";
+        const double w = f.intensity.at<float>(y, x) - min_v;
+        sw += w;
+        sx += w * x;
+        sy += w * y;
+      }
+    const Vec2 centroid(sx / sw, sy / sw);
+    const double err = (centroid - expected).norm();
+    worst = std::max(worst, err);
+    EXPECT_LT(err, max_err_px) << "P = " << P.transpose() << " centroid " << centroid.transpose()
+                               << " expected " << expected.transpose();
+  }
+  ::testing::Test::RecordProperty("worst_blob_error_px_w" + std::to_string(working_width), std::to_string(worst));
+}
+
+TEST(ImagePreprocessor, GeometryMatchesWorkingK90) { checkBlobGeometry(90, 0.15); }
+TEST(ImagePreprocessor, GeometryMatchesWorkingK180) { checkBlobGeometry(180, 0.15); }
+
+TEST(ImagePreprocessor, AntiAliasing) {
+  // Stripes far above the working Nyquist frequency (0.5 cycle / working px = 1 cycle / 16.7 raw px at 90 px
+  // wide) must come out nearly uniform; stripes well below it must survive.
+  const CameraModel cam = mynt();
+  PreprocessParams p;
+  p.normalize_brightness = false;  // keep grey-level units (intensity = grey / 255)
+  ImagePreprocessor pre(cam, p);
+  auto stripes = [](double period_px, double angle_rad) {
+    cv::Mat raw(480, 752, CV_8UC1);
+    const double cx = std::cos(angle_rad), sy = std::sin(angle_rad);
+    for (int y = 0; y < raw.rows; ++y)
+      for (int x = 0; x < raw.cols; ++x)
+        raw.at<uint8_t>(y, x) =
+            cv::saturate_cast<uint8_t>(128.0 + 100.0 * std::sin(2.0 * M_PI * (cx * x + sy * y) / period_px));
+    return raw;
+  };
+  const double in_std = 100.0 / std::sqrt(2.0);
+  PreprocessedFrame f;
+  double worst_ratio = 0.0;
+  for (double period : {3.0, 3.7, 5.0, 6.5}) {
+    for (double angle : {0.0, M_PI / 2, 0.6}) {
+      pre.process(stripes(period, angle), 0.0, &f);
+      const double out_std = 255.0 * stdDev(f.intensity, 2);
+      // The footprint is a box (area average, like INTER_AREA): its sinc response leaves up to ~15 % of the
+      // amplitude for periods of 5-7 raw px even after the blur; point sampling keeps ~100 % (below).
+      EXPECT_LT(out_std, 0.16 * in_std) << "period " << period << " angle " << angle;
+      worst_ratio = std::max(worst_ratio, out_std / in_std);
+    }
+  }
+  ::testing::Test::RecordProperty("worst_alias_amplitude_ratio", std::to_string(worst_ratio));
+  // Plain point sampling at the same positions would keep the full amplitude: verify the test pattern
+  // really aliases without the footprint average (nearest raw pixel at the working-pixel centres).
+  {
+    const cv::Mat raw = stripes(3.7, 0.0);
+    const PinholeK& K = pre.workingK();
+    cv::Mat nearest(K.height, K.width, CV_32FC1);
+    for (int v = 0; v < K.height; ++v)
+      for (int u = 0; u < K.width; ++u) {
+        const Vec2 xd = cam.distort(Vec2((u - K.cx) / K.fx, (v - K.cy) / K.fy));
+        const int x = std::clamp(int(std::lround(cam.K.fx * xd.x() + cam.K.cx)), 0, 751);
+        const int y = std::clamp(int(std::lround(cam.K.fy * xd.y() + cam.K.cy)), 0, 479);
+        nearest.at<float>(v, u) = raw.at<uint8_t>(y, x);
+      }
+    EXPECT_GT(stdDev(nearest, 2), 0.5 * in_std);
+  }
+  // Low frequency (period 60 raw px = 7.2 working px) keeps most of its amplitude.
+  pre.process(stripes(60.0, 0.3), 0.0, &f);
+  EXPECT_GT(255.0 * stdDev(f.intensity, 3), 0.5 * in_std);
+}
+
+TEST(ImagePreprocessor, NormalisationZeroMeanUnitVariance) {
+  ImagePreprocessor pre(mynt(), PreprocessParams{});
+  PreprocessedFrame f;
+  pre.process(texture(752, 480, 3), 1.5, &f);
+  ASSERT_TRUE(f.valid);
+  EXPECT_DOUBLE_EQ(f.t_s, 1.5);
+  cv::Scalar mean, sd;
+  cv::meanStdDev(f.intensity, mean, sd);
+  EXPECT_NEAR(mean[0], 0.0, 1e-5);
+  EXPECT_NEAR(sd[0], 1.0, 1e-4);
+  // Brightness and contrast changes of the raw image do not change the normalised output much.
+  cv::Mat brighter;
+  texture(752, 480, 3).convertTo(brighter, CV_8UC1, 0.6, 40.0);
+  PreprocessedFrame f2;
+  pre.process(brighter, 1.6, &f2);
+  EXPECT_LT(cv::norm(f.intensity, f2.intensity, cv::NORM_INF), 0.1);
+}
+
+TEST(ImagePreprocessor, UniformImagesGiveFiniteZeros) {
+  ImagePreprocessor pre(mynt(), PreprocessParams{});
+  PreprocessedFrame f;
+  for (int value : {0, 1, 128, 255}) {
+    pre.process(cv::Mat(480, 752, CV_8UC1, cv::Scalar(value)), 0.0, &f);
+    EXPECT_TRUE(cv::checkRange(f.intensity)) << value;
+    EXPECT_TRUE(cv::checkRange(f.grad_x));
+    EXPECT_TRUE(cv::checkRange(f.grad_y));
+    EXPECT_EQ(cv::norm(f.intensity, cv::NORM_INF), 0.0) << value;
+    EXPECT_EQ(cv::norm(f.grad_x, cv::NORM_INF), 0.0);
+    EXPECT_EQ(cv::norm(f.grad_y, cv::NORM_INF), 0.0);
+    EXPECT_EQ(cv::norm(f.gray8, cv::Mat(f.gray8.size(), CV_8UC1, cv::Scalar(value)), cv::NORM_INF), 0.0);
+  }
+}
+
+TEST(ImagePreprocessor, GradientsAreCentralDifferences) {
+  ImagePreprocessor pre(mynt(), PreprocessParams{});
+  PreprocessedFrame f;
+  pre.process(texture(752, 480, 5), 0.0, &f);
+  const cv::Mat& I = f.intensity;
+  ASSERT_GT(stdDev(f.grad_x, 1), 0.05);  // non-trivial texture
+  for (int y = 0; y < I.rows; ++y)
+    for (int x = 0; x < I.cols; ++x) {
+      const bool border = x == 0 || y == 0 || x == I.cols - 1 || y == I.rows - 1;
+      const float ex = border ? 0.f : 0.5f * (I.at<float>(y, x + 1) - I.at<float>(y, x - 1));
+      const float ey = border ? 0.f : 0.5f * (I.at<float>(y + 1, x) - I.at<float>(y - 1, x));
+      ASSERT_FLOAT_EQ(f.grad_x.at<float>(y, x), ex) << x << "," << y;
+      ASSERT_FLOAT_EQ(f.grad_y.at<float>(y, x), ey) << x << "," << y;
+    }
+}
+
+TEST(ImagePreprocessor, LinearRampGradients) {
+  // Undistorted camera, exact 8x downscale: a raw ramp of a grey levels per raw px along x and b along y is a
+  // working ramp of 8a, 8b per working px (the footprint average of a linear function is exact).
+  const CameraModel cam = pinhole(752, 480);
+  PreprocessParams p;
+  p.working_width_px = 94;  // 752 / 8
+  p.normalize_brightness = false;
+  p.blur_sigma_px = 0.8;
+  ImagePreprocessor pre(cam, p);
+  ASSERT_EQ(pre.workingK().height, 60);
+  const double a = 0.25, b = 0.0625;
+  cv::Mat raw(480, 752, CV_8UC1);
+  for (int y = 0; y < 480; ++y)
+    for (int x = 0; x < 752; ++x) raw.at<uint8_t>(y, x) = static_cast<uint8_t>(10 + a * x + b * y);  // <= 228
+  PreprocessedFrame f;
+  pre.process(raw, 0.0, &f);
+  const int r = 4;  // beyond the blur radius ceil(3 * 0.8) = 3 and the border
+  for (int y = r; y < 60 - r; ++y)
+    for (int x = r; x < 94 - r; ++x) {
+      // Raw values are floor(20 + a x + b y), a staircase that the sparse footprint taps see slightly
+      // unevenly: allow 1 % of the slope (a wrong scale or definition would be off by 50 % or more).
+      EXPECT_NEAR(255.0 * f.grad_x.at<float>(y, x), 8 * a, 2e-2) << x << "," << y;
+      EXPECT_NEAR(255.0 * f.grad_y.at<float>(y, x), 8 * b, 1e-2) << x << "," << y;
+    }
+}
+
+TEST(ImagePreprocessor, InvalidInput) {
+  ImagePreprocessor pre(mynt(), PreprocessParams{});
+  PreprocessedFrame f;
+  auto expectMessage = [&](const cv::Mat& img, const std::string& got) {
+    try {
+      pre.process(img, 0.0, &f);
+      FAIL() << "no exception for " << got;
+    } catch (const std::invalid_argument& e) {
+      const std::string msg = e.what();
+      EXPECT_NE(msg.find("CV_8UC1 752x480"), std::string::npos) << msg;
+      EXPECT_NE(msg.find(got), std::string::npos) << msg;
+    }
+  };
+  expectMessage(cv::Mat(480, 640, CV_8UC1, cv::Scalar(0)), "CV_8UC1 640x480");
+  expectMessage(cv::Mat(480, 752, CV_8UC3, cv::Scalar(0)), "CV_8UC3 752x480");
+  expectMessage(cv::Mat(480, 752, CV_16UC1, cv::Scalar(0)), "CV_16UC1 752x480");
+  expectMessage(cv::Mat(), "0x0");
+  EXPECT_FALSE(f.valid);
+}
+
+TEST(ImagePreprocessor, ReusesBuffersAndAcceptsRoi) {
+  ImagePreprocessor pre(mynt(), PreprocessParams{});
+  PreprocessedFrame f;
+  const cv::Mat img = texture(752, 480, 9);
+  pre.process(img, 0.0, &f);
+  const void* ptrs[4] = {f.gray8.data, f.intensity.data, f.grad_x.data, f.grad_y.data};
+  const cv::Mat first = f.intensity.clone();
+  pre.process(texture(752, 480, 10), 0.1, &f);
+  EXPECT_GT(cv::norm(first, f.intensity, cv::NORM_INF), 0.1);  // new content...
+  EXPECT_EQ(ptrs[0], static_cast<const void*>(f.gray8.data));  // ...in the same buffers
+  EXPECT_EQ(ptrs[1], static_cast<const void*>(f.intensity.data));
+  EXPECT_EQ(ptrs[2], static_cast<const void*>(f.grad_x.data));
+  EXPECT_EQ(ptrs[3], static_cast<const void*>(f.grad_y.data));
+  // A non-continuous view of a larger image gives the same result as the continuous image.
+  cv::Mat big(500, 800, CV_8UC1, cv::Scalar(0));
+  img.copyTo(big(cv::Rect(20, 10, 752, 480)));
+  pre.process(big(cv::Rect(20, 10, 752, 480)), 0.2, &f);
+  EXPECT_EQ(cv::norm(first, f.intensity, cv::NORM_INF), 0.0);
+}
+
+}  // namespace
+}  // namespace diekf

@@ -1,0 +1,298 @@
+// YamlParamSource, the estimator key table (config/estimator.yaml == EstimatorParams{} defaults), range
+// validation, and the Kalibr IMU reader.
+#include <gtest/gtest.h>
+#include <yaml-cpp/yaml.h>
+
+#include <cstdio>
+#include <fstream>
+#include <functional>
+#include <set>
+#include <stdexcept>
+#include <string>
+
+#include "diekf/param_source.h"
+
+namespace diekf {
+namespace {
+
+std::string packageDir() {
+  std::string f = __FILE__;
+  const std::string tail = "test/core/test_param_source.cpp";
+  return f.substr(0, f.size() - tail.size());
+}
+
+class TempYaml {
+ public:
+  TempYaml(const std::string& name, const std::string& text)
+      : path_(::testing::TempDir() + "diekf_paramtest_" + name + ".yaml") {
+    std::ofstream(path_) << text;
+  }
+  ~TempYaml() { std::remove(path_.c_str()); }
+  const std::string& path() const { return path_; }
+
+ private:
+  std::string path_;
+};
+
+// Runs f, expects std::runtime_error whose message contains every string of `parts`.
+void expectError(const std::function<void()>& f, const std::vector<std::string>& parts) {
+  try {
+    f();
+    FAIL() << "no exception; expected one naming " << parts.back();
+  } catch (const std::runtime_error& e) {
+    const std::string msg = e.what();
+    for (const auto& p : parts) EXPECT_NE(msg.find(p), std::string::npos) << "'" << p << "' not in: " << msg;
+  }
+}
+
+// Field-by-field comparison of every parameter (exact).
+bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
+  const InitParams &ia = a.init, &ib = b.init;
+  const ImuParams &ma = a.imu, &mb = b.imu;
+  const ProcessNoiseParams &pa = a.process, &pb = b.process;
+  const PreprocessParams &ra = a.preprocess, &rb = b.preprocess;
+  const PhotometricParams &ha = a.photometric, &hb = b.photometric;
+  const FeatureParams &fa = a.feature, &fb = b.feature;
+  const DivergenceParams &da = a.divergence, &db = b.divergence;
+  return a.mode == b.mode && ia.alpha0_inv_m == ib.alpha0_inv_m && ia.vartheta0_inv_s == ib.vartheta0_inv_s &&
+         ia.mu0 == ib.mu0 && ia.g0 == ib.g0 && ia.g0_from_accel == ib.g0_from_accel &&
+         ia.sigma_alpha0_inv_m == ib.sigma_alpha0_inv_m && ia.sigma_vartheta0_inv_s == ib.sigma_vartheta0_inv_s &&
+         ia.sigma_mu0_rad == ib.sigma_mu0_rad && ia.sigma_g0_rad == ib.sigma_g0_rad &&
+         ia.sigma_ba0_mps2 == ib.sigma_ba0_mps2 && ia.sigma_bw0_radps == ib.sigma_bw0_radps &&
+         ma.accel_noise_density == mb.accel_noise_density && ma.gyro_noise_density == mb.gyro_noise_density &&
+         ma.accel_random_walk == mb.accel_random_walk && ma.gyro_random_walk == mb.gyro_random_walk &&
+         ma.input_rate_hz == mb.input_rate_hz && ma.lowpass_cutoff_hz == mb.lowpass_cutoff_hz &&
+         ma.lowpass_order == mb.lowpass_order && ma.decimation_factor == mb.decimation_factor &&
+         ma.compensate_filter_delay == mb.compensate_filter_delay &&
+         ma.lever_arm_compensation == mb.lever_arm_compensation && ma.gravity_mps2 == mb.gravity_mps2 &&
+         pa.alpha_inv_m_per_sqrt_s == pb.alpha_inv_m_per_sqrt_s &&
+         pa.vartheta_inv_s_per_sqrt_s == pb.vartheta_inv_s_per_sqrt_s &&
+         pa.mu_rad_per_sqrt_s == pb.mu_rad_per_sqrt_s && pa.g_rad_per_sqrt_s == pb.g_rad_per_sqrt_s &&
+         ra.working_width_px == rb.working_width_px && ra.working_height_px == rb.working_height_px &&
+         ra.blur_sigma_px == rb.blur_sigma_px && ra.normalize_brightness == rb.normalize_brightness &&
+         ra.border_px == rb.border_px && ha.max_passes == hb.max_passes && ha.stop_threshold == hb.stop_threshold &&
+         ha.intensity_noise_sigma == hb.intensity_noise_sigma && ha.gradient_weighting == hb.gradient_weighting &&
+         ha.huber_threshold == hb.huber_threshold && ha.min_valid_ratio == hb.min_valid_ratio &&
+         ha.pixel_stride == hb.pixel_stride && fa.max_corners == fb.max_corners &&
+         fa.quality_level == fb.quality_level && fa.min_distance_px == fb.min_distance_px &&
+         fa.window_px == fb.window_px && fa.pyramid_levels == fb.pyramid_levels &&
+         fa.pixel_noise_sigma_px == fb.pixel_noise_sigma_px && fa.huber_threshold_px == fb.huber_threshold_px &&
+         fa.working_width_px == fb.working_width_px && da.min_distance_m == db.min_distance_m &&
+         da.max_distance_m == db.max_distance_m && da.max_sigma_distance_m == db.max_sigma_distance_m &&
+         da.max_photometric_rms == db.max_photometric_rms &&
+         da.bad_frames_before_reset == db.bad_frames_before_reset && a.max_imu_gap_s == b.max_imu_gap_s &&
+         a.max_queued_images == b.max_queued_images;
+}
+
+// Leaf keys ("a/b") of a YAML map.
+void leafKeys(const YAML::Node& n, const std::string& prefix, std::set<std::string>* out) {
+  for (const auto& kv : n) {
+    const std::string key = prefix + kv.first.as<std::string>();
+    if (kv.second.IsMap()) {
+      leafKeys(kv.second, key + "/", out);
+    } else {
+      out->insert(key);
+    }
+  }
+}
+
+std::string estimatorYaml() { return packageDir() + "config/estimator.yaml"; }
+
+TEST(YamlParamSource, NestedKeysAndTypes) {
+  TempYaml f("types", "a:\n  b:\n    c: 3\n  x: 2.5\n  flag: true\n  name: hello\n  list: [1, 2.5, -3]\n"
+                      "top: 7\nbadnum: abc\nbadlist: [1, x]\n");
+  YamlParamSource src(f.path());
+  EXPECT_EQ(src.origin(), f.path());
+  double d = 0;
+  ASSERT_TRUE(src.get("a/b/c", &d));  // an int where a double is expected
+  EXPECT_EQ(d, 3.0);
+  ASSERT_TRUE(src.get("a/x", &d));
+  EXPECT_EQ(d, 2.5);
+  int i = 0;
+  ASSERT_TRUE(src.get("top", &i));
+  EXPECT_EQ(i, 7);
+  bool b = false;
+  ASSERT_TRUE(src.get("a/flag", &b));
+  EXPECT_TRUE(b);
+  std::string s;
+  ASSERT_TRUE(src.get("a/name", &s));
+  EXPECT_EQ(s, "hello");
+  std::vector<double> v;
+  ASSERT_TRUE(src.get("a/list", &v));
+  EXPECT_EQ(v, (std::vector<double>{1.0, 2.5, -3.0}));
+  // Absent keys: false, value untouched.
+  d = 42.0;
+  EXPECT_FALSE(src.get("a/missing", &d));
+  EXPECT_FALSE(src.get("nothere/deeper", &d));
+  EXPECT_EQ(d, 42.0);
+  // Wrong types: errors naming file and key.
+  expectError([&] { src.get("a/x", &i); }, {f.path(), "a/x", "integer"});
+  expectError([&] { src.get("badnum", &d); }, {f.path(), "badnum"});
+  expectError([&] { src.get("a/name", &b); }, {f.path(), "a/name"});
+  expectError([&] { src.get("a/list", &d); }, {f.path(), "a/list"});
+  expectError([&] { src.get("a/b", &s); }, {f.path(), "a/b"});
+  expectError([&] { src.get("badlist", &v); }, {f.path(), "badlist"});
+  expectError([&] { src.get("top/sub", &d); }, {f.path(), "top/sub"});
+  // Unreadable or malformed files.
+  expectError([] { YamlParamSource("/nonexistent_diekf_dir/p.yaml"); }, {"/nonexistent_diekf_dir/p.yaml"});
+  TempYaml bad("malformed", "a: [1, 2\nb: {\n");
+  expectError([&] { YamlParamSource{bad.path()}; }, {bad.path()});
+}
+
+TEST(EstimatorParams, ConfigFileReproducesDefaultsExactly) {
+  YamlParamSource src(estimatorYaml());
+  EstimatorParams p;
+  p.photometric.max_passes = 99;  // must be overwritten by the file
+  p.init.mu0 = Vec3(1, 2, 3);
+  loadEstimatorParams(src, &p);
+  EXPECT_TRUE(sameParams(p, EstimatorParams{}));
+}
+
+TEST(EstimatorParams, ConfigFileHasExactlyTheTableKeys) {
+  const YAML::Node root = YAML::LoadFile(estimatorYaml());
+  std::set<std::string> in_file;
+  leafKeys(root, "", &in_file);
+  const auto table = estimatorParamKeys();
+  const std::set<std::string> in_table(table.begin(), table.end());
+  EXPECT_EQ(in_table.size(), table.size()) << "duplicate key in the table";
+  for (const auto& k : in_table) EXPECT_EQ(in_file.count(k), 1u) << "config/estimator.yaml lacks " << k;
+  for (const auto& k : in_file) EXPECT_EQ(in_table.count(k), 1u) << "config/estimator.yaml has unknown " << k;
+  // Every key carries a comment (unit and meaning): check the raw text line by line.
+  std::ifstream in(estimatorYaml());
+  std::string line;
+  int commented = 0;
+  while (std::getline(in, line)) {
+    const auto colon = line.find(':');
+    if (line.empty() || line[0] == '#' || colon == std::string::npos) continue;
+    const std::string rest = line.substr(colon + 1);
+    if (rest.find_first_not_of(' ') == std::string::npos) continue;  // a section header ("imu:")
+    EXPECT_NE(rest.find('#'), std::string::npos) << "no comment on: " << line;
+    ++commented;
+  }
+  EXPECT_EQ(commented, static_cast<int>(table.size()));
+}
+
+// A non-default valid value for every key, derived from its default in the config file.
+std::string perturbed(const std::string& key, const YAML::Node& def) {
+  if (key == "mode") return "lk";
+  if (def.IsSequence()) return "[0.1, 0.2, 0.9]";
+  const std::string s = def.Scalar();
+  if (s == "true") return "false";
+  if (s == "false") return "true";
+  if (s.find_first_of(".eE") == std::string::npos) return std::to_string(std::stoi(s) + 4);  // int (even step)
+  const double v = def.as<double>();
+  return std::to_string(v == 0.0 ? 0.5 : 1.5 * v);
+}
+
+TEST(EstimatorParams, EveryKeyChangesItsField) {
+  const YAML::Node root = YAML::LoadFile(estimatorYaml());
+  for (const std::string& key : estimatorParamKeys()) {
+    // Build "a:\n  b: value" for the key.
+    const auto slash = key.find('/');
+    const YAML::Node def = slash == std::string::npos ? root[key] : root[key.substr(0, slash)][key.substr(slash + 1)];
+    ASSERT_TRUE(def.IsDefined()) << key;
+    const std::string value = perturbed(key, def);
+    const std::string text = slash == std::string::npos
+                                 ? key + ": " + value + "\n"
+                                 : key.substr(0, slash) + ":\n  " + key.substr(slash + 1) + ": " + value + "\n";
+    TempYaml f("perturb", text);
+    EstimatorParams p;
+    ASSERT_NO_THROW(loadEstimatorParams(YamlParamSource(f.path()), &p)) << key << " = " << value;
+    EXPECT_FALSE(sameParams(p, EstimatorParams{})) << key << " = " << value << " changed nothing";
+  }
+  // Spot checks of the mapping.
+  TempYaml f("spot", "mode: ekf\ninit:\n  mu0: [0, 0.6, 0.8]\nimu:\n  lowpass_cutoff_hz: 35\n"
+                     "preprocess:\n  working_width_px: 180\nphotometric:\n  max_passes: 5\n");
+  EstimatorParams p;
+  loadEstimatorParams(YamlParamSource(f.path()), &p);
+  EXPECT_EQ(p.mode, UpdateMode::kEkf);
+  EXPECT_EQ(p.init.mu0, Vec3(0, 0.6, 0.8));
+  EXPECT_EQ(p.imu.lowpass_cutoff_hz, 35.0);
+  EXPECT_EQ(p.preprocess.working_width_px, 180);
+  EXPECT_EQ(p.photometric.max_passes, 5);
+  EXPECT_EQ(p.photometric.stop_threshold, PhotometricParams{}.stop_threshold);  // untouched
+}
+
+TEST(EstimatorParams, ValidationErrorsNameOriginAndKey) {
+  struct Case {
+    std::string text, key;
+  };
+  const std::vector<Case> cases = {
+      {"imu:\n  lowpass_cutoff_hz: -1\n", "imu/lowpass_cutoff_hz"},
+      {"imu:\n  lowpass_cutoff_hz: 300\n", "imu/lowpass_cutoff_hz"},  // above input_rate_hz / 2
+      {"imu:\n  input_rate_hz: 30\n", "imu/input_rate_hz"},          // makes the 20 Hz cutoff invalid
+      {"imu:\n  lowpass_order: 3\n", "imu/lowpass_order"},
+      {"imu:\n  gravity_mps2: abc\n", "imu/gravity_mps2"},
+      {"mode: fast\n", "mode"},
+      {"init:\n  mu0: [0, 0, 0]\n", "init/mu0"},
+      {"init:\n  g0: [0, 1]\n", "init/g0"},
+      {"init:\n  alpha0_inv_m: 0\n", "init/alpha0_inv_m"},
+      {"preprocess:\n  working_width_px: 90.5\n", "preprocess/working_width_px"},
+      {"preprocess:\n  working_height_px: 2\n", "preprocess/working_height_px"},
+      {"preprocess:\n  blur_sigma_px: -0.1\n", "preprocess/blur_sigma_px"},
+      {"photometric:\n  max_passes: 0\n", "photometric/max_passes"},
+      {"photometric:\n  min_valid_ratio: 1.5\n", "photometric/min_valid_ratio"},
+      {"divergence:\n  max_distance_m: 0.01\n", "divergence/max_distance_m"},
+      {"max_queued_images: 0\n", "max_queued_images"},
+      {"preprocess: 5\n", "preprocess/"},
+  };
+  for (const Case& c : cases) {
+    TempYaml f("invalid", c.text);
+    EstimatorParams p;
+    p.photometric.max_passes = 2;
+    expectError([&] { loadEstimatorParams(YamlParamSource(f.path()), &p); }, {f.path(), c.key});
+    EXPECT_EQ(p.photometric.max_passes, 2) << "params modified by a failed load: " << c.text;
+  }
+}
+
+TEST(KalibrImu, SampleFileParses) {
+  ImuParams imu;
+  imu.lowpass_cutoff_hz = 33.0;
+  loadKalibrImuYaml(packageDir() + "config/mynteye_imu.yaml", &imu);
+  EXPECT_EQ(imu.accel_noise_density, 2.0e-2);
+  EXPECT_EQ(imu.accel_random_walk, 2.0e-3);
+  EXPECT_EQ(imu.gyro_noise_density, 1.7e-3);
+  EXPECT_EQ(imu.gyro_random_walk, 2.0e-5);
+  EXPECT_EQ(imu.input_rate_hz, 500.0);
+  EXPECT_EQ(imu.lowpass_cutoff_hz, 33.0);  // not an IMU-file key: untouched
+}
+
+TEST(KalibrImu, TopLevelKeysAndErrors) {
+  const std::string body =
+      "accelerometer_noise_density: 0.03\naccelerometer_random_walk: 0.004\ngyroscope_noise_density: 0.002\n"
+      "gyroscope_random_walk: 3.0e-5\nupdate_rate: 200\nrostopic: /imu\n";
+  {
+    TempYaml f("imu_top", body);
+    ImuParams imu;
+    loadKalibrImuYaml(f.path(), &imu);
+    EXPECT_EQ(imu.accel_noise_density, 0.03);
+    EXPECT_EQ(imu.gyro_random_walk, 3.0e-5);
+    EXPECT_EQ(imu.input_rate_hz, 200.0);
+  }
+  {
+    TempYaml f("imu_missing", "imu0:\n  accelerometer_noise_density: 0.03\n  accelerometer_random_walk: 0.004\n"
+                              "  gyroscope_noise_density: 0.002\n  update_rate: 200\n");
+    ImuParams imu;
+    expectError([&] { loadKalibrImuYaml(f.path(), &imu); }, {f.path(), "imu0/gyroscope_random_walk", "missing"});
+    EXPECT_EQ(imu.accel_noise_density, ImuParams{}.accel_noise_density);  // unchanged on error
+  }
+  {
+    std::string text = body;
+    text.replace(text.find("0.002"), 5, "fast");
+    TempYaml f("imu_text", text);
+    ImuParams imu;
+    expectError([&] { loadKalibrImuYaml(f.path(), &imu); }, {f.path(), "gyroscope_noise_density"});
+  }
+  {
+    std::string text = body;
+    text.replace(text.find("200"), 3, "-5");
+    TempYaml f("imu_neg", text);
+    ImuParams imu;
+    expectError([&] { loadKalibrImuYaml(f.path(), &imu); }, {f.path(), "update_rate"});
+  }
+  ImuParams imu;
+  expectError([&] { loadKalibrImuYaml("/nonexistent_diekf_dir/imu.yaml", &imu); }, {"/nonexistent_diekf_dir/imu.yaml"});
+}
+
+}  // namespace
+}  // namespace diekf

@@ -1,0 +1,270 @@
+// Prediction: Jacobians against central finite differences with the state's own [+]/[-], mean propagation in
+// simple motions, and covariance behaviour.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <random>
+
+#include <Eigen/Cholesky>
+
+#include "diekf/prediction.h"
+
+namespace diekf {
+namespace {
+
+constexpr double kG0 = 9.81;  // m/s^2
+
+struct Case {
+  State x;
+  Vec3 accel_C;  // m/s^2
+  Vec3 gyro_C;   // rad/s
+  double dt_s;
+};
+
+Case randomCase(std::mt19937& rng, double dt_s, double rate_scale) {
+  std::normal_distribution<double> n(0.0, 1.0);
+  Case c;
+  c.x.alpha = 0.3 + std::abs(n(rng));
+  c.x.vartheta = Vec3(n(rng), n(rng), n(rng));
+  c.x.mu = UnitVector(Vec3(0.3 * n(rng), 0.3 * n(rng), 1.0));
+  c.x.g = UnitVector(Vec3(0.3 * n(rng), 0.3 * n(rng), 1.0));
+  c.x.b_a = 0.2 * Vec3(n(rng), n(rng), n(rng));
+  c.x.b_w = 0.05 * Vec3(n(rng), n(rng), n(rng));
+  c.accel_C = -kG0 * c.x.g.vector() + Vec3(n(rng), n(rng), n(rng));
+  c.gyro_C = rate_scale * Vec3(n(rng), n(rng), n(rng));
+  c.dt_s = dt_s;
+  return c;
+}
+
+/// f(x, n) exactly as documented in prediction.h (NoiseIdx).
+State predictWithNoise(const Case& c, const NoiseVec& n) {
+  State y = predictState(c.x, c.accel_C + n.segment<3>(NoiseIdx::kAccel), c.gyro_C + n.segment<3>(NoiseIdx::kGyro),
+                         c.dt_s, kG0);
+  ErrorVec inc = ErrorVec::Zero();
+  inc(ErrIdx::kAlpha) = n(NoiseIdx::kAlpha);
+  inc.segment<3>(ErrIdx::kVartheta) = n.segment<3>(NoiseIdx::kVartheta);
+  inc.segment<2>(ErrIdx::kMu) = n.segment<2>(NoiseIdx::kMu);
+  inc.segment<2>(ErrIdx::kG) = n.segment<2>(NoiseIdx::kG);
+  inc.segment<3>(ErrIdx::kBa) = n.segment<3>(NoiseIdx::kBaWalk);
+  inc.segment<3>(ErrIdx::kBw) = n.segment<3>(NoiseIdx::kBwWalk);
+  return y.boxplus(inc);
+}
+
+ErrorCov numericF(const Case& c, double h) {
+  const State f0 = predictState(c.x, c.accel_C, c.gyro_C, c.dt_s, kG0);
+  ErrorCov F;
+  for (int i = 0; i < kErrorDim; ++i) {
+    ErrorVec e = ErrorVec::Zero();
+    e(i) = h;
+    const State fp = predictState(c.x.boxplus(e), c.accel_C, c.gyro_C, c.dt_s, kG0);
+    const State fm = predictState(c.x.boxplus(-e), c.accel_C, c.gyro_C, c.dt_s, kG0);
+    F.col(i) = (fp.boxminus(f0) - fm.boxminus(f0)) / (2.0 * h);
+  }
+  return F;
+}
+
+NoiseJacobian numericG(const Case& c, double h) {
+  const State f0 = predictWithNoise(c, NoiseVec::Zero());
+  NoiseJacobian G;
+  for (int i = 0; i < kNoiseDim; ++i) {
+    NoiseVec e = NoiseVec::Zero();
+    e(i) = h;
+    G.col(i) = (predictWithNoise(c, e).boxminus(f0) - predictWithNoise(c, -e).boxminus(f0)) / (2.0 * h);
+  }
+  return G;
+}
+
+template <typename A, typename B>
+double relativeMaxError(const A& analytic, const B& numeric) {
+  return (analytic - numeric).cwiseAbs().maxCoeff() / std::max(1.0, analytic.cwiseAbs().maxCoeff());
+}
+
+TEST(Prediction, JacobiansMatchFiniteDifferences) {
+  std::mt19937 rng(11);
+  struct Setting {
+    double dt_s, rate_scale;
+  };
+  const Setting settings[] = {{0.01, 1.0}, {0.01, 0.01}, {0.05, 3.0}, {0.002, 0.5}};
+  for (const Setting& s : settings) {
+    for (int trial = 0; trial < 8; ++trial) {
+      const Case c = randomCase(rng, s.dt_s, s.rate_scale);
+      ErrorCov F;
+      NoiseJacobian G;
+      predictionJacobians(c.x, c.accel_C, c.gyro_C, c.dt_s, kG0, &F, &G);
+      const ErrorCov Fn = numericF(c, 1e-6);
+      const NoiseJacobian Gn = numericG(c, 1e-6);
+      EXPECT_LT(relativeMaxError(F, Fn), 1e-6) << "dt " << s.dt_s << " trial " << trial << "\nF\n"
+                                               << F << "\nFn\n" << Fn;
+      EXPECT_LT(relativeMaxError(G, Gn), 1e-6) << "dt " << s.dt_s << " trial " << trial << "\nG\n"
+                                               << G << "\nGn\n" << Gn;
+      // The S^2 blocks are the error-prone ones: check them on their own scale as well.
+      EXPECT_LT((F.block<4, 4>(ErrIdx::kMu, ErrIdx::kMu) - Fn.block<4, 4>(ErrIdx::kMu, ErrIdx::kMu)).norm(), 1e-7);
+      EXPECT_LT((F.block<4, 3>(ErrIdx::kMu, ErrIdx::kBw) - Fn.block<4, 3>(ErrIdx::kMu, ErrIdx::kBw)).norm(), 1e-8);
+    }
+  }
+}
+
+TEST(Prediction, JacobiansAtMuEqualGAndUntiltedCamera) {
+  // Degenerate-looking but common configuration: mu = g = e_z (hover over level ground).
+  Case c;
+  c.x.mu = UnitVector(Vec3(0, 0, 1));
+  c.x.g = UnitVector(Vec3(0, 0, 1));
+  c.x.vartheta = Vec3(0.1, -0.2, 0.05);
+  c.x.b_w = Vec3(0.01, 0.0, -0.02);
+  c.accel_C = Vec3(0.1, 0.2, -9.7);
+  c.gyro_C = Vec3(0.3, -0.1, 0.2);
+  c.dt_s = 0.01;
+  ErrorCov F;
+  NoiseJacobian G;
+  predictionJacobians(c.x, c.accel_C, c.gyro_C, c.dt_s, kG0, &F, &G);
+  EXPECT_LT(relativeMaxError(F, numericF(c, 1e-6)), 1e-6);
+  EXPECT_LT(relativeMaxError(G, numericG(c, 1e-6)), 1e-6);
+  // The gyro-noise columns are minus the gyro-bias columns (outside the bias rows, where F has its identity).
+  EXPECT_LT((G.block<ErrIdx::kBa, 3>(0, NoiseIdx::kGyro) + F.block<ErrIdx::kBa, 3>(0, ErrIdx::kBw)).norm(), 1e-15);
+  EXPECT_TRUE((G.block<6, 3>(ErrIdx::kBa, NoiseIdx::kGyro).isZero()));
+}
+
+TEST(Prediction, HoverKeepsVarthetaZero) {
+  // At rest the accelerometer reads -g0 g (1 g "up"); vartheta and alpha must stay constant, for a level and
+  // a tilted camera.
+  const Vec3 gravity_dirs[] = {Vec3(0, 0, 1), Vec3(0.3, -0.2, 0.93)};
+  for (const Vec3& gdir : gravity_dirs) {
+    State x;
+    x.alpha = 2.0;
+    x.mu = UnitVector(gdir);
+    x.g = UnitVector(gdir);
+    const Vec3 accel = -kG0 * x.g.vector();
+    for (int k = 0; k < 1000; ++k) x = predictState(x, accel, Vec3::Zero(), 0.01, kG0);
+    EXPECT_LT(x.vartheta.norm(), 1e-12);
+    EXPECT_NEAR(x.alpha, 2.0, 1e-12);
+    EXPECT_LT((x.g.vector() - gdir.normalized()).norm(), 1e-12);
+  }
+}
+
+TEST(Prediction, ConstantVelocityMovesDistanceConsistently) {
+  // d' = d - (v . mu) dt with v constant (no acceleration, no rotation).
+  State x;
+  const double d0_m = 2.0;
+  const Vec3 v_mps(0.3, -0.2, 0.5);
+  x.alpha = 1.0 / d0_m;
+  x.vartheta = v_mps * x.alpha;
+  x.mu = UnitVector(Vec3(0.2, 0.1, 1.0));
+  x.g = x.mu;
+  const Vec3 mu = x.mu.vector();
+  const Vec3 accel = -kG0 * x.g.vector();  // specific force of unaccelerated motion
+  const double dt_s = 1e-3;
+  const int steps = 1000;
+  for (int k = 0; k < steps; ++k) x = predictState(x, accel, Vec3::Zero(), dt_s, kG0);
+  const double d_expected_m = d0_m - v_mps.dot(mu) * dt_s * steps;
+  EXPECT_NEAR(x.distance_m(), d_expected_m, 2e-3);  // forward Euler, O(dt)
+  EXPECT_LT((x.velocity_mps() - v_mps).norm(), 1e-3);
+  EXPECT_LT((x.mu.vector() - mu).norm(), 1e-14);
+}
+
+TEST(Prediction, PureRotationTurnsWorldDirectionsBackwards) {
+  // Camera yawing at +1 rad/s about its optical axis: a world-fixed direction along x_C ends on -y_C after
+  // pi/2 s.
+  State x;
+  x.mu = UnitVector(Vec3(1, 0, 0));
+  x.g = UnitVector(Vec3(0, 1, 0));
+  const double dt_s = M_PI / 2.0 / 1000.0;
+  for (int k = 0; k < 1000; ++k) x = predictState(x, Vec3::Zero(), Vec3(0, 0, 1), dt_s, kG0);
+  EXPECT_LT((x.mu.vector() - Vec3(0, -1, 0)).norm(), 1e-9);
+  EXPECT_LT((x.g.vector() - Vec3(1, 0, 0)).norm(), 1e-9);
+}
+
+TEST(Prediction, DiscreteNoiseSigmas) {
+  ImuParams imu;
+  ProcessNoiseParams proc;
+  const double dt_s = 0.01;
+  const NoiseVec s = discreteNoiseSigmas(imu, proc, dt_s);
+  EXPECT_DOUBLE_EQ(s(NoiseIdx::kAccel), imu.accel_noise_density / std::sqrt(dt_s));
+  EXPECT_DOUBLE_EQ(s(NoiseIdx::kGyro + 2), imu.gyro_noise_density / std::sqrt(dt_s));
+  EXPECT_DOUBLE_EQ(s(NoiseIdx::kBaWalk + 1), imu.accel_random_walk * std::sqrt(dt_s));
+  EXPECT_DOUBLE_EQ(s(NoiseIdx::kBwWalk), imu.gyro_random_walk * std::sqrt(dt_s));
+  EXPECT_DOUBLE_EQ(s(NoiseIdx::kAlpha), proc.alpha_inv_m_per_sqrt_s * std::sqrt(dt_s));
+  EXPECT_DOUBLE_EQ(s(NoiseIdx::kMu + 1), proc.mu_rad_per_sqrt_s * std::sqrt(dt_s));
+  EXPECT_DOUBLE_EQ(s(NoiseIdx::kG), proc.g_rad_per_sqrt_s * std::sqrt(dt_s));
+  EXPECT_TRUE(discreteNoiseSigmas(imu, proc, 0.0).isZero());
+}
+
+TEST(Prediction, NoiseGrowthIndependentOfStepSize) {
+  // Starting from P = 0 at hover, 1 s of prediction with dt = 10 ms and dt = 2.5 ms must give nearly the same P.
+  ImuParams imu;
+  ProcessNoiseParams proc;
+  auto run = [&](double dt_s) {
+    State x;
+    x.alpha = 1.0;
+    x.mu = UnitVector(Vec3(0.1, 0, 1));
+    x.g = UnitVector(Vec3(0, 0.1, 1));
+    x.vartheta = Vec3(0.2, 0.1, -0.1);
+    ErrorCov P = ErrorCov::Zero();
+    const int steps = static_cast<int>(std::lround(1.0 / dt_s));
+    for (int k = 0; k < steps; ++k) predict(-kG0 * x.g.vector(), Vec3(0.1, 0, 0), dt_s, imu, proc, &x, &P);
+    return P;
+  };
+  const ErrorCov P1 = run(0.01);
+  const ErrorCov P2 = run(0.0025);
+  EXPECT_GT(P1.diagonal().minCoeff(), 0.0);
+  EXPECT_LT((P1 - P2).norm(), 0.05 * P1.norm());
+  // A zero-length step is a no-op.
+  State x;
+  ErrorCov P = ErrorCov::Identity();
+  predict(Vec3(1, 2, 3), Vec3(1, 0, 0), 0.0, imu, proc, &x, &P);
+  EXPECT_TRUE(P.isIdentity());
+  EXPECT_DOUBLE_EQ(x.alpha, State().alpha);
+}
+
+TEST(Prediction, CovarianceStepEqualsDenseFormula) {
+  // predict() exploits the structure of F and G; it must equal F P F^T + G Q G^T computed densely.
+  std::mt19937 rng(13);
+  std::normal_distribution<double> n(0.0, 1.0);
+  ImuParams imu;
+  imu.gravity_mps2 = kG0;
+  ProcessNoiseParams proc;
+  for (int trial = 0; trial < 5; ++trial) {
+    const Case c = randomCase(rng, 0.01, 1.0);
+    Eigen::Matrix<double, kErrorDim, kErrorDim> A;
+    for (int i = 0; i < kErrorDim; ++i)
+      for (int j = 0; j < kErrorDim; ++j) A(i, j) = n(rng);
+    const ErrorCov P0 = A * A.transpose() * 0.01 + ErrorCov::Identity() * 1e-3;
+    ErrorCov F;
+    NoiseJacobian G;
+    predictionJacobians(c.x, c.accel_C, c.gyro_C, c.dt_s, kG0, &F, &G);
+    const NoiseVec sigma = discreteNoiseSigmas(imu, proc, c.dt_s);
+    const ErrorCov expected = F * P0 * F.transpose() + G * sigma.cwiseAbs2().asDiagonal() * G.transpose();
+    State x = c.x;
+    ErrorCov P = P0;
+    predict(c.accel_C, c.gyro_C, c.dt_s, imu, proc, &x, &P);
+    EXPECT_LT((P - expected).cwiseAbs().maxCoeff(), 1e-12 * expected.cwiseAbs().maxCoeff());
+    EXPECT_LT(x.boxminus(predictState(c.x, c.accel_C, c.gyro_C, c.dt_s, kG0)).norm(), 1e-15);
+  }
+}
+
+TEST(Prediction, CovarianceStaysSymmetricPositiveDefinite) {
+  std::mt19937 rng(12);
+  std::normal_distribution<double> n(0.0, 1.0);
+  ImuParams imu;
+  ProcessNoiseParams proc;
+  State x;
+  x.alpha = 1.0;
+  x.mu = UnitVector(Vec3(0.2, -0.1, 0.97));
+  ErrorCov P = ErrorCov::Identity() * 0.01;
+  int not_pd = 0;
+  for (int k = 0; k < 1000; ++k) {
+    const Vec3 accel = -kG0 * x.g.vector() + 0.5 * Vec3(n(rng), n(rng), n(rng));
+    const Vec3 gyro = 0.3 * Vec3(n(rng), n(rng), n(rng));
+    predict(accel, gyro, 0.01, imu, proc, &x, &P);
+    ASSERT_TRUE(P.allFinite()) << "step " << k;
+    ASSERT_TRUE(x.allFinite()) << "step " << k;
+    ASSERT_EQ((P - P.transpose()).cwiseAbs().maxCoeff(), 0.0) << "step " << k;
+    Eigen::LLT<ErrorCov> llt(P);
+    if (llt.info() != Eigen::Success) ++not_pd;
+  }
+  EXPECT_EQ(not_pd, 0);
+  const Eigen::LDLT<ErrorCov> ldlt(P);
+  EXPECT_GT(ldlt.vectorD().minCoeff(), 0.0);
+}
+
+}  // namespace
+}  // namespace diekf
