@@ -338,4 +338,36 @@ TEST(BagRunner, UnknownSetKeyIsRejected) {
   EXPECT_NE(r.err.find("no_such/key"), std::string::npos) << r.err;
 }
 
+int maxIterations(const fs::path& csv) {
+  int max_it = -1;
+  for (const diekf::eval::EstimateRow& r : diekf::eval::readEstimatesCsv(csv.string())) {
+    max_it = std::max(max_it, r.iterations);
+  }
+  return max_it;
+}
+
+TEST(BagRunner, ModeAndSetReachTheEstimator) {
+  Dirs dirs;
+  const std::string bag = (dirs.root / "f.bag").string();
+  writeFlightBag(bag, 2.0, false);
+  const std::string common = "--bag " + bag + " --camchain " + writeCamchain(dirs.root) + " --width 64 --quiet";
+  // Three passes allowed: the first updates, starting far from the true distance, use more than one.
+  RunResult r = runRunner(common + " --mode iekf --set photometric/max_passes=3 --set photometric/stop_threshold=1e-9"
+                                   " --output " + (dirs.root / "iekf").string(),
+                          dirs.root);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(maxIterations(dirs.root / "iekf" / "estimates.csv"), 3);
+  r = runRunner(common + " --mode iekf --set photometric/max_passes=1 --output " + (dirs.root / "one").string(),
+                dirs.root);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(maxIterations(dirs.root / "one" / "estimates.csv"), 1);
+  r = runRunner(common + " --mode ekf --output " + (dirs.root / "ekf").string(), dirs.root);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(maxIterations(dirs.root / "ekf" / "estimates.csv"), 1);
+  // A value of the wrong type names the key.
+  r = runRunner(common + " --set photometric/max_passes=two --output " + (dirs.root / "bad").string(), dirs.root);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.err.find("photometric/max_passes"), std::string::npos) << r.err;
+}
+
 }  // namespace
