@@ -20,8 +20,9 @@ Eigen::Isometry3d downwardCameraExtrinsics() {
   return T_cam_imu;
 }
 
-std::vector<PoseSample> track(double duration_s, double rate_hz, const Eigen::Vector3d& p0,
-                              const Eigen::Vector3d& v_W, const Eigen::Quaterniond& q = Eigen::Quaterniond::Identity()) {
+/// Straight track at constant velocity `v_W` (m/s) and attitude `q`, from t = 100 s.
+std::vector<PoseSample> track(double duration_s, double rate_hz, const Eigen::Vector3d& p0, const Eigen::Vector3d& v_W,
+                              const Eigen::Quaterniond& q = Eigen::Quaterniond::Identity()) {
   std::vector<PoseSample> poses;
   const int n = static_cast<int>(duration_s * rate_hz) + 1;
   for (int i = 0; i < n; ++i) {
