@@ -48,8 +48,16 @@ test: build
 	cd $(WS) && source devel/setup.bash && catkin_make -j1 run_tests
 	cd $(WS) && catkin_test_results build/test_results
 
+# Simulated flight -> offline estimator -> evaluation + plots in demo_output/ (docs/evaluation.md).
 demo: build
-	cd $(WS) && source devel/setup.bash && scripts_dir=$(CURDIR)/scripts && bash $(CURDIR)/scripts/demo.sh
+	cd $(WS) && source devel/setup.bash && DIEKF_WS=$(WS) bash $(CURDIR)/scripts/demo.sh $(CURDIR)/demo_output
+
+# The paper's Table I on simulated flights (+ inclined planes) into results/; long (tens of minutes).
+# Arguments for scripts/benchmark_table.py via BENCH_ARGS, e.g. make benchmark BENCH_ARGS="--duration 30".
+BENCH_ARGS ?=
+benchmark: build
+	cd $(WS) && source devel/setup.bash && DIEKF_WS=$(WS) python3 $(CURDIR)/scripts/benchmark_table.py \
+	  --output $(CURDIR)/results $(BENCH_ARGS)
 
 benchmark-core: build
 	cd $(WS) && catkin_make -j$(JOBS) diekf_benchmark && ./devel/lib/diekf/diekf_benchmark

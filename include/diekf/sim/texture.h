@@ -1,0 +1,132 @@
+// Tiled ground textures with a box-filtered mip pyramid, sampled trilinearly by the pixel footprint.
+#pragma once
+
+#include <cmath>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace diekf {
+namespace sim {
+
+/// A periodic (tiled) grey texture on the plane. Level-0 texel (i, j) covers
+/// u in [i su, (i+1) su), v in [j sv, (j+1) sv) (metres, plane coordinates), its value applies at its centre.
+/// Tile width and height are powers of two so wrapping is a bit mask.
+class Texture {
+ public:
+  /// Builds the pyramid from a level-0 image (row-major, `width` x `height`, powers of two, grey 0..255).
+  Texture(std::vector<float> level0, int width, int height, double texel_u_m, double texel_v_m);
+
+  /// Procedural checkerboard: squares of `square_m`, dark/bright grey levels, `texels_per_square` (power of 2).
+  static Texture checkerboard(double square_m = 0.05, int squares_per_tile = 16, int texels_per_square = 64,
+                              float dark = 40.f, float bright = 200.f);
+  /// Procedural vegetation-like texture (multi-octave noise, dirt, leaf blobs, grass blades), seedable.
+  /// Moderate contrast: mean ~110, standard deviation ~30 grey levels. `tile_px` a power of two.
+  static Texture natural(std::uint64_t seed, double texel_m = 0.002, int tile_px = 2048);
+  /// Any image file (read as grey), resampled to power-of-two dimensions, tile width `tile_width_m` metres.
+  /// Throws std::runtime_error naming the file when it cannot be read.
+  static Texture fromImage(const std::string& path, double tile_width_m);
+
+  /// Trilinear sample at plane coordinates (u, v) in metres for a pixel footprint `footprint_m` (metres).
+  inline float sample(double u_m, double v_m, float footprint_m) const;
+  /// Bilinear sample of one pyramid level.
+  inline float sampleLevel(int level, double u_m, double v_m) const;
+  /// Fast path: trilinear sample at level-0 texel coordinates (xt = u / texelU, yt = v / texelV; texel i's
+  /// centre at i + 0.5) and level of detail `lod` = log2(footprint / texel size).
+  inline float sampleTexel(float xt, float yt, float lod) const;
+
+  int levels() const { return static_cast<int>(levels_.size()); }
+  int width(int level = 0) const { return levels_[level].w; }
+  int height(int level = 0) const { return levels_[level].h; }
+  double texelU() const { return texel_u_m_; }
+  double tileU() const { return texel_u_m_ * levels_[0].w; }  ///< tile period along u (m)
+  double tileV() const { return texel_v_m_ * levels_[0].h; }  ///< tile period along v (m)
+  double texelV() const { return texel_v_m_; }
+  float mean() const { return mean_; }
+  float invTexelGeo() const { return inv_texel_geo_m_; }  ///< 1 / sqrt(texelU texelV) (1/m)
+  const std::vector<float>& data(int level = 0) const { return levels_[level].px; }
+
+ private:
+  struct Level {
+    int w = 0, h = 0;
+    double inv_su = 0.0, inv_sv = 0.0;  // 1 / texel size at this level (1/m)
+    float sx = 1.f, sy = 1.f;           // level-0 texel coordinates -> this level's
+    std::vector<float> px;
+  };
+  inline float bilinearTexel(const Level& L, float xt, float yt) const;
+  std::vector<Level> levels_;
+  double texel_u_m_ = 0.0, texel_v_m_ = 0.0;
+  float inv_texel_geo_m_ = 0.f;  // 1 / sqrt(su sv)
+  float mean_ = 0.f;
+};
+
+/// Fast log2 for positive floats (about 0.01 accuracy), used to pick mip levels.
+inline float fastLog2(float x) {
+  union {
+    float f;
+    std::uint32_t i;
+  } v{x};
+  const float e = static_cast<float>(static_cast<int>((v.i >> 23) & 255) - 128);
+  v.i = (v.i & 0x007FFFFF) | 0x3F800000;  // mantissa in [1, 2)
+  const float m = v.f;
+  return e + (-0.34484843f * m + 2.02466578f) * m - 0.67487759f;  // ~ 1 + log2(m) on [1, 2)
+}
+
+inline float Texture::sampleLevel(int level, double u_m, double v_m) const {
+  const Level& L = levels_[level];
+  const double x = u_m * L.inv_su - 0.5, y = v_m * L.inv_sv - 0.5;
+  const double fx0 = std::floor(x), fy0 = std::floor(y);
+  const float fx = static_cast<float>(x - fx0), fy = static_cast<float>(y - fy0);
+  const int mw = L.w - 1, mh = L.h - 1;
+  const int x0 = static_cast<int>(static_cast<long long>(fx0) & mw), y0 = static_cast<int>(static_cast<long long>(fy0) & mh);
+  const int x1 = (x0 + 1) & mw, y1 = (y0 + 1) & mh;
+  const float* r0 = &L.px[static_cast<std::size_t>(y0) * L.w];
+  const float* r1 = &L.px[static_cast<std::size_t>(y1) * L.w];
+  const float a = r0[x0] + fx * (r0[x1] - r0[x0]);
+  const float b = r1[x0] + fx * (r1[x1] - r1[x0]);
+  return a + fy * (b - a);
+}
+
+inline float Texture::bilinearTexel(const Level& L, float xt, float yt) const {
+  float x = xt * L.sx - 0.5f, y = yt * L.sy - 0.5f;
+  x = x < -1e9f ? -1e9f : (x > 1e9f ? 1e9f : x);
+  y = y < -1e9f ? -1e9f : (y > 1e9f ? 1e9f : y);
+  int ix = static_cast<int>(x), iy = static_cast<int>(y);
+  ix -= (x < static_cast<float>(ix));  // floor
+  iy -= (y < static_cast<float>(iy));
+  const float fx = x - static_cast<float>(ix), fy = y - static_cast<float>(iy);
+  const int mw = L.w - 1, mh = L.h - 1;
+  const int x0 = ix & mw, y0 = iy & mh, x1 = (x0 + 1) & mw, y1 = (y0 + 1) & mh;
+  const float* r0 = L.px.data() + static_cast<std::size_t>(y0) * L.w;
+  const float* r1 = L.px.data() + static_cast<std::size_t>(y1) * L.w;
+  const float a = r0[x0] + fx * (r0[x1] - r0[x0]);
+  const float b = r1[x0] + fx * (r1[x1] - r1[x0]);
+  return a + fy * (b - a);
+}
+
+inline float Texture::sampleTexel(float xt, float yt, float lod) const {
+  if (!(lod > 0.f)) return bilinearTexel(levels_[0], xt, yt);
+  const int top = static_cast<int>(levels_.size()) - 1;
+  if (lod >= static_cast<float>(top)) return bilinearTexel(levels_[top], xt, yt);
+  const int l0 = static_cast<int>(lod);
+  const float f = lod - static_cast<float>(l0);
+  const float a = bilinearTexel(levels_[l0], xt, yt);
+  if (f < 1.f / 64.f) return a;
+  const float b = bilinearTexel(levels_[l0 + 1], xt, yt);
+  return a + f * (b - a);
+}
+
+inline float Texture::sample(double u_m, double v_m, float footprint_m) const {
+  float lv = footprint_m > 0.f ? fastLog2(footprint_m * inv_texel_geo_m_) : 0.f;
+  if (!(lv > 0.f)) return sampleLevel(0, u_m, v_m);
+  const int top = static_cast<int>(levels_.size()) - 1;
+  if (lv >= static_cast<float>(top)) return sampleLevel(top, u_m, v_m);
+  const int l0 = static_cast<int>(lv);
+  const float f = lv - static_cast<float>(l0);
+  const float a = sampleLevel(l0, u_m, v_m);
+  const float b = sampleLevel(l0 + 1, u_m, v_m);
+  return a + f * (b - a);
+}
+
+}  // namespace sim
+}  // namespace diekf

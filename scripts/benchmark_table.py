@@ -1,0 +1,274 @@
+#!/usr/bin/env python3
+"""The paper's Table I on simulated flights, plus inclined planes (docs/evaluation.md, `make benchmark`).
+
+For each of the simulator's presets flight1..flight7 (imitating the paper's seven flights), simulate one sequence
+and run it through diekf_bag_runner with the iterated filter (iekf), the one-pass EKF (ekf) and the feature
+baseline (lk). Then simulate the `incline` preset over planes tilted by 0, 10, 20 and 30 degrees and run the
+iterated filter. Prints Markdown tables side by side with the paper's figures and writes, under --output:
+  benchmark.md     the tables
+  benchmark.json   every evaluation.json, keyed by run
+  runs/NAME/MODE/  each run's outputs (estimates.csv, groundtruth.csv, evaluation.json)
+Sequences are simulated into runs/NAME/sequence/ and deleted after their runs unless --keep-bags.
+
+    benchmark_table.py [--output DIR] [--duration S] [--flights 1,2,...] [--modes iekf,ekf,lk]
+                       [--inclines 0,10,20,30] [--seed N] [--runner-args "..."] [--keep-bags] [--plots]
+"""
+
+import argparse
+import datetime
+import json
+import math
+import os
+import subprocess
+import sys
+import time
+
+# The paper (Zhong & Chirarattananon, RA-L 2020), Table I: distance RMSE (cm) and velocity RMSE (cm/s) for
+# D-IEKF / D-EKF / LK; None = diverged. ALGORITHM.md section 5.
+PAPER = {
+    1: {"speed": "24 / 83", "texture": "checkerboard", "d": (2.2, 2.3, 4.9), "v": (2.0, 2.0, 1.4)},
+    2: {"speed": "21 / 113", "texture": "checkerboard", "d": (3.7, 3.7, 7.3), "v": (1.2, 1.2, 1.8)},
+    3: {"speed": "24 / 94", "texture": "checkerboard", "d": (3.2, 3.2, 73.6), "v": (2.2, 2.2, 118.5)},
+    4: {"speed": "21 / 64", "texture": "vegetation", "d": (2.9, 3.6, 5.5), "v": (1.4, 1.4, 1.4)},
+    5: {"speed": "22 / 86", "texture": "vegetation", "d": (3.2, 5.7, 29.7), "v": (2.0, 2.2, 35.4)},
+    6: {"speed": "44 / 194", "texture": "vegetation", "d": (5.9, 6.1, 85.1), "v": (6.1, 6.3, 145.0)},
+    7: {"speed": "57 / 275", "texture": "vegetation", "d": (5.8, None, 75.3), "v": (7.0, None, 146.2)},
+}
+PAPER_MS = {"iekf": "1.36-1.44", "ekf": "1.33", "lk": "7"}
+MODE_INDEX = {"iekf": 0, "ekf": 1, "lk": 2}
+MODE_NAME = {"iekf": "D-IEKF", "ekf": "D-EKF", "lk": "LK"}
+
+
+def find_bin_dir():
+    pkg_dir = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    candidates = []
+    if os.environ.get("DIEKF_BIN_DIR"):
+        candidates.append(os.environ["DIEKF_BIN_DIR"])
+    if os.environ.get("DIEKF_WS"):
+        candidates.append(os.path.join(os.environ["DIEKF_WS"], "devel", "lib", "diekf"))
+    candidates.append(os.path.join(pkg_dir, ".ws", "devel", "lib", "diekf"))
+    for c in candidates:
+        if os.path.isfile(os.path.join(c, "diekf_bag_runner")) and os.path.isfile(os.path.join(c, "diekf_simulate")):
+            return c
+    sys.exit("benchmark_table.py: diekf_simulate / diekf_bag_runner not found in %s; build first (make build) "
+             "or set DIEKF_BIN_DIR" % ", ".join(candidates))
+
+
+def run(cmd, log_path):
+    with open(log_path, "w") as log:
+        log.write("$ " + " ".join(cmd) + "\n")
+        log.flush()
+        proc = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT)
+    return proc.returncode
+
+
+def simulate(bin_dir, preset, duration_s, seed, out_dir, extra):
+    os.makedirs(out_dir, exist_ok=True)
+    cmd = [os.path.join(bin_dir, "diekf_simulate"), "--preset", preset, "--duration", str(duration_s),
+           "--seed", str(seed), "--output", out_dir] + extra
+    rc = run(cmd, os.path.join(out_dir, "simulate.log"))
+    if rc != 0 or not os.path.isfile(os.path.join(out_dir, "sequence.bag")):
+        sys.exit("benchmark_table.py: simulation failed, see %s" % os.path.join(out_dir, "simulate.log"))
+
+
+def run_estimator(bin_dir, seq_dir, mode, name, out_dir, runner_args, plots):
+    os.makedirs(out_dir, exist_ok=True)
+    cmd = [os.path.join(bin_dir, "diekf_bag_runner"), "--bag", os.path.join(seq_dir, "sequence.bag"),
+           "--camchain", os.path.join(seq_dir, "camchain.yaml"), "--imu", os.path.join(seq_dir, "imu.yaml"),
+           "--mode", mode, "--sequence", name, "--output", out_dir, "--quiet"] + runner_args
+    t0 = time.time()
+    rc = run(cmd, os.path.join(out_dir, "runner.log"))
+    ev_path = os.path.join(out_dir, "evaluation.json")
+    if rc != 0 or not os.path.isfile(ev_path):
+        print("  %-10s %-4s FAILED (exit %d), see %s" % (name, mode, rc, os.path.join(out_dir, "runner.log")),
+              flush=True)
+        return {"failed": True, "exit_code": rc}
+    with open(ev_path) as f:
+        ev = json.load(f)
+    print("  %-10s %-4s d %s cm, v %s cm/s, normal %s deg, %s ms/frame%s  (%.0f s)" % (
+        name, mode, cm(ev.get("rmse_distance_m")), cm(ev.get("rmse_velocity_mps")), num(ev.get("rms_normal_deg")),
+        num(ev.get("update_ms_mean"), 2), ", DIVERGED" if ev.get("diverged") else "", time.time() - t0), flush=True)
+    if plots:
+        plot = os.path.join(os.path.dirname(os.path.abspath(__file__)), "plot_results.py")
+        run([sys.executable, plot, out_dir, "--title", "%s (%s)" % (name, mode)], os.path.join(out_dir, "plot.log"))
+    return ev
+
+
+def num(v, decimals=1):
+    if v is None or (isinstance(v, float) and not math.isfinite(v)):
+        return "n/a"
+    return "%.*f" % (decimals, v)
+
+
+def cm(v):
+    return num(None if v is None else 100.0 * v)
+
+
+def ours(ev, key, scale=100.0):
+    """Our figure for a table cell: value, 'diverged', or 'failed'."""
+    if ev is None:
+        return "–"
+    if ev.get("failed"):
+        return "failed"
+    if ev.get("diverged"):
+        return "diverged"
+    v = ev.get(key)
+    return num(None if v is None else scale * v)
+
+
+def paper_cell(value):
+    return "diverged" if value is None else num(value)
+
+
+def table_one(results, flights, modes):
+    lines = []
+    head = ["flight", "texture", "paper RMS/max speed (cm/s)"]
+    for quantity in ("distance RMSE (cm)", "velocity RMSE (cm/s)"):
+        for m in modes:
+            head.append("%s %s: ours / paper" % (quantity.split(" ")[0], MODE_NAME[m]))
+    lines.append("| " + " | ".join(head) + " |")
+    lines.append("|" + "---|" * len(head))
+    for k in flights:
+        p = PAPER[k]
+        row = [str(k), p["texture"], p["speed"]]
+        for key, pk in (("rmse_distance_m", "d"), ("rmse_velocity_mps", "v")):
+            for m in modes:
+                ev = results.get("flight%d/%s" % (k, m))
+                row.append("%s / %s" % (ours(ev, key), paper_cell(p[pk][MODE_INDEX[m]])))
+        lines.append("| " + " | ".join(row) + " |")
+    return "\n".join(lines)
+
+
+def table_timing(results, flights, modes):
+    lines = ["| filter | mean update (ms), ours | median (ms) | p99 (ms) | real-time factor | paper (ms, i5-8250U) |",
+             "|---|---|---|---|---|---|"]
+    for m in modes:
+        evs = [results.get("flight%d/%s" % (k, m)) for k in flights]
+        evs = [e for e in evs if e and not e.get("failed")]
+
+        def mean_of(key):
+            vals = [e[key] for e in evs if e.get(key) is not None]
+            return sum(vals) / len(vals) if vals else None
+
+        lines.append("| %s | %s | %s | %s | %s | %s |" % (
+            MODE_NAME[m], num(mean_of("update_ms_mean"), 2), num(mean_of("update_ms_median"), 2),
+            num(mean_of("update_ms_p99"), 2), num(mean_of("realtime_factor"), 3), PAPER_MS[m]))
+    return "\n".join(lines)
+
+
+def table_incline(results, inclines, modes):
+    lines = ["| plane incline (deg) | filter | distance RMSE (cm) | height RMSE (cm) | velocity RMSE (cm/s) | "
+             "normal error RMS / max (deg) | gravity error RMS (deg) |",
+             "|---|---|---|---|---|---|---|"]
+    for a in inclines:
+        for m in modes:
+            ev = results.get("incline%g/%s" % (a, m))
+            if ev is None:
+                continue
+            if ev.get("failed"):
+                lines.append("| %g | %s | failed | | | | |" % (a, MODE_NAME[m]))
+                continue
+            lines.append("| %g | %s | %s | %s | %s | %s / %s | %s |" % (
+                a, MODE_NAME[m], ours(ev, "rmse_distance_m") if not ev.get("diverged") else "diverged",
+                cm(ev.get("rmse_height_m")), cm(ev.get("rmse_velocity_mps")), num(ev.get("rms_normal_deg"), 2),
+                num(ev.get("max_normal_deg"), 2), num(ev.get("rms_gravity_deg"), 2)))
+    return "\n".join(lines)
+
+
+def parse_list(text, cast):
+    return [cast(x) for x in text.split(",") if x.strip()] if text else []
+
+
+def main(argv=None):
+    parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    pkg_dir = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    parser.add_argument("--output", default=os.path.join(pkg_dir, "results"), help="results folder [results/]")
+    parser.add_argument("--duration", type=float, default=60.0, help="seconds per simulated flight [60]")
+    parser.add_argument("--flights", default="1,2,3,4,5,6,7", help="which of flight1..7 [all]")
+    parser.add_argument("--modes", default="iekf,ekf,lk", help="filters for Table I [iekf,ekf,lk]")
+    parser.add_argument("--inclines", default="0,10,20,30", help="plane inclines in degrees ('' to skip)")
+    parser.add_argument("--incline-modes", default="iekf", help="filters for the incline runs [iekf]")
+    parser.add_argument("--incline-duration", type=float, default=None, help="seconds per incline run [--duration]")
+    parser.add_argument("--seed", type=int, default=1, help="simulation seed [1]")
+    parser.add_argument("--sim-args", default="", help="extra diekf_simulate arguments")
+    parser.add_argument("--runner-args", default="", help="extra diekf_bag_runner arguments, e.g. '--width 90'")
+    parser.add_argument("--keep-bags", action="store_true", help="keep the simulated bags")
+    parser.add_argument("--plots", action="store_true", help="also write each run's plots")
+    args = parser.parse_args(argv)
+
+    flights = parse_list(args.flights, int)
+    modes = parse_list(args.modes, str)
+    inclines = parse_list(args.inclines, float)
+    incline_modes = parse_list(args.incline_modes, str)
+    for m in modes + incline_modes:
+        if m not in MODE_INDEX:
+            sys.exit("benchmark_table.py: unknown mode '%s' (iekf, ekf, lk)" % m)
+    for k in flights:
+        if k not in PAPER:
+            sys.exit("benchmark_table.py: flights are 1..7, got %d" % k)
+    bin_dir = find_bin_dir()
+    runs_dir = os.path.join(args.output, "runs")
+    os.makedirs(runs_dir, exist_ok=True)
+    sim_extra = args.sim_args.split()
+    runner_args = args.runner_args.split()
+    results = {}
+    started = time.time()
+
+    print("Table I: %d flights x %s, %g s each (seed %d)" % (len(flights), ",".join(modes), args.duration, args.seed),
+          flush=True)
+    for k in flights:
+        name = "flight%d" % k
+        seq_dir = os.path.join(runs_dir, name, "sequence")
+        simulate(bin_dir, name, args.duration, args.seed, seq_dir, sim_extra)
+        for m in modes:
+            results["%s/%s" % (name, m)] = run_estimator(bin_dir, seq_dir, m, name, os.path.join(runs_dir, name, m),
+                                                         runner_args, args.plots)
+        if not args.keep_bags:
+            os.remove(os.path.join(seq_dir, "sequence.bag"))
+
+    incline_duration = args.incline_duration or args.duration
+    if inclines:
+        print("Inclined planes: %s deg, %s, %g s each" % (",".join("%g" % a for a in inclines),
+                                                          ",".join(incline_modes), incline_duration), flush=True)
+    for a in inclines:
+        name = "incline%g" % a
+        seq_dir = os.path.join(runs_dir, name, "sequence")
+        simulate(bin_dir, "incline", incline_duration, args.seed, seq_dir, ["--incline-deg", "%g" % a] + sim_extra)
+        for m in incline_modes:
+            results["%s/%s" % (name, m)] = run_estimator(bin_dir, seq_dir, m, name, os.path.join(runs_dir, name, m),
+                                                         runner_args, args.plots)
+        if not args.keep_bags:
+            os.remove(os.path.join(seq_dir, "sequence.bag"))
+
+    try:
+        cpu = next((l.split(":", 1)[1].strip() for l in open("/proc/cpuinfo") if l.startswith("model name")), "?")
+    except OSError:
+        cpu = "?"
+    md = ["# diekf benchmark: the paper's Table I on simulated flights", "",
+          "Generated %s by scripts/benchmark_table.py (%g s per flight, seed %d%s%s); CPU: %s. "
+          "Simulated flights imitate the paper's speeds and textures; they are not its recordings, so the figures "
+          "compare behaviour, not identical data. Errors from 3 s after the first image update "
+          "(CONVENTIONS.md section 5)." % (
+              datetime.datetime.now().strftime("%Y-%m-%d %H:%M"), args.duration, args.seed,
+              ", simulator args '%s'" % args.sim_args if args.sim_args else "",
+              ", runner args '%s'" % args.runner_args if args.runner_args else "", cpu), ""]
+    if flights and modes:
+        md += ["## Table I: distance and velocity RMSE (ours / paper)", "", table_one(results, flights, modes), "",
+               "## Time per frame (mean over the flights)", "", table_timing(results, flights, modes), ""]
+    if inclines:
+        md += ["## Inclined planes (preset `incline`)", "",
+               "The paper reports no visible loss of accuracy up to 30 degrees.", "",
+               table_incline(results, inclines, incline_modes), ""]
+    text = "\n".join(md)
+    print()
+    print(text)
+    with open(os.path.join(args.output, "benchmark.md"), "w") as f:
+        f.write(text)
+    with open(os.path.join(args.output, "benchmark.json"), "w") as f:
+        json.dump(results, f, indent=2, sort_keys=True)
+    print("wrote %s and benchmark.json (%.0f s)" % (os.path.join(args.output, "benchmark.md"), time.time() - started))
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,398 @@
+// diekf_bag_runner: runs a recorded bag through the estimator offline, serially and deterministically, and
+// writes estimates.csv (+ groundtruth.csv and evaluation.json when the bag holds ground truth).
+// Usage: diekf_bag_runner --help. Interface: CONVENTIONS.md sections 4-6.
+
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <fstream>
+#include <iostream>
+#include <map>
+#include <optional>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <cv_bridge/cv_bridge.h>
+#include <geometry_msgs/PoseStamped.h>
+#include <opencv2/imgproc.hpp>
+#include <rosbag/bag.h>
+#include <rosbag/view.h>
+#include <sensor_msgs/Image.h>
+#include <sensor_msgs/Imu.h>
+#include <sensor_msgs/image_encodings.h>
+#include <shape_msgs/Plane.h>
+#include <yaml-cpp/yaml.h>
+
+#include "diekf/camera_model.h"
+#include "diekf/estimator.h"
+#include "diekf/eval/ground_truth.h"
+#include "diekf/eval/io.h"
+#include "diekf/eval/metrics.h"
+#include "diekf/eval/param_overlay.h"
+#include "diekf/eval/runner_options.h"
+#include "diekf/param_source.h"
+#include "diekf/params.h"
+
+namespace {
+
+namespace fs = std::filesystem;
+using diekf::eval::RunnerOptions;
+
+constexpr const char* kProgram = "diekf_bag_runner";
+constexpr const char* kDefaultImageTopic = "/mynteye/left/image_raw";
+constexpr const char* kDefaultImuTopic = "/mynteye/imu/data_raw";
+
+/// A failure with a one-line reason (exit status 1).
+class RunError : public std::runtime_error {
+ public:
+  explicit RunError(const std::string& what) : std::runtime_error(what) {}
+};
+
+void requireReadable(const std::string& what, const std::string& path) {
+  std::ifstream f(path);
+  if (!f) throw RunError("cannot read " + what + " '" + path + "'");
+}
+
+/// The package's default estimator config, located from the build (never a fixed path in the sources).
+std::string defaultConfigPath() {
+#ifdef DIEKF_PACKAGE_DIR
+  const fs::path p = fs::path(DIEKF_PACKAGE_DIR) / "config" / "estimator.yaml";
+  std::error_code ec;
+  if (fs::is_regular_file(p, ec)) return p.string();
+#endif
+  return std::string();
+}
+
+/// `rostopic` of a Kalibr IMU YAML (imu0 or top level); empty when absent or unreadable.
+std::string kalibrImuTopic(const std::string& path) {
+  try {
+    const YAML::Node root = YAML::LoadFile(path);
+    const YAML::Node node = root["imu0"] ? root["imu0"] : root;
+    if (node["rostopic"]) return node["rostopic"].as<std::string>();
+  } catch (const std::exception&) {
+  }
+  return std::string();
+}
+
+struct BagTopics {
+  std::map<std::string, std::string> type_of;  ///< topic -> datatype
+  std::string describe() const {
+    if (type_of.empty()) return "(none)";
+    std::string s;
+    for (const auto& kv : type_of) s += (s.empty() ? "" : ", ") + kv.first + " [" + kv.second + "]";
+    return s;
+  }
+  bool has(const std::string& topic, const std::string& type) const {
+    const auto it = type_of.find(topic);
+    return it != type_of.end() && it->second == type;
+  }
+};
+
+BagTopics listTopics(const rosbag::Bag& bag) {
+  BagTopics topics;
+  rosbag::View view(bag);
+  for (const rosbag::ConnectionInfo* c : view.getConnections()) topics.type_of[c->topic] = c->datatype;
+  return topics;
+}
+
+/// The topic to read: the explicit one; else the calibration file's, then the MYNT EYE default, then the bag's only
+/// topic of that type. Throws naming what was looked for and listing the bag's topics when none fits.
+std::string chooseTopic(const std::string& explicit_topic, const std::string& calibration_topic,
+                        const char* fallback, const char* type, const char* what, const BagTopics& topics,
+                        const std::string& bag_path, bool quiet) {
+  std::vector<std::string> tried;
+  if (!explicit_topic.empty()) {
+    if (topics.has(explicit_topic, type)) return explicit_topic;
+    tried.push_back(explicit_topic);
+  } else {
+    for (const std::string& candidate : {calibration_topic, std::string(fallback)}) {
+      if (candidate.empty()) continue;
+      if (topics.has(candidate, type)) return candidate;
+      tried.push_back(candidate);
+    }
+    std::vector<std::string> of_type;
+    for (const auto& kv : topics.type_of) {
+      if (kv.second == type) of_type.push_back(kv.first);
+    }
+    if (of_type.size() == 1) {
+      if (!quiet) std::cerr << kProgram << ": using the bag's only " << type << " topic " << of_type[0] << "\n";
+      return of_type[0];
+    }
+  }
+  std::string looked;
+  for (const std::string& t : tried) looked += (looked.empty() ? "'" : " or '") + t + "'";
+  throw RunError("bag '" + bag_path + "' has no " + what + " topic " + looked + " of type " + type +
+                 "; its topics: " + topics.describe());
+}
+
+double stampOf(const ros::Time& header_stamp, const ros::Time& record_time) {
+  return header_stamp.isZero() ? record_time.toSec() : header_stamp.toSec();
+}
+
+/// Any supported encoding -> 8-bit grey (CONVENTIONS.md section 2).
+cv::Mat toGrey(const sensor_msgs::Image& msg) {
+  namespace enc = sensor_msgs::image_encodings;
+  cv_bridge::CvImageConstPtr cv;
+  try {
+    cv = cv_bridge::toCvCopy(msg);
+  } catch (const cv_bridge::Exception& e) {
+    throw RunError(std::string("cannot decode image: ") + e.what());
+  }
+  const std::string& e = msg.encoding;
+  cv::Mat grey;
+  if (e == enc::MONO8 || e == enc::TYPE_8UC1) {
+    grey = cv->image;
+  } else if (e == enc::MONO16 || e == enc::TYPE_16UC1) {
+    cv->image.convertTo(grey, CV_8U, 1.0 / 256.0);
+  } else if (e == enc::BGR8) {
+    cv::cvtColor(cv->image, grey, cv::COLOR_BGR2GRAY);
+  } else if (e == enc::RGB8) {
+    cv::cvtColor(cv->image, grey, cv::COLOR_RGB2GRAY);
+  } else if (e == enc::BGRA8) {
+    cv::cvtColor(cv->image, grey, cv::COLOR_BGRA2GRAY);
+  } else if (e == enc::RGBA8) {
+    cv::cvtColor(cv->image, grey, cv::COLOR_RGBA2GRAY);
+  } else {
+    throw RunError("unsupported image encoding '" + e + "' (mono8, mono16, bgr8, rgb8, bgra8, rgba8)");
+  }
+  return grey;
+}
+
+diekf::eval::EstimateRow toRow(const diekf::FrameResult& r) {
+  diekf::eval::EstimateRow row;
+  row.t_s = r.t_s;
+  row.d_m = r.distance_m();
+  row.h_m = r.height_m();
+  row.v_mps = r.velocity_mps();
+  row.mu = r.state.mu.vector();
+  row.g = r.state.g.vector();
+  row.sigma_d_m = r.sigma_distance_m();
+  row.sigma_v_mps = r.sigma_velocity_mps();
+  row.iterations = r.update_applied ? std::max(1, r.passes) : 0;
+  row.update_ms = r.update_ms;
+  row.status = diekf::toString(r.status);
+  return row;
+}
+
+diekf::EstimatorParams loadParams(const RunnerOptions& o, std::string* config_used) {
+  diekf::EstimatorParams params;
+  *config_used = o.config.empty() ? defaultConfigPath() : o.config;
+  if (!config_used->empty()) {
+    requireReadable("config", *config_used);
+    const diekf::YamlParamSource config(*config_used);
+    diekf::loadEstimatorParams(config, &params);
+  }
+  if (!o.imu.empty()) {
+    requireReadable("IMU calibration", o.imu);
+    diekf::loadKalibrImuYaml(o.imu, &params.imu);
+  }
+  diekf::eval::ParamOverlay overrides(nullptr);
+  for (const std::string& kv : o.sets) overrides.addAssignment(kv);
+  if (!o.sets.empty()) {
+    diekf::loadEstimatorParams(overrides, &params);
+    const std::vector<std::string> unused = overrides.unusedOverrides();
+    if (!unused.empty()) {
+      std::string list;
+      for (const std::string& k : unused) list += (list.empty() ? "" : ", ") + k;
+      throw RunError("unknown parameter key(s) in --set: " + list + " (use the keys of config/estimator.yaml)");
+    }
+  }
+  if (!o.mode.empty()) params.mode = diekf::parseUpdateMode(o.mode);
+  if (o.width_px > 0) {
+    if (params.mode == diekf::UpdateMode::kFeature) {
+      params.feature.working_width_px = o.width_px;
+    } else {
+      params.preprocess.working_width_px = o.width_px;
+    }
+  }
+  return params;
+}
+
+int run(const RunnerOptions& o) {
+  const auto wall_start = std::chrono::steady_clock::now();
+  requireReadable("bag", o.bag);
+  requireReadable("camchain", o.camchain);
+  const diekf::CameraModel camera = diekf::CameraModel::fromKalibrYaml(o.camchain);
+  std::string config_used;
+  const diekf::EstimatorParams params = loadParams(o, &config_used);
+
+  rosbag::Bag bag;
+  try {
+    bag.open(o.bag, rosbag::bagmode::Read);
+  } catch (const rosbag::BagException& e) {
+    throw RunError("cannot read bag '" + o.bag + "': " + e.what());
+  }
+  const BagTopics topics = listTopics(bag);
+  const std::string image_topic = chooseTopic(o.image_topic, camera.rostopic, kDefaultImageTopic,
+                                              "sensor_msgs/Image", "image", topics, o.bag, o.quiet);
+  const std::string imu_topic = chooseTopic(o.imu_topic, o.imu.empty() ? std::string() : kalibrImuTopic(o.imu),
+                                            kDefaultImuTopic, "sensor_msgs/Imu", "IMU", topics, o.bag, o.quiet);
+  const bool has_poses = topics.has(o.pose_topic, "geometry_msgs/PoseStamped");
+  const bool has_plane = topics.has(o.plane_topic, "shape_msgs/Plane");
+
+  // Ground truth (small): read it completely first.
+  std::optional<diekf::eval::GroundTruth> truth;
+  if (has_poses) {
+    std::vector<diekf::eval::PoseSample> poses;
+    diekf::eval::GroundPlane plane;  // level ground unless the bag says otherwise
+    bool plane_seen = false;
+    std::vector<std::string> gt_topics{o.pose_topic};
+    if (has_plane) gt_topics.push_back(o.plane_topic);
+    rosbag::View gt_view(bag, rosbag::TopicQuery(gt_topics));
+    for (const rosbag::MessageInstance& m : gt_view) {
+      if (m.getTopic() == o.pose_topic) {
+        const auto pose = m.instantiate<geometry_msgs::PoseStamped>();
+        if (!pose) continue;
+        diekf::eval::PoseSample s;
+        s.t_s = stampOf(pose->header.stamp, m.getTime());
+        s.p_WI_m = Eigen::Vector3d(pose->pose.position.x, pose->pose.position.y, pose->pose.position.z);
+        s.q_WI = Eigen::Quaterniond(pose->pose.orientation.w, pose->pose.orientation.x, pose->pose.orientation.y,
+                                    pose->pose.orientation.z);
+        poses.push_back(s);
+      } else if (!plane_seen) {
+        const auto pl = m.instantiate<shape_msgs::Plane>();
+        if (!pl) continue;
+        try {
+          plane = diekf::eval::GroundPlane::fromCoefficients(pl->coef[0], pl->coef[1], pl->coef[2], pl->coef[3]);
+        } catch (const std::invalid_argument& e) {
+          throw RunError(o.plane_topic + ": " + e.what());
+        }
+        plane_seen = true;
+      }
+    }
+    diekf::eval::GroundTruthOptions gt_options;
+    gt_options.velocity_window_s = o.gt_velocity_window_s;
+    try {
+      truth.emplace(std::move(poses), plane, camera.T_cam_imu, gt_options);
+    } catch (const std::invalid_argument& e) {
+      throw RunError(o.pose_topic + ": " + e.what());
+    }
+  }
+
+  std::error_code ec;
+  fs::create_directories(o.output, ec);
+  if (!fs::is_directory(o.output)) throw RunError("cannot create output directory '" + o.output + "'");
+  const fs::path out_dir(o.output);
+
+  if (!o.quiet) {
+    std::cerr << kProgram << ": " << o.bag << ": images " << image_topic << ", IMU " << imu_topic
+              << (truth ? ", ground truth " + o.pose_topic + (has_plane ? " + " + o.plane_topic : "") : "")
+              << "; mode " << diekf::toString(params.mode) << ", config "
+              << (config_used.empty() ? std::string("(built-in defaults)") : config_used) << "\n";
+  }
+
+  diekf::Estimator estimator(camera, params);
+  diekf::eval::EstimatesCsvWriter csv((out_dir / "estimates.csv").string());
+  std::vector<diekf::eval::EstimateRow> rows;
+  auto drain = [&]() {
+    diekf::FrameResult result;
+    while (estimator.popResult(&result)) {
+      rows.push_back(toRow(result));
+      csv.write(rows.back());
+    }
+    if (!o.quiet) {
+      const std::string warning = estimator.takeWarning();
+      if (!warning.empty()) std::cerr << kProgram << ": warning: " << warning << "\n";
+    }
+  };
+
+  rosbag::View view(bag, rosbag::TopicQuery(std::vector<std::string>{image_topic, imu_topic}));
+  const double bag_start_s = view.getBeginTime().toSec();
+  const double bag_span_s = std::max(0.0, view.getEndTime().toSec() - bag_start_s);
+  const double limit_s = o.max_duration_s > 0.0 ? std::min(o.max_duration_s, bag_span_s) : bag_span_s;
+  auto last_progress = std::chrono::steady_clock::now();
+  std::size_t images = 0;
+  for (const rosbag::MessageInstance& m : view) {
+    const double rel_s = m.getTime().toSec() - bag_start_s;
+    if (o.max_duration_s > 0.0 && rel_s > o.max_duration_s) break;
+    if (m.getTopic() == imu_topic) {
+      const auto imu = m.instantiate<sensor_msgs::Imu>();
+      if (!imu) continue;
+      diekf::ImuSample s;
+      s.t_s = stampOf(imu->header.stamp, m.getTime());
+      s.accel_mps2 = diekf::Vec3(imu->linear_acceleration.x, imu->linear_acceleration.y, imu->linear_acceleration.z);
+      s.gyro_radps = diekf::Vec3(imu->angular_velocity.x, imu->angular_velocity.y, imu->angular_velocity.z);
+      estimator.addImu(s);
+    } else {
+      const auto img = m.instantiate<sensor_msgs::Image>();
+      if (!img) continue;
+      estimator.addImage(stampOf(img->header.stamp, m.getTime()), toGrey(*img));
+      ++images;
+    }
+    drain();
+    if (!o.quiet) {
+      const auto now = std::chrono::steady_clock::now();
+      if (std::chrono::duration<double>(now - last_progress).count() >= 2.0) {
+        last_progress = now;
+        const double wall_s = std::chrono::duration<double>(now - wall_start).count();
+        std::fprintf(stderr, "%s: %6.1f / %.1f s of data, %zu images, %zu estimates, %.2fx real time\n", kProgram,
+                     rel_s, limit_s, images, rows.size(), wall_s > 0.0 ? rel_s / wall_s : 0.0);
+      }
+    }
+  }
+  drain();
+  csv.close();
+  bag.close();
+  if (rows.empty()) {
+    throw RunError("no estimates: " + std::to_string(images) + " images on " + image_topic +
+                   " produced no result (does the IMU cover the image stamps?)");
+  }
+
+  const double wall_s =
+      std::chrono::duration<double>(std::chrono::steady_clock::now() - wall_start).count();
+  if (!truth) {
+    if (!o.quiet) {
+      std::cerr << kProgram << ": " << rows.size() << " estimates in " << wall_s << " s wall; no " << o.pose_topic
+                << " in the bag, so no evaluation\n";
+    }
+    return 0;
+  }
+
+  std::vector<std::optional<diekf::eval::TruthSample>> matched(rows.size());
+  std::vector<diekf::eval::TruthSample> truth_rows;
+  for (std::size_t i = 0; i < rows.size(); ++i) {
+    diekf::eval::TruthSample t;
+    if (truth->at(rows[i].t_s, &t)) {
+      matched[i] = t;
+      truth_rows.push_back(t);
+    }
+  }
+  diekf::eval::writeGroundTruthCsv((out_dir / "groundtruth.csv").string(), truth_rows);
+
+  diekf::eval::EvaluationOptions ev_options;
+  ev_options.start_delay_s = o.eval_start_delay_s;
+  diekf::eval::Evaluation ev = diekf::eval::evaluate(rows, matched, ev_options);
+  ev.sequence = o.sequence.empty() ? diekf::eval::sequenceNameFromBag(o.bag) : o.sequence;
+  ev.wall_time_s = wall_s;
+  ev.realtime_factor = ev.duration_s > 0.0 ? wall_s / ev.duration_s : std::nan("");
+  diekf::eval::writeEvaluationJson((out_dir / "evaluation.json").string(), ev);
+  std::cout << diekf::eval::evaluationSummary(ev) << std::flush;
+  return 0;
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  RunnerOptions options;
+  try {
+    options = diekf::eval::parseRunnerOptions(argc, argv);
+  } catch (const diekf::eval::UsageError& e) {
+    std::cerr << kProgram << ": " << e.what() << "\n";
+    return 1;
+  }
+  if (options.help) {
+    std::cout << diekf::eval::runnerUsage();
+    return 0;
+  }
+  try {
+    return run(options);
+  } catch (const std::exception& e) {
+    std::string reason = e.what();
+    for (char& c : reason) {
+      if (c == '\n') c = ' ';
+    }
+    std::cerr << kProgram << ": " << reason << "\n";
+    return 1;
+  }
+}

@@ -1,0 +1,373 @@
+// End-to-end test of diekf_bag_runner: writes a few seconds of a synthetic hover-and-drift flight (IMU, images of
+// a textured floor, mocap poses, plane) with the rosbag API, runs the runner binary on it and checks its outputs
+// against CONVENTIONS.md sections 4-6; plus the error paths.
+#include <sys/wait.h>
+#include <unistd.h>
+
+#include <algorithm>
+#include <cmath>
+#include <cstdlib>
+#include <filesystem>
+#include <fstream>
+#include <sstream>
+#include <string>
+#include <vector>
+
+#include <geometry_msgs/PoseStamped.h>
+#include <gtest/gtest.h>
+#include <rosbag/bag.h>
+#include <sensor_msgs/Image.h>
+#include <sensor_msgs/Imu.h>
+#include <shape_msgs/Plane.h>
+#include <std_msgs/String.h>
+
+#include "diekf/eval/io.h"
+
+namespace {
+
+namespace fs = std::filesystem;
+
+// Synthetic camera: 160x100 px pinhole, no distortion, looking down from a z-up IMU (x_C = x_I, y_C = -y_I,
+// z_C = -z_I), both at the same point.
+constexpr int kWidthPx = 160;
+constexpr int kHeightPx = 100;
+constexpr double kFocalPx = 120.0;
+constexpr double kCxPx = 80.0;
+constexpr double kCyPx = 50.0;
+constexpr double kHeightM = 1.0;          // flight height over the level floor, m
+constexpr double kSpeedMps = 0.2;         // constant drift along world x, m/s
+constexpr double kT0 = 1000.0;            // first stamp, s
+constexpr const char* kImageTopic = "/cam0/image_raw";  // named in the camchain, not the MYNT EYE default
+constexpr const char* kImuTopic = "/mynteye/imu/data_raw";
+
+struct Dirs {
+  fs::path root;
+  Dirs() {
+    root = fs::temp_directory_path() /
+           ("diekf_runner_test_" + std::to_string(::getpid()) + "_" +
+            ::testing::UnitTest::GetInstance()->current_test_info()->name());
+    fs::remove_all(root);
+    fs::create_directories(root);
+  }
+  ~Dirs() {
+    std::error_code ec;
+    fs::remove_all(root, ec);
+  }
+};
+
+std::string writeCamchain(const fs::path& dir) {
+  const fs::path p = dir / "camchain.yaml";
+  std::ofstream f(p);
+  f << "cam0:\n"
+    << "  camera_model: pinhole\n"
+    << "  intrinsics: [" << kFocalPx << ", " << kFocalPx << ", " << kCxPx << ", " << kCyPx << "]\n"
+    << "  distortion_model: radtan\n"
+    << "  distortion_coeffs: [0.0, 0.0, 0.0, 0.0]\n"
+    << "  resolution: [" << kWidthPx << ", " << kHeightPx << "]\n"
+    << "  T_cam_imu:\n"
+    << "  - [1.0, 0.0, 0.0, 0.0]\n"
+    << "  - [0.0, -1.0, 0.0, 0.0]\n"
+    << "  - [0.0, 0.0, -1.0, 0.0]\n"
+    << "  - [0.0, 0.0, 0.0, 1.0]\n"
+    << "  timeshift_cam_imu: 0.0\n"
+    << "  rostopic: " << kImageTopic << "\n";
+  return p.string();
+}
+
+/// Smooth floor texture, intensity 0..255 at world (x, y) in metres.
+double floorTexture(double x, double y) {
+  return 128.0 + 50.0 * std::sin(9.0 * x + 1.0) * std::cos(7.0 * y) + 35.0 * std::sin(17.0 * x - 13.0 * y) +
+         20.0 * std::cos(31.0 * y + 5.0 * x);
+}
+
+sensor_msgs::Image renderImage(double t_s, int seq) {
+  sensor_msgs::Image img;
+  img.header.stamp = ros::Time(t_s);
+  img.header.seq = static_cast<uint32_t>(seq);
+  img.header.frame_id = "cam0";
+  img.width = kWidthPx;
+  img.height = kHeightPx;
+  img.encoding = "mono8";
+  img.step = kWidthPx;
+  img.data.resize(static_cast<std::size_t>(kWidthPx * kHeightPx));
+  const double cam_x = kSpeedMps * (t_s - kT0);
+  for (int v = 0; v < kHeightPx; ++v) {
+    for (int u = 0; u < kWidthPx; ++u) {
+      // Ray (xn, yn, 1) in C hits the floor at depth kHeightM; x_W = x_C, y_W = -y_C.
+      const double xw = cam_x + kHeightM * (u - kCxPx) / kFocalPx;
+      const double yw = -kHeightM * (v - kCyPx) / kFocalPx;
+      const double value = std::min(255.0, std::max(0.0, floorTexture(xw, yw)));
+      img.data[static_cast<std::size_t>(v * kWidthPx + u)] = static_cast<uint8_t>(std::lround(value));
+    }
+  }
+  return img;
+}
+
+/// Writes `duration_s` of the synthetic flight; returns the number of images written.
+int writeFlightBag(const std::string& path, double duration_s, bool with_ground_truth) {
+  rosbag::Bag bag;
+  bag.open(path, rosbag::bagmode::Write);
+  if (with_ground_truth) {
+    shape_msgs::Plane plane;
+    plane.coef = {0.0, 0.0, 1.0, 0.0};
+    bag.write("/ground_truth/plane", ros::Time(kT0), plane);
+  }
+  // One common 1 kHz tick drives IMU (500 Hz), poses (100 Hz) and images (30 Hz, every 33-34 ticks).
+  int images = 0;
+  const int ticks = static_cast<int>(std::lround(duration_s * 1000.0));
+  int next_image_tick = 20;  // first image 20 ms in, so IMU covers it
+  for (int k = 0; k <= ticks; ++k) {
+    const double t = kT0 + k * 1e-3;
+    const ros::Time stamp(t);
+    if (k % 2 == 0) {
+      sensor_msgs::Imu imu;
+      imu.header.stamp = stamp;
+      imu.header.frame_id = "imu";
+      imu.orientation_covariance[0] = -1.0;
+      imu.linear_acceleration.z = 9.81;  // unaccelerated level flight: specific force straight up
+      bag.write(kImuTopic, stamp, imu);
+    }
+    if (with_ground_truth && k % 10 == 0) {
+      geometry_msgs::PoseStamped pose;
+      pose.header.stamp = stamp;
+      pose.header.frame_id = "world";
+      pose.pose.position.x = kSpeedMps * (t - kT0);
+      pose.pose.position.z = kHeightM;
+      pose.pose.orientation.w = 1.0;
+      bag.write("/mocap/pose", stamp, pose);
+    }
+    if (k == next_image_tick) {
+      bag.write(kImageTopic, stamp, renderImage(t, images));
+      ++images;
+      next_image_tick = 20 + static_cast<int>(std::lround(images * 1000.0 / 30.0));
+    }
+  }
+  bag.close();
+  return images;
+}
+
+struct RunResult {
+  int exit_code = -1;
+  std::string out, err;
+};
+
+RunResult runRunner(const std::string& args, const fs::path& dir) {
+  const fs::path out = dir / "stdout.txt";
+  const fs::path err = dir / "stderr.txt";
+  const std::string cmd = std::string("\"") + DIEKF_BAG_RUNNER_EXE + "\" " + args + " >\"" + out.string() +
+                          "\" 2>\"" + err.string() + "\"";
+  const int status = std::system(cmd.c_str());
+  RunResult r;
+  r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
+  std::ifstream o(out), e(err);
+  std::stringstream so, se;
+  so << o.rdbuf();
+  se << e.rdbuf();
+  r.out = so.str();
+  r.err = se.str();
+  return r;
+}
+
+std::vector<std::string> readLines(const fs::path& path) {
+  std::ifstream f(path);
+  std::vector<std::string> lines;
+  std::string line;
+  while (std::getline(f, line)) lines.push_back(line);
+  return lines;
+}
+
+int countLines(const std::string& s) { return static_cast<int>(std::count(s.begin(), s.end(), '\n')); }
+
+TEST(BagRunner, SyntheticFlightProducesEstimatesGroundTruthAndEvaluation) {
+  Dirs dirs;
+  const std::string bag = (dirs.root / "hover.bag").string();
+  const int images = writeFlightBag(bag, 5.0, true);
+  ASSERT_GE(images, 140);
+  const std::string camchain = writeCamchain(dirs.root);
+  const fs::path out = dirs.root / "out";
+  const RunResult r = runRunner("--bag \"" + bag + "\" --camchain \"" + camchain + "\" --output \"" +
+                                    out.string() + "\" --width 80 --quiet",
+                                dirs.root);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+
+  // estimates.csv: the header, one row per processed image, 19 columns, finite values, 9-decimal stamps.
+  const std::vector<std::string> lines = readLines(out / "estimates.csv");
+  ASSERT_FALSE(lines.empty());
+  EXPECT_EQ(lines[0], diekf::eval::estimatesCsvHeader());
+  const int rows = static_cast<int>(lines.size()) - 1;
+  EXPECT_GE(rows, images - 3);  // the last images may wait for IMU coverage beyond the bag's end
+  EXPECT_LE(rows, images);
+  for (std::size_t i = 1; i < lines.size(); ++i) {
+    EXPECT_EQ(std::count(lines[i].begin(), lines[i].end(), ','), 18) << lines[i];
+    const std::string t = lines[i].substr(0, lines[i].find(','));
+    EXPECT_GE(t.size() - t.find('.') - 1, 9u) << t;
+  }
+  const std::vector<diekf::eval::EstimateRow> est = diekf::eval::readEstimatesCsv((out / "estimates.csv").string());
+  ASSERT_EQ(static_cast<int>(est.size()), rows);
+  int updated = 0;
+  for (std::size_t i = 0; i < est.size(); ++i) {
+    EXPECT_TRUE(est[i].allFinite()) << "row " << i;
+    if (i > 0) {
+      EXPECT_GT(est[i].t_s, est[i - 1].t_s);
+    }
+    EXPECT_GE(est[i].t_s, kT0);
+    if (est[i].updateApplied()) ++updated;
+  }
+  EXPECT_GT(updated, rows / 2);
+
+  // groundtruth.csv: one row per estimate inside the pose stream, true values of the analytic flight.
+  const std::vector<std::string> gt = readLines(out / "groundtruth.csv");
+  ASSERT_EQ(static_cast<int>(gt.size()), rows + 1);
+  EXPECT_EQ(gt[0], diekf::eval::groundTruthCsvHeader());
+  std::stringstream row(gt[gt.size() / 2]);
+  std::vector<double> v;
+  std::string field;
+  while (std::getline(row, field, ',')) v.push_back(std::stod(field));
+  ASSERT_EQ(v.size(), 12u);
+  EXPECT_NEAR(v[1], kHeightM, 1e-9);    // d
+  EXPECT_NEAR(v[2], kHeightM, 1e-9);    // h
+  EXPECT_NEAR(v[3], kSpeedMps, 1e-6);   // vx in C
+  EXPECT_NEAR(v[8], 1.0, 1e-9);         // muz
+  EXPECT_NEAR(v[11], 1.0, 1e-9);        // gz
+
+  // evaluation.json: every key of CONVENTIONS.md section 5.
+  std::ifstream json_file(out / "evaluation.json");
+  std::stringstream json;
+  json << json_file.rdbuf();
+  for (const char* key : {"sequence", "frames", "duration_s", "rmse_distance_m", "rmse_height_m", "rmse_velocity_mps",
+                          "rms_normal_deg", "rms_gravity_deg", "max_normal_deg", "max_gravity_deg", "diverged",
+                          "update_ms_mean", "update_ms_median", "update_ms_p99", "realtime_factor"}) {
+    EXPECT_NE(json.str().find("\"" + std::string(key) + "\":"), std::string::npos) << key;
+  }
+  EXPECT_NE(json.str().find("\"sequence\": \"hover\""), std::string::npos);
+  EXPECT_NE(r.out.find("distance RMSE"), std::string::npos) << r.out;
+}
+
+TEST(BagRunner, DeterministicAcrossRuns) {
+  Dirs dirs;
+  const std::string bag = (dirs.root / "f.bag").string();
+  writeFlightBag(bag, 2.0, false);
+  const std::string camchain = writeCamchain(dirs.root);
+  std::vector<std::vector<std::string>> results;
+  for (const char* name : {"a", "b"}) {
+    const RunResult r = runRunner("--bag " + bag + " --camchain " + camchain + " --output " +
+                                      (dirs.root / name).string() + " --width 64 --quiet",
+                                  dirs.root);
+    ASSERT_EQ(r.exit_code, 0) << r.err;
+    EXPECT_FALSE(fs::exists(dirs.root / name / "evaluation.json"));  // no ground truth in this bag
+    std::vector<std::string> lines = readLines(dirs.root / name / "estimates.csv");
+    // Drop the update_ms and status columns (wall time differs between runs).
+    for (std::string& l : lines) l = l.substr(0, l.rfind(',', l.rfind(',') - 1));
+    results.push_back(lines);
+  }
+  ASSERT_GT(results[0].size(), 10u);
+  EXPECT_EQ(results[0], results[1]);
+}
+
+TEST(BagRunner, HelpAndBadArguments) {
+  Dirs dirs;
+  RunResult r = runRunner("--help", dirs.root);
+  EXPECT_EQ(r.exit_code, 0);
+  EXPECT_NE(r.out.find("--camchain"), std::string::npos);
+  r = runRunner("--bag x.bag --output o", dirs.root);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_EQ(countLines(r.err), 1) << r.err;
+  EXPECT_NE(r.err.find("--camchain"), std::string::npos);
+  r = runRunner("--bag x.bag --camchain c.yaml --output o --mode foo", dirs.root);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.err.find("--mode"), std::string::npos);
+}
+
+TEST(BagRunner, MissingBagIsAOneLineError) {
+  Dirs dirs;
+  const std::string camchain = writeCamchain(dirs.root);
+  const RunResult r = runRunner("--bag " + (dirs.root / "nope.bag").string() + " --camchain " + camchain +
+                                    " --output " + (dirs.root / "o").string(),
+                                dirs.root);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_EQ(countLines(r.err), 1) << r.err;
+  EXPECT_NE(r.err.find("nope.bag"), std::string::npos) << r.err;
+}
+
+TEST(BagRunner, NotABagIsAnError) {
+  Dirs dirs;
+  const std::string camchain = writeCamchain(dirs.root);
+  const fs::path fake = dirs.root / "fake.bag";
+  std::ofstream(fake) << "this is not a bag\n";
+  const RunResult r = runRunner("--bag " + fake.string() + " --camchain " + camchain + " --output " +
+                                    (dirs.root / "o").string(),
+                                dirs.root);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_EQ(countLines(r.err), 1) << r.err;
+}
+
+TEST(BagRunner, BagWithoutSensorTopicsListsWhatItHas) {
+  Dirs dirs;
+  const std::string camchain = writeCamchain(dirs.root);
+  const fs::path path = dirs.root / "other.bag";
+  {
+    rosbag::Bag bag;
+    bag.open(path.string(), rosbag::bagmode::Write);
+    std_msgs::String s;
+    s.data = "hello";
+    bag.write("/chatter", ros::Time(kT0), s);
+    sensor_msgs::Imu imu;
+    imu.header.stamp = ros::Time(kT0);
+    bag.write("/some/imu", ros::Time(kT0), imu);
+    bag.close();
+  }
+  const RunResult r = runRunner("--bag " + path.string() + " --camchain " + camchain + " --output " +
+                                    (dirs.root / "o").string(),
+                                dirs.root);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_EQ(countLines(r.err), 1) << r.err;
+  EXPECT_NE(r.err.find("/chatter"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find("/some/imu"), std::string::npos) << r.err;
+  EXPECT_NE(r.err.find(kImageTopic), std::string::npos) << r.err;  // the topic it looked for
+}
+
+TEST(BagRunner, UnknownSetKeyIsRejected) {
+  Dirs dirs;
+  const std::string bag = (dirs.root / "f.bag").string();
+  writeFlightBag(bag, 0.5, false);
+  const std::string camchain = writeCamchain(dirs.root);
+  const RunResult r = runRunner("--bag " + bag + " --camchain " + camchain + " --output " +
+                                    (dirs.root / "o").string() + " --set no_such/key=1",
+                                dirs.root);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.err.find("no_such/key"), std::string::npos) << r.err;
+}
+
+int maxIterations(const fs::path& csv) {
+  int max_it = -1;
+  for (const diekf::eval::EstimateRow& r : diekf::eval::readEstimatesCsv(csv.string())) {
+    max_it = std::max(max_it, r.iterations);
+  }
+  return max_it;
+}
+
+TEST(BagRunner, ModeAndSetReachTheEstimator) {
+  Dirs dirs;
+  const std::string bag = (dirs.root / "f.bag").string();
+  writeFlightBag(bag, 2.0, false);
+  const std::string common = "--bag " + bag + " --camchain " + writeCamchain(dirs.root) + " --width 64 --quiet";
+  // Three passes allowed: the first updates, starting far from the true distance, use more than one.
+  RunResult r = runRunner(common + " --mode iekf --set photometric/max_passes=3 --set photometric/stop_threshold=1e-9"
+                                   " --output " + (dirs.root / "iekf").string(),
+                          dirs.root);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(maxIterations(dirs.root / "iekf" / "estimates.csv"), 3);
+  r = runRunner(common + " --mode iekf --set photometric/max_passes=1 --output " + (dirs.root / "one").string(),
+                dirs.root);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(maxIterations(dirs.root / "one" / "estimates.csv"), 1);
+  r = runRunner(common + " --mode ekf --output " + (dirs.root / "ekf").string(), dirs.root);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_EQ(maxIterations(dirs.root / "ekf" / "estimates.csv"), 1);
+  // A value of the wrong type names the key.
+  r = runRunner(common + " --set photometric/max_passes=two --output " + (dirs.root / "bad").string(), dirs.root);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.err.find("photometric/max_passes"), std::string::npos) << r.err;
+}
+
+}  // namespace

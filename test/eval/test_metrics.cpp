@@ -1,0 +1,198 @@
+// Metrics of CONVENTIONS.md section 5 on hand-made series.
+#include <cmath>
+#include <limits>
+
+#include <gtest/gtest.h>
+
+#include "diekf/eval/metrics.h"
+
+namespace diekf {
+namespace eval {
+namespace {
+
+constexpr double kPi = 3.14159265358979323846;
+
+struct Series {
+  std::vector<EstimateRow> est;
+  std::vector<std::optional<TruthSample>> truth;
+};
+
+/// 30 Hz frames from t0 for `duration_s`; the first frame has no update (iterations 0), the rest 2 passes.
+/// Truth: d = 1 m, still; estimates exact unless modified by the caller.
+Series makeSeries(double t0, double duration_s, double rate_hz = 30.0) {
+  Series s;
+  const int n = static_cast<int>(std::lround(duration_s * rate_hz)) + 1;
+  for (int i = 0; i < n; ++i) {
+    EstimateRow e;
+    e.t_s = t0 + i / rate_hz;
+    e.d_m = e.h_m = 1.0;
+    e.iterations = i == 0 ? 0 : 2;
+    e.update_ms = i == 0 ? 0.0 : 1.0 + (i % 3);  // 1, 2, 3 ms cycling
+    e.status = i == 0 ? "initializing" : "tracking";
+    TruthSample t;
+    t.t_s = e.t_s;
+    t.d_m = t.h_m = 1.0;
+    s.est.push_back(e);
+    s.truth.push_back(t);
+  }
+  return s;
+}
+
+TEST(Metrics, AngleBetween) {
+  EXPECT_NEAR(angleBetweenDeg(Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(0, 2, 0)), 90.0, 1e-12);
+  EXPECT_NEAR(angleBetweenDeg(Eigen::Vector3d(1, 0, 0), Eigen::Vector3d(-1, 0, 0)), 180.0, 1e-12);
+  EXPECT_NEAR(angleBetweenDeg(Eigen::Vector3d(0, 0, 1), Eigen::Vector3d(1e-9, 0, 1)), 1e-9 * 180.0 / kPi, 1e-18);
+  EXPECT_TRUE(std::isnan(angleBetweenDeg(Eigen::Vector3d::Zero(), Eigen::Vector3d(0, 0, 1))));
+}
+
+TEST(Metrics, Percentile) {
+  EXPECT_DOUBLE_EQ(percentile({3.0, 1.0, 2.0}, 50.0), 2.0);
+  EXPECT_DOUBLE_EQ(percentile({1.0, 2.0, 3.0, 4.0}, 50.0), 2.5);
+  EXPECT_DOUBLE_EQ(percentile({0.0, 10.0}, 99.0), 9.9);
+  EXPECT_TRUE(std::isnan(percentile({}, 50.0)));
+}
+
+TEST(Metrics, ExactEstimatesHaveZeroErrorAndTimingStats) {
+  const Series s = makeSeries(10.0, 20.0);
+  const Evaluation ev = evaluate(s.est, s.truth);
+  EXPECT_FALSE(ev.diverged);
+  EXPECT_EQ(ev.frames_total, static_cast<int>(s.est.size()));
+  EXPECT_NEAR(ev.duration_s, 20.0, 1e-9);
+  EXPECT_DOUBLE_EQ(ev.rmse_distance_m, 0.0);
+  EXPECT_DOUBLE_EQ(ev.rmse_velocity_mps, 0.0);
+  EXPECT_DOUBLE_EQ(ev.max_normal_deg, 0.0);
+  // Timing over the 600 updated frames (1, 2, 3 ms equally often), the first frame excluded.
+  EXPECT_NEAR(ev.update_ms_mean, 2.0, 1e-12);
+  EXPECT_DOUBLE_EQ(ev.update_ms_median, 2.0);
+  EXPECT_DOUBLE_EQ(ev.update_ms_p99, 3.0);
+}
+
+TEST(Metrics, EvaluationStartsThreeSecondsAfterTheFirstUpdate) {
+  Series s = makeSeries(0.0, 10.0);  // frame 0 at 0 s (no update), first update at 1/30 s
+  // A 1 m distance error on every frame before 3 s + 1/30 s, a 0.1 m error after.
+  const double start = 1.0 / 30.0 + 3.0;
+  int after = 0;
+  for (auto& e : s.est) {
+    if (e.t_s < start - 1e-9) {
+      e.d_m = 2.0;
+    } else {
+      e.d_m = 1.1;
+      ++after;
+    }
+  }
+  const Evaluation ev = evaluate(s.est, s.truth);
+  EXPECT_NEAR(ev.eval_start_s, start, 1e-12);
+  EXPECT_EQ(ev.frames, after);
+  EXPECT_NEAR(ev.rmse_distance_m, 0.1, 1e-12);
+  EXPECT_NEAR(ev.rmse_height_m, 0.0, 1e-12);
+
+  EvaluationOptions no_delay;
+  no_delay.start_delay_s = 0.0;
+  const Evaluation all = evaluate(s.est, s.truth, no_delay);
+  EXPECT_GT(all.rmse_distance_m, 0.3);
+  EXPECT_EQ(all.frames, static_cast<int>(s.est.size()) - 1);
+}
+
+TEST(Metrics, VelocityErrorIsTheVectorNorm) {
+  Series s = makeSeries(0.0, 5.0);
+  for (auto& e : s.est) e.v_mps = Eigen::Vector3d(0.03, 0.04, 0.0);  // |error| = 5 cm/s on every frame
+  const Evaluation ev = evaluate(s.est, s.truth);
+  EXPECT_NEAR(ev.rmse_velocity_mps, 0.05, 1e-12);
+}
+
+TEST(Metrics, NormalAndGravityAnglesRmsAndMax) {
+  Series s = makeSeries(0.0, 6.0);
+  int k = 0;
+  for (std::size_t i = 0; i < s.est.size(); ++i) {
+    if (s.est[i].t_s < 3.0 + 1.0 / 30.0 - 1e-9) continue;
+    const double deg = (k++ % 2 == 0) ? 3.0 : 4.0;  // alternating 3 and 4 degrees
+    const double r = deg * kPi / 180.0;
+    s.est[i].mu = Eigen::Vector3d(std::sin(r), 0.0, std::cos(r));
+    s.est[i].g = Eigen::Vector3d(0.0, std::sin(r / 2), std::cos(r / 2)) * 3.0;  // not unit: normalised
+  }
+  const Evaluation ev = evaluate(s.est, s.truth);
+  ASSERT_GT(k, 10);
+  const double rms_expected = std::sqrt((k / 2 * 9.0 + (k - k / 2) * 16.0) / k);
+  EXPECT_NEAR(ev.rms_normal_deg, rms_expected, 1e-9);
+  EXPECT_NEAR(ev.max_normal_deg, 4.0, 1e-9);
+  EXPECT_NEAR(ev.rms_gravity_deg, rms_expected / 2, 1e-9);
+  EXPECT_NEAR(ev.max_gravity_deg, 2.0, 1e-9);
+}
+
+TEST(Metrics, FramesWithoutTruthAreSkipped) {
+  Series s = makeSeries(0.0, 8.0);
+  for (std::size_t i = 0; i < s.est.size(); i += 2) {
+    s.truth[i].reset();
+    s.est[i].d_m = 100.0;  // would dominate the RMSE if used
+  }
+  const Evaluation ev = evaluate(s.est, s.truth);
+  EXPECT_DOUBLE_EQ(ev.rmse_distance_m, 0.0);
+  EXPECT_GT(ev.frames, 0);
+  EXPECT_THROW(evaluate(s.est, std::vector<std::optional<TruthSample>>(3)), std::invalid_argument);
+}
+
+TEST(Metrics, DivergedWhenMostOfTheLastTenSecondsAreFarOff) {
+  Series s = makeSeries(0.0, 30.0);
+  // Last 10 s: 60 % of the frames have a 60 % distance error.
+  int window = 0, bad = 0;
+  for (auto& e : s.est) {
+    if (e.t_s >= 20.0 - 1e-9) {
+      ++window;
+      if (window % 5 < 3) {
+        e.d_m = 1.6;
+        ++bad;
+      }
+    }
+  }
+  ASSERT_GT(bad, window / 2);
+  Evaluation ev = evaluate(s.est, s.truth);
+  EXPECT_TRUE(ev.diverged);
+  EXPECT_FALSE(ev.divergence_reason.empty());
+
+  // 40 % bad frames: not diverged.
+  Series ok = makeSeries(0.0, 30.0);
+  window = 0;
+  for (auto& e : ok.est) {
+    if (e.t_s >= 20.0 - 1e-9 && (window++ % 5) < 2) e.d_m = 1.6;
+  }
+  EXPECT_FALSE(evaluate(ok.est, ok.truth).diverged);
+
+  // Errors just under 50 %: not bad frames.
+  Series edge = makeSeries(0.0, 30.0);
+  for (auto& e : edge.est) e.d_m = 1.49;
+  EXPECT_FALSE(evaluate(edge.est, edge.truth).diverged);
+
+  // Large errors only before the last 10 s: not diverged by the rule (only a large RMSE).
+  Series early = makeSeries(0.0, 30.0);
+  for (auto& e : early.est) {
+    if (e.t_s > 5.0 && e.t_s < 19.0) e.d_m = 5.0;
+  }
+  const Evaluation ev_early = evaluate(early.est, early.truth);
+  EXPECT_FALSE(ev_early.diverged);
+  EXPECT_GT(ev_early.rmse_distance_m, 1.0);
+}
+
+TEST(Metrics, NonFiniteOutputMeansDiverged) {
+  Series s = makeSeries(0.0, 20.0);
+  s.est[50].v_mps.y() = std::numeric_limits<double>::quiet_NaN();
+  const Evaluation ev = evaluate(s.est, s.truth);
+  EXPECT_TRUE(ev.diverged);
+  EXPECT_NE(ev.divergence_reason.find("non-finite"), std::string::npos);
+
+  Series inf = makeSeries(0.0, 20.0);
+  inf.est[1].sigma_d_m = std::numeric_limits<double>::infinity();  // before the evaluation window: still counts
+  EXPECT_TRUE(evaluate(inf.est, inf.truth).diverged);
+}
+
+TEST(Metrics, NoUpdateOrNoEstimatesIsDiverged) {
+  Series s = makeSeries(0.0, 5.0);
+  for (auto& e : s.est) e.iterations = 0;
+  const Evaluation ev = evaluate(s.est, s.truth);
+  EXPECT_TRUE(ev.diverged);
+  EXPECT_TRUE(std::isnan(ev.rmse_distance_m));
+  EXPECT_TRUE(evaluate({}, {}).diverged);
+}
+
+}  // namespace
+}  // namespace eval
+}  // namespace diekf
