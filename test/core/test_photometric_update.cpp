@@ -137,7 +137,7 @@ TEST_F(PhotometricScene, PixelLoopMatchesDoublePrecisionReference) {
     params.huber_threshold = huber;
     PreprocessParams pre;
     pre.border_px = 1;
-    const PhotometricUpdate update(params, pre);
+    PhotometricUpdate update(params, pre);
     const State x = startState(0.5);
     ObservedInfo A, A_ref;
     ObservedVec b, b_ref;
