@@ -92,11 +92,30 @@ struct SweepSums {
 
 enum class SweepMode { kAccumulate, kResidual };
 
+/// The reference image as the sweeps read it. Strides in floats per row.
+struct RefView {
+  const float* packed = nullptr;  // (I, dI/dx, dI/dy, 0) interleaved: one 4-float load per bilinear corner
+  std::ptrdiff_t packed_stride = 0;
+  const float* intensity = nullptr;  // plain intensity, for the residual-only sweep (scalar bilinear)
+  std::ptrdiff_t intensity_stride = 0;
+};
+
+RefView makeRefView(const cv::Mat& packed, const cv::Mat* intensity) {
+  RefView v;
+  v.packed = packed.ptr<float>(0);
+  v.packed_stride = static_cast<std::ptrdiff_t>(packed.step1());
+  if (intensity != nullptr) {
+    v.intensity = intensity->ptr<float>(0);
+    v.intensity_stride = static_cast<std::ptrdiff_t>(intensity->step1());
+  }
+  return v;
+}
+
 /// One sweep over the current image. kAccumulate: A, b with the Jacobian scaled by 1/dt (the caller rescales).
 /// kResidual: writes the residual image (0 where invalid) and sum of squares only. The weighting options are
 /// template parameters so that the common case compiles without their branches.
 template <SweepMode kMode, bool kHuber = false, bool kGradientWeighting = false>
-void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelWarp& wp, const SweepConfig& cfg,
+void sweep(const RefView& ref, const PreprocessedFrame& cur, const PixelWarp& wp, const SweepConfig& cfg,
            SweepSums* sums, cv::Mat* residual) {
   const int W = cur.intensity.cols;
   const int H = cur.intensity.rows;
@@ -106,9 +125,10 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
   const float ry_lo = 1.0f, ry_hi = static_cast<float>(H - 2);
   const float dt = cfg.dt;
 
-  // Reference (I, dI/dx, dI/dy, 0) interleaved: one 4-float load per bilinear corner.
-  const float* R = ref_packed.ptr<float>(0);
-  const std::ptrdiff_t sR = static_cast<std::ptrdiff_t>(ref_packed.step1());  // floats per row
+  const float* R = ref.packed;
+  const std::ptrdiff_t sR = ref.packed_stride;
+  const float* Ir = ref.intensity;
+  const std::ptrdiff_t sI = ref.intensity_stride;
 
   for (int y = cfg.border; y < H - cfg.border; y += cfg.stride) {
     const float* Ic_row = cur.intensity.ptr<float>(y);
@@ -132,9 +152,11 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
     float r2_row = 0.0f, grad_row = 0.0f;
     int valid_row = 0, cand_row = 0;
 
+    const float stride_f = static_cast<float>(cfg.stride);
+    float xf = static_cast<float>(cfg.border) - stride_f;  // exact: small integers
     for (int x = cfg.border; x < W - cfg.border; x += cfg.stride) {
       ++cand_row;
-      const float xf = static_cast<float>(x);
+      xf += stride_f;
       const float qx = (xf - wp.cx) * wp.ifx;
       const float ex = wp.cx - xf;  // D(0, 2)
       const float mx = wp.G[0][0] * qx + m_row[0];
@@ -152,21 +174,25 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
       const float ay = ry - static_cast<float>(y0);
       const float w00 = (1.0f - ax) * (1.0f - ay), w01 = ax * (1.0f - ay);
       const float w10 = (1.0f - ax) * ay, w11 = ax * ay;
-      const float* c00 = R + y0 * sR + 4 * x0;
-      const Vec4f ref_s = w00 * Eigen::Map<const Vec4f>(c00) + w01 * Eigen::Map<const Vec4f>(c00 + 4) +
-                          w10 * Eigen::Map<const Vec4f>(c00 + sR) + w11 * Eigen::Map<const Vec4f>(c00 + sR + 4);
-      const float r = Ic_row[x] - ref_s[0];
       ++valid_row;
 
       if constexpr (kMode == SweepMode::kResidual) {
+        const float* i00 = Ir + y0 * sI + x0;
+        const float r = Ic_row[x] - (w00 * i00[0] + w01 * i00[1] + w10 * i00[sI] + w11 * i00[sI + 1]);
         res_row[x] = r;
         r2_row += r * r;
         continue;
       }
 
-      // Efficient second-order gradient: mean of current and warped reference gradients.
-      const float gx = 0.5f * (Gxc_row[x] + ref_s[1]);
-      const float gy = 0.5f * (Gyc_row[x] + ref_s[2]);
+      const float* c00 = R + y0 * sR + 4 * x0;
+      const Vec4f ref_s = w00 * Eigen::Map<const Vec4f>(c00) + w01 * Eigen::Map<const Vec4f>(c00 + 4) +
+                          w10 * Eigen::Map<const Vec4f>(c00 + sR) + w11 * Eigen::Map<const Vec4f>(c00 + sR + 4);
+      const float r = Ic_row[x] - ref_s[0];
+
+      // Efficient second-order gradient: mean of current and warped reference gradients; the factor 1/2 is
+      // applied to A and b by the caller (here g = sum, S = 2 x the true row / dt).
+      const float gx = Gxc_row[x] + ref_s[1];
+      const float gy = Gyc_row[x] + ref_s[2];
 
       // gD = grad^T D (1x3); S = grad^T dp_r/dx / dt.
       const float gD0 = gx * wp.fx, gD1 = gy * wp.fy, gD2 = gx * ex + gy * ey;
@@ -267,23 +293,26 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
   const PixelWarp wp(x, K, gyro_mean_C);
   SweepSums sums;
   constexpr SweepMode kAcc = SweepMode::kAccumulate;
+  const RefView ref = makeRefView(ref_packed_, nullptr);
   const bool huber = cfg.huber_abs > 0.0f;
   if (huber && cfg.gradient_weighting) {
-    sweep<kAcc, true, true>(ref_packed_, cur, wp, cfg, &sums, nullptr);
+    sweep<kAcc, true, true>(ref, cur, wp, cfg, &sums, nullptr);
   } else if (huber) {
-    sweep<kAcc, true, false>(ref_packed_, cur, wp, cfg, &sums, nullptr);
+    sweep<kAcc, true, false>(ref, cur, wp, cfg, &sums, nullptr);
   } else if (cfg.gradient_weighting) {
-    sweep<kAcc, false, true>(ref_packed_, cur, wp, cfg, &sums, nullptr);
+    sweep<kAcc, false, true>(ref, cur, wp, cfg, &sums, nullptr);
   } else {
-    sweep<kAcc, false, false>(ref_packed_, cur, wp, cfg, &sums, nullptr);
+    sweep<kAcc, false, false>(ref, cur, wp, cfg, &sums, nullptr);
   }
 
-  // Scale: Jacobian was accumulated divided by dt; weights 1/sigma^2, times the gradient normalisation
-  // (weights |grad I_c| / mean |grad I_c| over the valid pixels) when enabled.
+  // Scale: the sweep's rows are 2/dt times the true S (gradient sum instead of mean, Jacobian without dt);
+  // weights 1/sigma^2, times the gradient normalisation (weights |grad I_c| / mean |grad I_c| over the valid
+  // pixels) when enabled.
   double scale = 1.0 / (params_.intensity_noise_sigma * params_.intensity_noise_sigma);
   if (cfg.gradient_weighting) scale *= sums.grad_sum > 0.0 ? sums.valid / sums.grad_sum : 0.0;
-  const double sA = scale * dt_s * dt_s;
-  const double sb = scale * dt_s;
+  const double half_dt = 0.5 * dt_s;
+  const double sA = scale * half_dt * half_dt;
+  const double sb = scale * half_dt;
   // Upper triangle from the blocks, mirrored (the float diagonal blocks are symmetric only to rounding).
   A->topLeftCorner<4, 4>() = sA * sums.A00;
   A->topRightCorner<4, 4>() = sA * sums.A01;
@@ -323,7 +352,8 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   // Residual image and RMS at the final estimate (the prior when skipped): warp + one bilinear sample.
   residual_.setTo(0.0f);
   SweepSums sums;
-  sweep<SweepMode::kResidual>(ref_packed_, cur, PixelWarp(*x, K, gyro_mean_C), cfg, &sums, &residual_);
+  sweep<SweepMode::kResidual>(makeRefView(ref_packed_, &ref.intensity), cur, PixelWarp(*x, K, gyro_mean_C), cfg,
+                              &sums, &residual_);
   if (sums.valid > 0) stats.rms_residual = std::sqrt(sums.sum_r2 / sums.valid);
   if (stats.applied && sums.candidates > 0) {
     stats.valid_ratio = static_cast<double>(sums.valid) / sums.candidates;
