@@ -20,7 +20,8 @@ class Texture {
   Texture(const std::vector<float>& level0, int width, int height, double texel_u_m, double texel_v_m);
 
   /// Procedural checkerboard: squares of `square_m`, dark/bright grey levels, `texels_per_square` (power of 2).
-  static Texture checkerboard(double square_m = 0.05, int squares_per_tile = 16, int texels_per_square = 64,
+  /// The pattern repeats every 2 squares, so the default tile is 2 x 2 squares (small, cache resident).
+  static Texture checkerboard(double square_m = 0.05, int squares_per_tile = 2, int texels_per_square = 64,
                               float dark = 40.f, float bright = 200.f);
   /// Procedural vegetation-like texture (multi-octave noise, dirt, leaf blobs, grass blades), seedable.
   /// Moderate contrast: mean 110, standard deviation 30 grey levels. `tile_px` a power of two.
