@@ -23,7 +23,7 @@ Texture blobTexture() {
       const double d2 = (i - kBlobI) * (i - kBlobI) + (j - kBlobJ) * (j - kBlobJ);
       px[j * kTex + i] += static_cast<float>(200.0 * std::exp(-0.5 * d2 / (1.3 * 1.3)));
     }
-  return Texture(std::move(px), kTex, kTex, kTexel_m, kTexel_m);
+  return Texture(px, kTex, kTex, kTexel_m, kTexel_m);
 }
 
 /// World position of the blob centre on `plane` (texel centres at (i + 0.5) texel).

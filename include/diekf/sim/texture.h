@@ -10,18 +10,21 @@ namespace diekf {
 namespace sim {
 
 /// A periodic (tiled) grey texture on the plane. Level-0 texel (i, j) covers
-/// u in [i su, (i+1) su), v in [j sv, (j+1) sv) (metres, plane coordinates), its value applies at its centre.
-/// Tile width and height are powers of two so wrapping is a bit mask.
+/// u in [i su, (i+1) su), v in [j sv, (j+1) sv) (metres, plane coordinates); its value applies at its centre.
+/// Tile width and height are powers of two so wrapping is a bit mask. Levels are stored in 4x4 blocks
+/// of texel quads: each entry packs texels (x, y), (x+1, y), (x, y+1), (x+1, y+1) as 8.8 fixed point, so a
+/// bilinear lookup is one 8-byte load, and the blocks keep lookups along any image direction cache friendly.
 class Texture {
  public:
   /// Builds the pyramid from a level-0 image (row-major, `width` x `height`, powers of two, grey 0..255).
-  Texture(std::vector<float> level0, int width, int height, double texel_u_m, double texel_v_m);
+  Texture(const std::vector<float>& level0, int width, int height, double texel_u_m, double texel_v_m);
 
   /// Procedural checkerboard: squares of `square_m`, dark/bright grey levels, `texels_per_square` (power of 2).
-  static Texture checkerboard(double square_m = 0.05, int squares_per_tile = 16, int texels_per_square = 64,
+  /// The pattern repeats every 2 squares, so the default tile is 2 x 2 squares (small, cache resident).
+  static Texture checkerboard(double square_m = 0.05, int squares_per_tile = 2, int texels_per_square = 64,
                               float dark = 40.f, float bright = 200.f);
   /// Procedural vegetation-like texture (multi-octave noise, dirt, leaf blobs, grass blades), seedable.
-  /// Moderate contrast: mean ~110, standard deviation ~30 grey levels. `tile_px` a power of two.
+  /// Moderate contrast: mean 110, standard deviation 30 grey levels. `tile_px` a power of two.
   static Texture natural(std::uint64_t seed, double texel_m = 0.002, int tile_px = 2048);
   /// Any image file (read as grey), resampled to power-of-two dimensions, tile width `tile_width_m` metres.
   /// Throws std::runtime_error naming the file when it cannot be read.
@@ -29,8 +32,6 @@ class Texture {
 
   /// Trilinear sample at plane coordinates (u, v) in metres for a pixel footprint `footprint_m` (metres).
   inline float sample(double u_m, double v_m, float footprint_m) const;
-  /// Bilinear sample of one pyramid level.
-  inline float sampleLevel(int level, double u_m, double v_m) const;
   /// Fast path: trilinear sample at level-0 texel coordinates (xt = u / texelU, yt = v / texelV; texel i's
   /// centre at i + 0.5) and level of detail `lod` = log2(footprint / texel size).
   inline float sampleTexel(float xt, float yt, float lod) const;
@@ -38,22 +39,29 @@ class Texture {
   int levels() const { return static_cast<int>(levels_.size()); }
   int width(int level = 0) const { return levels_[level].w; }
   int height(int level = 0) const { return levels_[level].h; }
+  /// Texel (x, y) of a level (indices wrap).
+  float at(int level, int x, int y) const;
   double texelU() const { return texel_u_m_; }
+  double texelV() const { return texel_v_m_; }
   double tileU() const { return texel_u_m_ * levels_[0].w; }  ///< tile period along u (m)
   double tileV() const { return texel_v_m_ * levels_[0].h; }  ///< tile period along v (m)
-  double texelV() const { return texel_v_m_; }
   float mean() const { return mean_; }
   float invTexelGeo() const { return inv_texel_geo_m_; }  ///< 1 / sqrt(texelU texelV) (1/m)
-  const std::vector<float>& data(int level = 0) const { return levels_[level].px; }
 
  private:
   struct Level {
-    int w = 0, h = 0;
-    double inv_su = 0.0, inv_sv = 0.0;  // 1 / texel size at this level (1/m)
-    float sx = 1.f, sy = 1.f;           // level-0 texel coordinates -> this level's
-    std::vector<float> px;
+    int w = 0, h = 0;        // logical size (texels)
+    int W = 0, H = 0;        // stored size: max(w, 4) x max(h, 4), periodic replication of small levels
+    int blocks_per_row = 0;  // W / 4
+    float sx = 1.f, sy = 1.f;  // level-0 texel coordinates -> this level's
+    std::vector<std::uint64_t> quads;  // 4x4 blocks of packed 2x2 texel quads (8.8 fixed point each)
   };
+  static inline std::size_t blockIndex(const Level& L, int x, int y) {
+    return (static_cast<std::size_t>((y >> 2) * L.blocks_per_row + (x >> 2)) << 4) | ((y & 3) << 2) | (x & 3);
+  }
   inline float bilinearTexel(const Level& L, float xt, float yt) const;
+  static Level makeLevel(const std::vector<float>& linear, int w, int h, float sx, float sy);
+
   std::vector<Level> levels_;
   double texel_u_m_ = 0.0, texel_v_m_ = 0.0;
   float inv_texel_geo_m_ = 0.f;  // 1 / sqrt(su sv)
@@ -72,21 +80,6 @@ inline float fastLog2(float x) {
   return e + (-0.34484843f * m + 2.02466578f) * m - 0.67487759f;  // ~ 1 + log2(m) on [1, 2)
 }
 
-inline float Texture::sampleLevel(int level, double u_m, double v_m) const {
-  const Level& L = levels_[level];
-  const double x = u_m * L.inv_su - 0.5, y = v_m * L.inv_sv - 0.5;
-  const double fx0 = std::floor(x), fy0 = std::floor(y);
-  const float fx = static_cast<float>(x - fx0), fy = static_cast<float>(y - fy0);
-  const int mw = L.w - 1, mh = L.h - 1;
-  const int x0 = static_cast<int>(static_cast<long long>(fx0) & mw), y0 = static_cast<int>(static_cast<long long>(fy0) & mh);
-  const int x1 = (x0 + 1) & mw, y1 = (y0 + 1) & mh;
-  const float* r0 = &L.px[static_cast<std::size_t>(y0) * L.w];
-  const float* r1 = &L.px[static_cast<std::size_t>(y1) * L.w];
-  const float a = r0[x0] + fx * (r0[x1] - r0[x0]);
-  const float b = r1[x0] + fx * (r1[x1] - r1[x0]);
-  return a + fy * (b - a);
-}
-
 inline float Texture::bilinearTexel(const Level& L, float xt, float yt) const {
   float x = xt * L.sx - 0.5f, y = yt * L.sy - 0.5f;
   x = x < -1e9f ? -1e9f : (x > 1e9f ? 1e9f : x);
@@ -95,13 +88,13 @@ inline float Texture::bilinearTexel(const Level& L, float xt, float yt) const {
   ix -= (x < static_cast<float>(ix));  // floor
   iy -= (y < static_cast<float>(iy));
   const float fx = x - static_cast<float>(ix), fy = y - static_cast<float>(iy);
-  const int mw = L.w - 1, mh = L.h - 1;
-  const int x0 = ix & mw, y0 = iy & mh, x1 = (x0 + 1) & mw, y1 = (y0 + 1) & mh;
-  const float* r0 = L.px.data() + static_cast<std::size_t>(y0) * L.w;
-  const float* r1 = L.px.data() + static_cast<std::size_t>(y1) * L.w;
-  const float a = r0[x0] + fx * (r0[x1] - r0[x0]);
-  const float b = r1[x0] + fx * (r1[x1] - r1[x0]);
-  return a + fy * (b - a);
+  const int x0 = ix & (L.W - 1), y0 = iy & (L.H - 1);
+  const std::uint64_t q = L.quads[blockIndex(L, x0, y0)];
+  const float a00 = static_cast<float>(q & 0xFFFF), a10 = static_cast<float>((q >> 16) & 0xFFFF);
+  const float a01 = static_cast<float>((q >> 32) & 0xFFFF), a11 = static_cast<float>(q >> 48);
+  const float a = a00 + fx * (a10 - a00);
+  const float b = a01 + fx * (a11 - a01);
+  return (a + fy * (b - a)) * (1.0f / 256.0f);
 }
 
 inline float Texture::sampleTexel(float xt, float yt, float lod) const {
@@ -117,15 +110,9 @@ inline float Texture::sampleTexel(float xt, float yt, float lod) const {
 }
 
 inline float Texture::sample(double u_m, double v_m, float footprint_m) const {
-  float lv = footprint_m > 0.f ? fastLog2(footprint_m * inv_texel_geo_m_) : 0.f;
-  if (!(lv > 0.f)) return sampleLevel(0, u_m, v_m);
-  const int top = static_cast<int>(levels_.size()) - 1;
-  if (lv >= static_cast<float>(top)) return sampleLevel(top, u_m, v_m);
-  const int l0 = static_cast<int>(lv);
-  const float f = lv - static_cast<float>(l0);
-  const float a = sampleLevel(l0, u_m, v_m);
-  const float b = sampleLevel(l0 + 1, u_m, v_m);
-  return a + f * (b - a);
+  const float xt = static_cast<float>(std::fmod(u_m, tileU()) / texel_u_m_);
+  const float yt = static_cast<float>(std::fmod(v_m, tileV()) / texel_v_m_);
+  return sampleTexel(xt, yt, footprint_m > 0.f ? fastLog2(footprint_m * inv_texel_geo_m_) : 0.f);
 }
 
 }  // namespace sim

@@ -74,40 +74,60 @@ float smoothEdge(double inside_px) {  // coverage from signed distance inside th
 
 }  // namespace
 
-Texture::Texture(std::vector<float> level0, int width, int height, double texel_u_m, double texel_v_m)
+Texture::Level Texture::makeLevel(const std::vector<float>& linear, int w, int h, float sx, float sy) {
+  Level L;
+  L.w = w;
+  L.h = h;
+  L.W = std::max(w, 4);
+  L.H = std::max(h, 4);
+  L.blocks_per_row = L.W / 4;
+  L.sx = sx;
+  L.sy = sy;
+  L.quads.resize(static_cast<std::size_t>(L.W) * L.H);
+  const auto fixed = [&](int x, int y) -> std::uint64_t {
+    const float v = linear[static_cast<std::size_t>(y & (h - 1)) * w + (x & (w - 1))];
+    return static_cast<std::uint64_t>(std::clamp(std::lround(v * 256.0f), 0L, 65535L));
+  };
+  for (int y = 0; y < L.H; ++y)
+    for (int x = 0; x < L.W; ++x)
+      L.quads[blockIndex(L, x, y)] = fixed(x, y) | (fixed(x + 1, y) << 16) | (fixed(x, y + 1) << 32) | (fixed(x + 1, y + 1) << 48);
+  return L;
+}
+
+float Texture::at(int level, int x, int y) const {
+  const Level& L = levels_.at(static_cast<std::size_t>(level));
+  return static_cast<float>(L.quads[blockIndex(L, x & (L.W - 1), y & (L.H - 1))] & 0xFFFF) / 256.0f;
+}
+
+Texture::Texture(const std::vector<float>& level0, int width, int height, double texel_u_m, double texel_v_m)
     : texel_u_m_(texel_u_m), texel_v_m_(texel_v_m) {
   if (!isPow2(width) || !isPow2(height) || level0.size() != static_cast<std::size_t>(width) * height)
     throw std::invalid_argument("Texture: dimensions must be powers of two matching the data");
   if (!(texel_u_m > 0.0) || !(texel_v_m > 0.0)) throw std::invalid_argument("Texture: texel size must be > 0");
   inv_texel_geo_m_ = static_cast<float>(1.0 / std::sqrt(texel_u_m * texel_v_m));
-  Level l0;
-  l0.w = width;
-  l0.h = height;
-  l0.inv_su = 1.0 / texel_u_m;
-  l0.inv_sv = 1.0 / texel_v_m;
-  l0.px = std::move(level0);
-  mean_ = static_cast<float>(std::accumulate(l0.px.begin(), l0.px.end(), 0.0) / l0.px.size());
-  levels_.push_back(std::move(l0));
-  // 2x2 box reduction while both sides stay >= 2 (a 1-wide axis is kept as is).
-  while (levels_.back().w > 1 || levels_.back().h > 1) {
-    const Level& p = levels_.back();
-    Level n;
-    const int fx = p.w > 1 ? 2 : 1, fy = p.h > 1 ? 2 : 1;
-    n.w = p.w / fx;
-    n.h = p.h / fy;
-    n.inv_su = p.inv_su / fx;
-    n.inv_sv = p.inv_sv / fy;
-    n.sx = p.sx / fx;
-    n.sy = p.sy / fy;
-    n.px.resize(static_cast<std::size_t>(n.w) * n.h);
-    for (int y = 0; y < n.h; ++y)
-      for (int x = 0; x < n.w; ++x) {
+  mean_ = static_cast<float>(std::accumulate(level0.begin(), level0.end(), 0.0) / level0.size());
+  // 2x2 box reduction down to 1x1 (an axis already at 1 texel stays).
+  std::vector<float> cur = level0;
+  int w = width, h = height;
+  float sx = 1.f, sy = 1.f;
+  levels_.push_back(makeLevel(cur, w, h, sx, sy));
+  while (w > 1 || h > 1) {
+    const int fx = w > 1 ? 2 : 1, fy = h > 1 ? 2 : 1;
+    const int nw = w / fx, nh = h / fy;
+    std::vector<float> next(static_cast<std::size_t>(nw) * nh);
+    for (int y = 0; y < nh; ++y)
+      for (int x = 0; x < nw; ++x) {
         float s = 0.f;
         for (int dy = 0; dy < fy; ++dy)
-          for (int dx = 0; dx < fx; ++dx) s += p.px[static_cast<std::size_t>(y * fy + dy) * p.w + x * fx + dx];
-        n.px[static_cast<std::size_t>(y) * n.w + x] = s / (fx * fy);
+          for (int dx = 0; dx < fx; ++dx) s += cur[static_cast<std::size_t>(y * fy + dy) * w + x * fx + dx];
+        next[static_cast<std::size_t>(y) * nw + x] = s / (fx * fy);
       }
-    levels_.push_back(std::move(n));
+    cur.swap(next);
+    w = nw;
+    h = nh;
+    sx /= fx;
+    sy /= fy;
+    levels_.push_back(makeLevel(cur, w, h, sx, sy));
   }
 }
 
@@ -120,7 +140,7 @@ Texture Texture::checkerboard(double square_m, int squares_per_tile, int texels_
     for (int x = 0; x < n; ++x)
       px[static_cast<std::size_t>(y) * n + x] = (((x / texels_per_square) + (y / texels_per_square)) & 1) ? bright : dark;
   const double texel = square_m / texels_per_square;
-  return Texture(std::move(px), n, n, texel, texel);
+  return Texture(px, n, n, texel, texel);
 }
 
 Texture Texture::natural(std::uint64_t seed, double texel_m, int tile_px) {
@@ -181,7 +201,7 @@ Texture Texture::natural(std::uint64_t seed, double texel_m, int tile_px) {
     const double z = (v - mean) / sd;
     v = static_cast<float>(std::clamp(110.0 + 30.0 * z, 5.0, 250.0));
   }
-  return Texture(std::move(img), n, n, texel_m, texel_m);
+  return Texture(img, n, n, texel_m, texel_m);
 }
 
 Texture Texture::fromImage(const std::string& path, double tile_width_m) {
@@ -195,7 +215,7 @@ Texture Texture::fromImage(const std::string& path, double tile_width_m) {
   std::vector<float> px(static_cast<std::size_t>(w) * h);
   for (int y = 0; y < h; ++y)
     for (int x = 0; x < w; ++x) px[static_cast<std::size_t>(y) * w + x] = r.at<unsigned char>(y, x);
-  return Texture(std::move(px), w, h, tile_width_m / w, tile_height_m / h);
+  return Texture(px, w, h, tile_width_m / w, tile_height_m / h);
 }
 
 }  // namespace sim
