@@ -21,9 +21,9 @@ APT_PACKAGES := build-essential cmake catkin ros-base-dev libnodeletlib-dev libc
   ros-message-generation ros-message-runtime libdiagnostic-updater-dev libstd-srvs-dev \
   libnav-msgs-dev libshape-msgs-dev libvisualization-msgs-dev libdiagnostic-msgs-dev \
   libtf2-geometry-msgs-dev python3-rosbag python3-rostest python3-roslaunch libnodeletlib-tools ros-base-python-dev rosbash valgrind \
-  python3-tf2-msgs image-transport-tools
+  python3-tf2-msgs image-transport-tools clang libclang-rt-14-dev
 
-.PHONY: all deps workspace build test demo benchmark benchmark-core clean
+.PHONY: all deps workspace build test demo benchmark benchmark-core fuzz sanitize soak clean
 
 all: build
 
@@ -61,6 +61,28 @@ benchmark: build
 
 benchmark-core: build
 	cd $(WS) && catkin_make -j$(JOBS) diekf_benchmark && ./devel/lib/diekf/diekf_benchmark
+
+# libFuzzer target of the core's input handling (test/fuzz/fuzz_ingest.cpp), built with clang outside the catkin
+# tree into $(FUZZ_DIR), then run for FUZZ_SECONDS (docs/robustness.md).
+FUZZ_DIR ?= $(CURDIR)/.fuzz
+FUZZ_SECONDS ?= 120
+FUZZ_FLAGS := -std=c++17 -O1 -g -fsanitize=fuzzer,address,undefined -fno-sanitize-recover=undefined \
+  -fno-omit-frame-pointer -Iinclude -I/usr/include/eigen3 -I/usr/include/opencv4
+fuzz: deps
+	mkdir -p $(FUZZ_DIR)/corpus
+	clang++ $(FUZZ_FLAGS) test/fuzz/fuzz_ingest.cpp $(wildcard src/core/*.cpp) \
+	  -lopencv_imgproc -lopencv_video -lopencv_calib3d -lopencv_core -lyaml-cpp -o $(FUZZ_DIR)/fuzz_ingest
+	cd $(FUZZ_DIR) && ./fuzz_ingest -max_total_time=$(FUZZ_SECONDS) -max_len=4096 -rss_limit_mb=2048 \
+	  -print_final_stats=1 corpus
+
+# The whole test suite under AddressSanitizer + UndefinedBehaviorSanitizer, in its own workspace.
+sanitize:
+	$(MAKE) test WS=$(CURDIR)/.ws-sanitize BUILD_TYPE=RelWithDebInfo CMAKE_ARGS="-DDIEKF_SANITIZE=ON" \
+	  ASAN_OPTIONS=detect_leaks=0:verify_asan_link_order=0 UBSAN_OPTIONS=print_stacktrace=1
+
+# 30 minutes of simulated flight through diekf_bag_runner: peak RSS and growth (scripts/soak.sh).
+soak: build
+	cd $(WS) && source devel/setup.bash && DIEKF_WS=$(WS) bash $(CURDIR)/scripts/soak.sh
 
 clean:
 	rm -rf $(WS)

@@ -30,6 +30,8 @@ struct FrameResult {
   double photometric_rms = 0.0;      ///< RMS of the final residual (normalised intensity units, or px for LK)
   double valid_ratio = 0.0;          ///< fraction of pixels (or features) used
   std::string message;               ///< why initializing / reset / skipped (empty when tracking normally)
+  int resets = 0;                    ///< filter restarts since construction (automatic and requested)
+  std::string last_reset_reason;     ///< why the filter last restarted (empty if it never did)
 
   double distance_m() const { return state.distance_m(); }
   double height_m() const { return state.height_m(); }
@@ -47,10 +49,15 @@ class Estimator {
   Estimator(const Estimator&) = delete;
   Estimator& operator=(const Estimator&) = delete;
 
-  /// Raw IMU sample in the IMU frame, IMU clock. Non-finite or out-of-order samples are rejected (returns false).
+  /// Raw IMU sample in the IMU frame, IMU clock. Non-finite, implausibly large, duplicated or out-of-order
+  /// samples are rejected (returns false, takeWarning() says why). A stamp jumping back by more than
+  /// input.time_jump_reset_s or forward by more than input.max_imu_bridge_s restarts the filter (the sample is
+  /// then accepted as the first of the new run). Never throws (docs/robustness.md).
   bool addImu(const ImuSample& raw_imu);
-  /// Image at the calibration resolution, stamp on the camera clock (timeshift applied inside). The image is
-  /// converted to grey if needed and processed as soon as filtered IMU data covers its stamp.
+  /// Image at the calibration resolution (8-bit grey, 16-bit grey, BGR or BGRA), stamp on the camera clock
+  /// (timeshift applied inside). The image is converted to grey if needed and processed as soon as filtered IMU
+  /// data covers its stamp. Wrong size or type, non-finite, duplicated or out-of-order stamps are rejected
+  /// (returns false). Never throws.
   bool addImage(double t_cam_s, const cv::Mat& image);
   /// Pops the oldest unread result; false when none is waiting.
   bool popResult(FrameResult* out);
@@ -70,6 +77,9 @@ class Estimator {
   const cv::Mat& lastResidualImage() const;
   /// Human-readable reason of the last warning (rejected input etc.); empty if none since the last call.
   std::string takeWarning();
+  /// Filter restarts since construction (automatic and requested) and the reason of the last one.
+  int resetCount() const;
+  const std::string& lastResetReason() const;
 
  private:
   struct Impl;

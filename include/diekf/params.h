@@ -23,6 +23,8 @@ struct InitParams {
   double sigma_ba0_mps2 = 0.1;                  ///< 1-sigma of the initial accelerometer bias, m/s^2
   double sigma_bw0_radps = 0.01;                ///< 1-sigma of the initial gyroscope bias, rad/s
   double tracking_max_relative_sigma_d = 0.15;  ///< status turns tracking once sigma_d / d falls below this
+  bool warm_restart = true;                     ///< automatic restarts start from the last tracked distance
+  double warm_restart_max_age_s = 10.0;         ///< ... if it is at most this old, s
 };
 
 struct ImuParams {
@@ -79,8 +81,22 @@ struct DivergenceParams {
   double min_distance_m = 0.05;                 ///< reset when d falls below, m
   double max_distance_m = 50.0;                 ///< reset when d exceeds, m
   double max_sigma_distance_m = 10.0;           ///< reset when 1-sigma of d exceeds, m
-  double max_photometric_rms = 3.0;             ///< residual RMS considered bad (normalised units)
+  double max_photometric_rms = 0.8;             ///< larger residual RMS: update rejected (normalised units)
   int bad_frames_before_reset = 30;             ///< consecutive bad frames before a reset
+  double max_speed_mps = 20.0;                  ///< reset when the speed |v| exceeds, m/s
+  double max_sigma_velocity_mps = 5.0;          ///< reset when the 1-sigma of any velocity axis exceeds, m/s
+};
+
+/// Input checks of the facade (docs/robustness.md): what is rejected, bridged or restarts the filter.
+struct InputParams {
+  double max_imu_bridge_s = 0.5;                ///< IMU gaps up to this are propagated through; longer reset, s
+  double time_jump_reset_s = 1.0;               ///< a stamp this far backwards resets (closer: rejected), s
+  double max_frame_interval_s = 0.25;           ///< longer reference-to-image intervals skip the update, s
+  double max_image_gap_s = 1.0;                 ///< no usable image for longer: restart at the next one, s
+  double min_image_contrast_grey = 1.5;         ///< grey-level std (working image) below which it has no texture
+  double min_unclipped_ratio = 0.1;             ///< fraction of working pixels neither 0 nor 255 required
+  double max_accel_mps2 = 200.0;                ///< IMU samples with a larger |specific force| are rejected, m/s^2
+  double max_gyro_radps = 35.0;                 ///< IMU samples with a larger |rate| are rejected, rad/s
 };
 
 struct EstimatorParams {
@@ -92,9 +108,10 @@ struct EstimatorParams {
   PhotometricParams photometric;
   FeatureParams feature;
   DivergenceParams divergence;
-  double max_imu_gap_s = 0.05;                  ///< larger IMU gaps are bridged by holding the last sample
-  int max_queued_images = 8;
-  bool interval_mean_velocity = true;           ///< warp with the interval's mean velocity (from the prediction)                    ///< images waiting for IMU coverage before the oldest is dropped
+  InputParams input;
+  double max_imu_gap_s = 0.05;                  ///< larger IMU gaps are warned about and re-prime the low-pass, s
+  int max_queued_images = 8;                    ///< images waiting for IMU coverage before the oldest is dropped
+  bool interval_mean_velocity = true;           ///< warp with the interval's mean velocity (from the prediction)
 };
 
 /// "iekf" | "ekf" | "lk" -> mode; throws std::invalid_argument naming the value otherwise.

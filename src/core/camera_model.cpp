@@ -103,6 +103,8 @@ CameraModel CameraModel::fromKalibrYaml(const std::string& path, const std::stri
     throw std::runtime_error(path + ": cannot open the camchain file");
   } catch (const YAML::Exception& e) {
     throw std::runtime_error(path + ": cannot parse YAML: " + e.what());
+  } catch (const std::exception& e) {  // e.g. a directory: the stream fails while reading
+    throw std::runtime_error(path + ": cannot read the file: " + e.what());
   }
   if (!root.IsMap()) throw std::runtime_error(path + ": expected a YAML map at the top level");
   const YAML::Node c = require(root, cam, path, cam);

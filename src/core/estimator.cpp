@@ -1,6 +1,7 @@
 #include "diekf/estimator.h"
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <sstream>
@@ -145,6 +146,8 @@ struct Estimator::Impl {
     bad_frames = 0;
     updates_since_reset = 0;
     converged = false;
+    skip_reason.clear();
+    warm_started = false;
   }
 
   /// Gravity direction from the mean specific force of the recent filtered samples (if the vehicle is near
@@ -168,8 +171,12 @@ struct Estimator::Impl {
   }
 
   /// Propagates the state from t_state to t_target with the filtered samples, splitting the last interval.
-  /// Sample k (stamp t_k) is held over (t_{k-1}, t_k]. Accumulates the raw gyro integral for the update.
+  /// Sample k (stamp t_k) is held over (t_{k-1}, t_k] (zero-order hold, also across a bridged IMU gap); an
+  /// interval longer than two nominal filtered periods is integrated in steps of at most one period.
+  /// Accumulates the raw gyro integral for the update.
   void propagateTo(double t_target) {
+    const double nominal_dt_s =
+        std::max(1, params.imu.decimation_factor) / std::max(1e-9, params.imu.input_rate_hz);
     size_t i = 0;
     while (i < imu_buffer.size() && t_state_s >= imu_buffer[i].t_s) ++i;
     while (t_state_s < t_target && i < imu_buffer.size()) {
@@ -178,7 +185,9 @@ struct Estimator::Impl {
       const double dt = t_end - t_state_s;
       if (dt > 0.0) {
         const Vec3 v_before = x.velocity_mps();
-        predict(s.accel_mps2, s.gyro_radps, dt, params.imu, params.process, &x, &P);
+        const int steps = dt > 2.0 * nominal_dt_s ? static_cast<int>(std::ceil(dt / nominal_dt_s)) : 1;
+        const double h = dt / steps;
+        for (int k = 0; k < steps; ++k) predict(s.accel_mps2, s.gyro_radps, h, params.imu, params.process, &x, &P);
         velocity_integral += 0.5 * (v_before + x.velocity_mps()) * dt;  // trapezoid, m
         gyro_integral += s.gyro_radps * dt;
         gyro_time_s += dt;
@@ -191,10 +200,14 @@ struct Estimator::Impl {
     while (imu_buffer.size() > 1 && imu_buffer[0].t_s <= t_state_s) imu_buffer.pop();
   }
 
-  void checkDivergence(const UpdateStats& stats, std::string* reason) {
+  void checkDivergence(const UpdateStats& stats, bool image_usable, std::string* reason) {
     const DivergenceParams& dv = params.divergence;
     if (!x.allFinite() || !P.allFinite()) {
       *reason = "non-finite state or covariance";
+      return;
+    }
+    if (P.diagonal().minCoeff() < -1e-9) {
+      *reason = "covariance lost positive semi-definiteness (negative variance)";
       return;
     }
     const double d = x.distance_m();
@@ -205,43 +218,156 @@ struct Estimator::Impl {
       return;
     }
     const double sigma_d = std::sqrt(std::max(0.0, P(0, 0))) / (x.alpha * x.alpha);
-    if (sigma_d > dv.max_sigma_distance_m) {
+    if (!(sigma_d <= dv.max_sigma_distance_m)) {
       std::ostringstream os;
       os << "distance 1-sigma " << sigma_d << " m above " << dv.max_sigma_distance_m << " m";
       *reason = os.str();
       return;
     }
-    const bool bad_residual = stats.applied && params.mode != UpdateMode::kFeature &&
-                              stats.rms_residual > dv.max_photometric_rms;
-    bad_frames = (bad_residual || !stats.applied) ? bad_frames + 1 : 0;
-    if (bad_frames >= dv.bad_frames_before_reset) {
+    const double speed = x.velocity_mps().norm();
+    if (!(speed <= dv.max_speed_mps)) {
       std::ostringstream os;
-      os << bad_frames << " consecutive frames with a bad or skipped update";
+      os << "speed " << speed << " m/s above " << dv.max_speed_mps << " m/s";
+      *reason = os.str();
+      return;
+    }
+    FrameResult probe;
+    probe.state = x;
+    probe.covariance = P;
+    const double sigma_v = probe.sigma_velocity_mps().maxCoeff();
+    if (!(sigma_v <= dv.max_sigma_velocity_mps)) {
+      std::ostringstream os;
+      os << "velocity 1-sigma " << sigma_v << " m/s above " << dv.max_sigma_velocity_mps << " m/s";
+      *reason = os.str();
+      return;
+    }
+    // Unusable images (black, saturated, uniform) are not counted here: a blackout is handled by
+    // input.max_image_gap_s. Nor is the prior itself reset again when no update has been applied since.
+    if (!image_usable) return;
+    // A bad photometric residual has already turned into a rejected (not applied) update.
+    bad_frames = stats.applied ? 0 : bad_frames + 1;
+    if (bad_frames >= dv.bad_frames_before_reset && updates_since_reset > 0) {
+      std::ostringstream os;
+      os << bad_frames << " consecutive frames with a bad or skipped update (last: " << skip_reason << ")";
       *reason = os.str();
     }
+  }
+
+  /// After an automatic restart: start from the distance, normal, gravity and biases of the last frame that was
+  /// tracking (if init.warm_restart and it is at most init.warm_restart_max_age_s old), with the initial
+  /// covariance, so that the filter does not have to converge from the far-off start-up prior again. The
+  /// velocity starts from the prior (it is what the fault makes unknown).
+  /// The snapshot used is the newest one taken at least kWarmRestartLagS before t_now_s: a fault is usually
+  /// detected within a second of its start, so the estimate it had already corrupted is not reused.
+  void applyWarmPrior(double t_now_s) {
+    if (!params.init.warm_restart) return;
+    const GoodSnapshot* best = nullptr;
+    for (const GoodSnapshot& g : good_history) {
+      const double age_s = t_now_s - g.t_s;
+      if (g.valid && age_s >= kWarmRestartLagS && age_s <= params.init.warm_restart_max_age_s &&
+          (best == nullptr || g.t_s > best->t_s)) {
+        best = &g;
+      }
+    }
+    if (best == nullptr) return;
+    x.alpha = best->x.alpha;
+    x.mu = best->x.mu;
+    x.g = best->x.g;
+    x.b_a = best->x.b_a;
+    x.b_w = best->x.b_w;
+    warm_started = true;
+  }
+
+  /// Keeps a snapshot of a healthy tracking state every kSnapshotSpacingS.
+  void rememberGood(double t_s) {
+    GoodSnapshot* newest = nullptr;
+    GoodSnapshot* oldest = &good_history[0];
+    for (GoodSnapshot& g : good_history) {
+      if (g.valid && (newest == nullptr || g.t_s > newest->t_s)) newest = &g;
+      if (!g.valid || (oldest->valid && g.t_s < oldest->t_s)) oldest = &g;
+    }
+    if (newest != nullptr && t_s - newest->t_s < kSnapshotSpacingS && t_s >= newest->t_s) return;
+    oldest->valid = true;
+    oldest->t_s = t_s;
+    oldest->x = x;
+  }
+
+  /// Records a restart (counted, reason kept for the status of later frames).
+  void noteRestart(const std::string& reason) {
+    ++resets;
+    last_reset_reason = reason;
+  }
+
+  /// Starts the filter at image `t_s`: gravity from the accelerometer, no propagation before.
+  void startAt(double t_s) {
+    UnitVector g;
+    if (params.init.g0_from_accel && gravityFromAccel(t_s, &g)) x.g = g;
+    t_state_s = t_s;
+    last_usable_image_t_s = t_s;
+    state_initialized = true;
+    while (imu_buffer.size() > 1 && imu_buffer[1].t_s <= t_state_s) imu_buffer.pop();
+  }
+
+  /// Whether the working image carries enough texture for a photometric update; says why not.
+  bool imageUsable(const cv::Mat& gray8, std::string* why) const {
+    cv::Scalar mean, stddev;
+    cv::meanStdDev(gray8, mean, stddev);
+    const int total = gray8.rows * gray8.cols;
+    int clipped = 0;
+    for (int y = 0; y < gray8.rows; ++y) {
+      const uint8_t* row = gray8.ptr<uint8_t>(y);
+      for (int x = 0; x < gray8.cols; ++x) clipped += (row[x] == 0 || row[x] == 255) ? 1 : 0;
+    }
+    const double unclipped = total > 0 ? 1.0 - static_cast<double>(clipped) / total : 0.0;
+    std::ostringstream os;
+    if (unclipped < params.input.min_unclipped_ratio) {
+      os << "image unusable: " << static_cast<int>(std::lround(100.0 * (1.0 - unclipped)))
+         << " % of the pixels black or saturated (mean grey " << std::lround(mean[0]) << ")";
+    } else if (!(stddev[0] >= params.input.min_image_contrast_grey)) {
+      os << "image unusable: no texture (grey-level std " << stddev[0] << " below "
+         << params.input.min_image_contrast_grey << ")";
+    } else {
+      return true;
+    }
+    *why = os.str();
+    return false;
   }
 
   void processImage(PendingImage& img) {
     const auto t0 = std::chrono::steady_clock::now();
     FrameResult r;
     r.t_s = img.t_s;
+    std::string restart_reason;  // set when the filter restarts at this image before any update
 
+    PreprocessedFrame& cur = frames[1 - ref_index];
+    img_pre.process(img.gray, img.t_s, &cur);
+    std::string usable_why;
+    const bool usable = imageUsable(cur.gray8, &usable_why);
+
+    if (state_initialized && img.t_s - last_usable_image_t_s > params.input.max_image_gap_s) {
+      // The state has been dead-reckoned on the IMU alone for too long: restart, and wait (without
+      // propagating) for the next usable image, which becomes the reference of the new run.
+      std::ostringstream os;
+      os << "no usable image for " << (img.t_s - last_usable_image_t_s) << " s (more than max_image_gap_s = "
+         << params.input.max_image_gap_s << " s)";
+      restart_reason = os.str();
+      noteRestart(restart_reason);
+      warn("filter reset: " + restart_reason);
+      resetFilter();
+      applyWarmPrior(img.t_s);
+    }
     if (!state_initialized) {
-      // The filter starts at the first image: gravity from the accelerometer, no propagation before.
-      UnitVector g;
-      if (params.init.g0_from_accel && gravityFromAccel(img.t_s, &g)) x.g = g;
-      t_state_s = img.t_s;
-      state_initialized = true;
-      while (imu_buffer.size() > 1 && imu_buffer[1].t_s <= t_state_s) imu_buffer.pop();
+      if (usable) startAt(img.t_s);  // otherwise the filter keeps waiting for a usable image
     } else {
       propagateTo(img.t_s);
     }
 
-    PreprocessedFrame& cur = frames[1 - ref_index];
-    img_pre.process(img.gray, img.t_s, &cur);
-
     UpdateStats stats;
-    if (have_reference) {
+    skip_reason.clear();
+    if (!usable) {
+      // Keep the reference and the gyro integral: the next usable image is compared with the old reference.
+      skip_reason = usable_why;
+    } else if (have_reference) {
       const PreprocessedFrame& ref = frames[ref_index];
       const double dt = cur.t_s - ref.t_s;
       const Vec3 gyro_mean = gyro_time_s > 0.0 ? Vec3(gyro_integral / gyro_time_s) : Vec3::Zero();
@@ -253,76 +379,156 @@ struct Estimator::Impl {
       if (params.interval_mean_velocity && gyro_time_s > 0.0) {
         vartheta_offset = x.alpha * velocity_integral / gyro_time_s - x.vartheta;
       }
-      x.vartheta += vartheta_offset;
-      if (params.mode == UpdateMode::kFeature) {
-        stats = feature.update(ref, cur, img_pre.workingK(), gyro_mean, dt, &x, &P);
+      if (dt > params.input.max_frame_interval_s) {
+        std::ostringstream os;
+        os << "update skipped: " << dt << " s since the reference image (max_frame_interval_s = "
+           << params.input.max_frame_interval_s << " s); this image is the new reference";
+        skip_reason = os.str();
       } else {
-        stats = photometric.update(ref, cur, img_pre.workingK(), gyro_mean, dt, &x, &P);
+        x.vartheta += vartheta_offset;
+        if (params.mode == UpdateMode::kFeature) {
+          stats = feature.update(ref, cur, img_pre.workingK(), gyro_mean, dt, &x, &P);
+        } else {
+          const State x_prior = x;
+          const ErrorCov P_prior = P;
+          stats = photometric.update(ref, cur, img_pre.workingK(), gyro_mean, dt, &x, &P);
+          if (stats.applied && !(stats.rms_residual <= params.divergence.max_photometric_rms)) {
+            // The images do not fit the plane model (occlusion, unrelated or corrupt image): keep the prior.
+            x = x_prior;
+            P = P_prior;
+            stats.applied = false;
+            std::ostringstream os;
+            os << "update rejected: photometric RMS " << stats.rms_residual << " above "
+               << params.divergence.max_photometric_rms;
+            skip_reason = os.str();
+          }
+        }
+        x.vartheta -= vartheta_offset;
       }
-      x.vartheta -= vartheta_offset;
+      if (skip_reason.empty() && !stats.applied) skip_reason = "update skipped: too few valid pixels or non-finite system";
     }
-    velocity_integral.setZero();
-    gyro_integral.setZero();
-    gyro_time_s = 0.0;
-    ref_index = 1 - ref_index;
     const bool had_reference = have_reference;
-    have_reference = true;
+    if (usable) {
+      last_usable_image_t_s = img.t_s;
+      velocity_integral.setZero();
+      gyro_integral.setZero();
+      gyro_time_s = 0.0;
+      ref_index = 1 - ref_index;
+      have_reference = true;
+    }
 
     const auto t1 = std::chrono::steady_clock::now();
     r.update_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
     r.update_applied = stats.applied;
     r.passes = stats.passes;
-    r.photometric_rms = stats.rms_residual;
-    r.valid_ratio = stats.valid_ratio;
+    r.photometric_rms = std::isfinite(stats.rms_residual) ? stats.rms_residual : 0.0;
+    r.valid_ratio = std::isfinite(stats.valid_ratio) ? stats.valid_ratio : 0.0;
     if (stats.applied) ++updates_since_reset;
 
     std::string reason;
-    checkDivergence(stats, &reason);
+    checkDivergence(stats, usable, &reason);
+    if (reason.empty() && had_reference && state_initialized && !stats.applied && updates_since_reset == 0) {
+      // No update has succeeded since the (re)start: do not dead-reckon the prior on the IMU alone; start the
+      // run again at this image instead (its covariance would only grow, and the first real update would
+      // then be linearised far from the truth).
+      const bool warm = warm_started;
+      const int bad = bad_frames;
+      const std::string skipped = skip_reason;
+      resetFilter();
+      if (warm) applyWarmPrior(img.t_s);
+      warm_started = warm;
+      bad_frames = bad;
+      skip_reason = skipped;
+      if (usable) startAt(img.t_s);
+      have_reference = usable;
+    }
     if (!reason.empty()) {
-      ++resets;
+      noteRestart(reason);
       warn("filter reset: " + reason);
       resetFilter();
-      // Restart from this image: it becomes the new reference.
-      UnitVector g;
-      if (params.init.g0_from_accel && gravityFromAccel(img.t_s, &g)) x.g = g;
-      t_state_s = img.t_s;
-      state_initialized = true;
-      have_reference = true;
+      applyWarmPrior(img.t_s);
+      // Restart from this image: it becomes the new reference (if it has texture).
+      if (usable) startAt(img.t_s);
+      have_reference = usable;
       r.status = FilterStatus::kReset;
       r.message = reason;
+    } else if (!restart_reason.empty()) {
+      r.status = FilterStatus::kReset;
+      r.message = restart_reason;
+    } else if (!pending_reset_reason.empty()) {
+      // The first frame after a restart triggered by the input (time jump, IMU gap, internal error).
+      r.status = FilterStatus::kReset;
+      r.message = pending_reset_reason;
     } else if (!converged) {
       const double relative_sigma_d = std::sqrt(std::max(0.0, P(0, 0))) / x.alpha;  // sigma_d / d
       converged = updates_since_reset > 0 && relative_sigma_d < params.init.tracking_max_relative_sigma_d;
       r.status = converged ? FilterStatus::kTracking : FilterStatus::kInitializing;
-      if (!had_reference) {
+      if (!usable) {
+        r.message = usable_why;
+      } else if (!had_reference) {
         r.message = "first image: reference set";
       } else if (updates_since_reset == 0) {
-        r.message = "waiting for a valid image update";
+        r.message = skip_reason.empty() ? "waiting for a valid image update" : skip_reason;
       } else if (!converged) {
         std::ostringstream os;
         os << "converging: sigma_d/d = " << relative_sigma_d << " (tracking below "
            << params.init.tracking_max_relative_sigma_d << ")";
         r.message = os.str();
       }
+      if (!converged && !last_reset_reason.empty()) {
+        r.message += std::string(" (last reset: ") + last_reset_reason + (warm_started ? "; restarted from the last good distance)" : ")");
+      }
     } else {
       r.status = FilterStatus::kTracking;
-      if (!stats.applied) r.message = "update skipped: too few valid pixels or non-finite system";
+      r.message = skip_reason;
     }
+    pending_reset_reason.clear();
+    if (r.status == FilterStatus::kTracking && stats.applied && bad_frames == 0) rememberGood(img.t_s);
     status = r.status;
     r.state = x;
     r.covariance = P;
+    r.resets = resets;
+    r.last_reset_reason = last_reset_reason;
     results.push_back(std::move(r));
     if (results.size() > 64) results.pop_front();  // nobody reads: keep memory bounded
   }
 
-  /// Processes every pending image whose stamp is covered by filtered IMU data.
+  /// Processes every pending image whose stamp is covered by filtered IMU data. Before the filter has started,
+  /// images older than the oldest buffered IMU sample (e.g. images before any IMU data) are dropped.
   void processReady() {
     while (!images.empty()) {
       PendingImage& img = images[0];
       if (imu_buffer.empty() || imu_buffer.back().t_s < img.t_s) return;
+      if (!state_initialized && img.t_s < imu_buffer[0].t_s) {
+        std::ostringstream os;
+        os << "image at " << img.t_s << " s older than the IMU data (from " << imu_buffer[0].t_s << " s) dropped";
+        warn(os.str());
+        images.pop();
+        continue;
+      }
       processImage(img);
       images.pop();
     }
+  }
+
+  /// Back to the initial state with an empty IMU pipeline and image queue. `automatic`: caused by the input
+  /// (the next frame reports status reset with the reason); otherwise requested by the user.
+  void restart(const std::string& reason, bool automatic, bool warm = false, double t_now_s = 0.0) {
+    warn((automatic ? "filter reset: " : "reset: ") + reason);
+    noteRestart(reason);
+    resetFilter();
+    if (warm) {
+      applyWarmPrior(t_now_s);
+    } else {
+      for (GoodSnapshot& g : good_history) g.valid = false;  // e.g. a time jump: the history is from other data
+    }
+    imu_pre.reset();
+    imu_buffer.clear();
+    images.clear();
+    have_raw_imu = false;
+    last_image_t_s = -HUGE_VAL;
+    status = FilterStatus::kInitializing;
+    pending_reset_reason = automatic ? reason : std::string();
   }
 
   CameraModel camera;
@@ -341,6 +547,7 @@ struct Estimator::Impl {
   State x;
   ErrorCov P = ErrorCov::Zero();
   double t_state_s = 0.0;
+  double last_usable_image_t_s = 0.0;  // stamp of the last image with texture (or of the start), IMU clock
   bool state_initialized = false;
   bool have_reference = false;
   FilterStatus status = FilterStatus::kInitializing;
@@ -351,10 +558,22 @@ struct Estimator::Impl {
   int updates_since_reset = 0;
   bool converged = false;  // sigma_d / d has fallen below the tracking threshold since the last reset
   int resets = 0;
+  std::string last_reset_reason;     // reason of the last restart (kept for the status text)
+  std::string pending_reset_reason;  // the next frame reports status reset with this reason
+  std::string skip_reason;           // why the current frame's update was not applied
+  struct GoodSnapshot {
+    bool valid = false;
+    double t_s = 0.0;                // IMU clock, s
+    State x;
+  };
+  static constexpr double kWarmRestartLagS = 1.0;    // warm restarts use a state at least this old, s
+  static constexpr double kSnapshotSpacingS = 0.25;  // spacing of the kept snapshots, s
+  std::array<GoodSnapshot, 12> good_history;  // healthy tracking states, about the last 3 s
+  bool warm_started = false;         // the current run started from last_good
 
   bool have_raw_imu = false;
   double last_raw_imu_t_s = 0.0;
-  double last_image_t_s = -1e300;
+  double last_image_t_s = -HUGE_VAL;
   std::string warning;
 };
 
@@ -365,82 +584,112 @@ Estimator::~Estimator() = default;
 
 bool Estimator::addImu(const ImuSample& raw) {
   Impl& m = *impl_;
-  if (!std::isfinite(raw.t_s) || !raw.accel_mps2.allFinite() || !raw.gyro_radps.allFinite()) {
-    m.warn("IMU sample with a non-finite value rejected");
+  try {
+    if (!std::isfinite(raw.t_s) || !raw.accel_mps2.allFinite() || !raw.gyro_radps.allFinite()) {
+      m.warn("IMU sample with a non-finite value rejected");
+      return false;
+    }
+    if (raw.accel_mps2.norm() > m.params.input.max_accel_mps2 || raw.gyro_radps.norm() > m.params.input.max_gyro_radps) {
+      std::ostringstream os;
+      os << "implausible IMU sample rejected (|f| = " << raw.accel_mps2.norm() << " m/s^2, |w| = "
+         << raw.gyro_radps.norm() << " rad/s)";
+      m.warn(os.str());
+      return false;
+    }
+    if (m.have_raw_imu) {
+      const double dt = raw.t_s - m.last_raw_imu_t_s;
+      if (dt < -m.params.input.time_jump_reset_s) {
+        // Time jumped backwards (e.g. a looping bag): start again with this sample.
+        std::ostringstream os;
+        os << "IMU time jumped back by " << -dt << " s";
+        m.restart(os.str(), true);
+      } else if (dt <= 0.0) {
+        m.warn(dt == 0.0 ? "duplicated IMU stamp rejected" : "out-of-order IMU sample rejected");
+        return false;
+      } else if (dt > m.params.input.max_imu_bridge_s) {
+        std::ostringstream os;
+        os << "IMU gap of " << dt << " s (more than max_imu_bridge_s = " << m.params.input.max_imu_bridge_s << " s)";
+        m.restart(os.str(), true, true, raw.t_s);
+      } else if (dt > m.params.max_imu_gap_s) {
+        // Bridged: the low-pass restarts from this sample, the state is propagated through the gap.
+        std::ostringstream os;
+        os << "IMU gap of " << dt << " s bridged";
+        m.warn(os.str());
+        m.imu_pre.reset();
+      }
+    }
+    m.have_raw_imu = true;
+    m.last_raw_imu_t_s = raw.t_s;
+    ImuSample filtered;
+    if (m.imu_pre.push(raw, &filtered)) {
+      if (!std::isfinite(filtered.t_s) || !filtered.accel_mps2.allFinite() || !filtered.gyro_radps.allFinite()) {
+        m.warn("IMU low-pass produced a non-finite value: filter memory cleared");
+        m.imu_pre.reset();
+        return true;
+      }
+      if (!m.imu_buffer.empty() && filtered.t_s <= m.imu_buffer.back().t_s) return true;
+      m.imu_buffer.push(filtered);
+      m.processReady();
+    }
+    return true;
+  } catch (const std::exception& e) {
+    m.restart(std::string("internal error while processing IMU data: ") + e.what(), true);
     return false;
   }
-  if (m.have_raw_imu) {
-    const double dt = raw.t_s - m.last_raw_imu_t_s;
-    if (dt < -1.0) {
-      // Time jumped backwards (e.g. a looping bag): start again.
-      std::ostringstream os;
-      os << "time jumped back by " << -dt << " s: resetting";
-      reset(os.str());
-    } else if (dt <= 0.0) {
-      m.warn(dt == 0.0 ? "duplicated IMU stamp rejected" : "out-of-order IMU sample rejected");
-      return false;
-    } else if (dt > m.params.max_imu_gap_s) {
-      std::ostringstream os;
-      os << "IMU gap of " << dt << " s";
-      m.warn(os.str());
-    }
-  }
-  m.have_raw_imu = true;
-  m.last_raw_imu_t_s = raw.t_s;
-  ImuSample filtered;
-  if (m.imu_pre.push(raw, &filtered)) {
-    if (!m.imu_buffer.empty() && filtered.t_s <= m.imu_buffer.back().t_s) return true;
-    m.imu_buffer.push(filtered);
-    m.processReady();
-  }
-  return true;
 }
 
 bool Estimator::addImage(double t_cam_s, const cv::Mat& image) {
   Impl& m = *impl_;
-  const double t_s = t_cam_s + m.camera.timeshift_cam_imu_s;
-  if (!std::isfinite(t_s)) {
-    m.warn("image with a non-finite stamp rejected");
-    return false;
-  }
-  if (image.empty() || image.cols != m.camera.K.width || image.rows != m.camera.K.height) {
-    std::ostringstream os;
-    os << "image of " << image.cols << "x" << image.rows << " px rejected: calibration is " << m.camera.K.width
-       << "x" << m.camera.K.height << " px";
-    m.warn(os.str());
-    return false;
-  }
-  if (t_s <= m.last_image_t_s) {
-    if (t_s < m.last_image_t_s - 1.0) {
-      reset("image time jumped backwards: resetting");
-    } else {
-      m.warn(t_s == m.last_image_t_s ? "duplicated image stamp rejected" : "out-of-order image rejected");
+  try {
+    const double t_s = t_cam_s + m.camera.timeshift_cam_imu_s;
+    if (!std::isfinite(t_s)) {
+      m.warn("image with a non-finite stamp rejected");
       return false;
     }
-  }
-  const int depth = image.depth();
-  const int channels = image.channels();
-  const bool supported = (depth == CV_8U && (channels == 1 || channels == 3 || channels == 4)) ||
-                         (depth == CV_16U && channels == 1);
-  if (!supported) {
-    m.warn("image of unsupported type rejected (expected 8-bit grey, 16-bit grey, BGR or BGRA)");
+    if (image.empty() || image.dims != 2 || image.cols != m.camera.K.width || image.rows != m.camera.K.height) {
+      std::ostringstream os;
+      os << "image of " << image.cols << "x" << image.rows << " px rejected: calibration is " << m.camera.K.width
+         << "x" << m.camera.K.height << " px";
+      m.warn(os.str());
+      return false;
+    }
+    const int depth = image.depth();
+    const int channels = image.channels();
+    const bool supported = (depth == CV_8U && (channels == 1 || channels == 3 || channels == 4)) ||
+                           (depth == CV_16U && channels == 1);
+    if (!supported) {
+      m.warn("image of unsupported type rejected (expected 8-bit grey, 16-bit grey, BGR or BGRA)");
+      return false;
+    }
+    if (t_s <= m.last_image_t_s) {
+      if (t_s < m.last_image_t_s - m.params.input.time_jump_reset_s) {
+        std::ostringstream os;
+        os << "image time jumped back by " << (m.last_image_t_s - t_s) << " s";
+        m.restart(os.str(), true);
+      } else {
+        m.warn(t_s == m.last_image_t_s ? "duplicated image stamp rejected" : "out-of-order image rejected");
+        return false;
+      }
+    }
+    if (m.images.full()) m.warn("image queue full (no IMU data covering the images): oldest image dropped");
+    PendingImage& slot = m.images.emplaceSlot();
+    slot.t_s = t_s;
+    if (channels == 1 && depth == CV_8U) {
+      image.copyTo(slot.gray);
+    } else if (channels == 1) {
+      image.convertTo(slot.gray, CV_8U, 1.0 / 256.0);
+    } else if (channels == 3) {
+      cv::cvtColor(image, slot.gray, cv::COLOR_BGR2GRAY);
+    } else {
+      cv::cvtColor(image, slot.gray, cv::COLOR_BGRA2GRAY);
+    }
+    m.last_image_t_s = t_s;
+    m.processReady();
+    return true;
+  } catch (const std::exception& e) {
+    m.restart(std::string("internal error while processing an image: ") + e.what(), true);
     return false;
   }
-  if (m.images.full()) m.warn("image queue full (no IMU data covering the images): oldest image dropped");
-  PendingImage& slot = m.images.emplaceSlot();
-  slot.t_s = t_s;
-  if (channels == 1 && depth == CV_8U) {
-    image.copyTo(slot.gray);
-  } else if (channels == 1) {
-    image.convertTo(slot.gray, CV_8U, 1.0 / 256.0);
-  } else if (channels == 3) {
-    cv::cvtColor(image, slot.gray, cv::COLOR_BGR2GRAY);
-  } else {
-    cv::cvtColor(image, slot.gray, cv::COLOR_BGRA2GRAY);
-  }
-  m.last_image_t_s = t_s;
-  m.processReady();
-  return true;
 }
 
 bool Estimator::popResult(FrameResult* out) {
@@ -451,18 +700,7 @@ bool Estimator::popResult(FrameResult* out) {
   return true;
 }
 
-void Estimator::reset(const std::string& reason) {
-  Impl& m = *impl_;
-  m.warn("reset: " + reason);
-  m.resetFilter();
-  m.imu_pre.reset();
-  m.imu_buffer.clear();
-  m.images.clear();
-  m.have_raw_imu = false;
-  m.last_image_t_s = -1e300;
-  m.status = FilterStatus::kInitializing;
-  ++m.resets;
-}
+void Estimator::reset(const std::string& reason) { impl_->restart(reason, false); }
 
 const State& Estimator::state() const { return impl_->x; }
 const ErrorCov& Estimator::covariance() const { return impl_->P; }
@@ -471,6 +709,9 @@ double Estimator::stateTime() const { return impl_->t_state_s; }
 const EstimatorParams& Estimator::params() const { return impl_->params; }
 const PinholeK& Estimator::workingK() const { return impl_->img_pre.workingK(); }
 const cv::Mat& Estimator::lastResidualImage() const { return impl_->photometric.residualImage(); }
+
+int Estimator::resetCount() const { return impl_->resets; }
+const std::string& Estimator::lastResetReason() const { return impl_->last_reset_reason; }
 
 std::string Estimator::takeWarning() {
   std::string w;

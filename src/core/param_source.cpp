@@ -51,6 +51,9 @@ YamlParamSource::YamlParamSource(const std::string& path) : path_(path), impl_(n
   } catch (const YAML::Exception& e) {
     delete impl_;
     throw std::runtime_error(path + ": cannot parse YAML: " + e.what());
+  } catch (const std::exception& e) {  // e.g. a directory: the stream fails while reading
+    delete impl_;
+    throw std::runtime_error(path + ": cannot read the parameter file: " + e.what());
   }
   if (!impl_->root.IsMap() && !impl_->root.IsNull()) {
     delete impl_;
@@ -255,6 +258,8 @@ const std::vector<Entry>& table() {
     t.push_back(real("init/sigma_bw0_radps", DIEKF_FIELD(double, init.sigma_bw0_radps), positive()));
     t.push_back(real("init/tracking_max_relative_sigma_d", DIEKF_FIELD(double, init.tracking_max_relative_sigma_d),
                      positive()));
+    t.push_back(flag("init/warm_restart", DIEKF_FIELD(bool, init.warm_restart)));
+    t.push_back(real("init/warm_restart_max_age_s", DIEKF_FIELD(double, init.warm_restart_max_age_s), nonNegative()));
     // imu
     t.push_back(real("imu/accel_noise_density", DIEKF_FIELD(double, imu.accel_noise_density), positive()));
     t.push_back(real("imu/gyro_noise_density", DIEKF_FIELD(double, imu.gyro_noise_density), positive()));
@@ -311,6 +316,19 @@ const std::vector<Entry>& table() {
                      positive()));
     t.push_back(integer("divergence/bad_frames_before_reset", DIEKF_FIELD(int, divergence.bad_frames_before_reset),
                         between(1, 1000000)));
+    t.push_back(real("divergence/max_speed_mps", DIEKF_FIELD(double, divergence.max_speed_mps), positive()));
+    t.push_back(real("divergence/max_sigma_velocity_mps", DIEKF_FIELD(double, divergence.max_sigma_velocity_mps),
+                     positive()));
+    // input checks
+    t.push_back(real("input/max_imu_bridge_s", DIEKF_FIELD(double, input.max_imu_bridge_s), positive(60.0)));
+    t.push_back(real("input/time_jump_reset_s", DIEKF_FIELD(double, input.time_jump_reset_s), positive()));
+    t.push_back(real("input/max_frame_interval_s", DIEKF_FIELD(double, input.max_frame_interval_s), positive()));
+    t.push_back(real("input/max_image_gap_s", DIEKF_FIELD(double, input.max_image_gap_s), positive(60.0)));
+    t.push_back(real("input/min_image_contrast_grey", DIEKF_FIELD(double, input.min_image_contrast_grey),
+                     between(0.0, 100.0)));
+    t.push_back(real("input/min_unclipped_ratio", DIEKF_FIELD(double, input.min_unclipped_ratio), between(0.0, 1.0)));
+    t.push_back(real("input/max_accel_mps2", DIEKF_FIELD(double, input.max_accel_mps2), positive()));
+    t.push_back(real("input/max_gyro_radps", DIEKF_FIELD(double, input.max_gyro_radps), positive()));
     // queueing
     t.push_back(real("max_imu_gap_s", DIEKF_FIELD(double, max_imu_gap_s), positive()));
     t.push_back(integer("max_queued_images", DIEKF_FIELD(int, max_queued_images), between(1, 10000)));
@@ -343,6 +361,11 @@ void checkConsistency(const ParamSource& s, const EstimatorParams& p) {
     failKey(s.origin(), blame("divergence/max_distance_m", "divergence/min_distance_m"),
             "max_distance_m " + num(p.divergence.max_distance_m) + " must exceed min_distance_m " +
                 num(p.divergence.min_distance_m));
+  }
+  if (!(p.input.max_imu_bridge_s >= p.max_imu_gap_s)) {
+    failKey(s.origin(), blame("input/max_imu_bridge_s", "max_imu_gap_s"),
+            "max_imu_bridge_s " + num(p.input.max_imu_bridge_s) + " must be at least max_imu_gap_s " +
+                num(p.max_imu_gap_s));
   }
   if (p.preprocess.working_height_px != 0 && p.preprocess.working_height_px < 3) {
     failKey(s.origin(), "preprocess/working_height_px", "must be 0 (keep the aspect ratio) or >= 3");
@@ -377,6 +400,8 @@ void loadKalibrImuYaml(const std::string& path, ImuParams* imu) {
     throw std::runtime_error(path + ": cannot open the IMU file");
   } catch (const YAML::Exception& e) {
     throw std::runtime_error(path + ": cannot parse YAML: " + e.what());
+  } catch (const std::exception& e) {  // e.g. a directory: the stream fails while reading
+    throw std::runtime_error(path + ": cannot read the file: " + e.what());
   }
   if (!root.IsMap()) throw std::runtime_error(path + ": expected a YAML map at the top level");
   std::string prefix;

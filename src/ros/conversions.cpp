@@ -66,6 +66,10 @@ bool imageToMono8(const sensor_msgs::Image& msg, cv::Mat* mono8, std::string* er
     *error = "malformed image message (size, step and data length disagree)";
     return false;
   }
+  if (msg.step % CV_ELEM_SIZE1(type) != 0 || msg.width > 65535 || msg.height > 65535) {
+    *error = "malformed image message (row step not a multiple of the sample size, or absurd size)";
+    return false;
+  }
   if (CV_MAT_DEPTH(type) == CV_16U && msg.is_bigendian != 0) {
     *error = "big-endian mono16 images are not supported";
     return false;
@@ -91,6 +95,11 @@ bool imuFromMsg(const sensor_msgs::Imu& msg, diekf::ImuSample* sample) {
   if (!std::isfinite(s.t_s) || !s.accel_mps2.allFinite() || !s.gyro_radps.allFinite()) return false;
   *sample = s;
   return true;
+}
+
+bool clockJumpNeedsRestart(double previous_now_s, double now_s, double newest_stamp_s, double threshold_s) {
+  if (!(previous_now_s - now_s > threshold_s) || !(now_s > 0.0)) return false;
+  return newest_stamp_s > now_s + threshold_s;
 }
 
 uint8_t statusToMsg(diekf::FilterStatus status) {

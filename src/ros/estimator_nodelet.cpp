@@ -189,7 +189,25 @@ void EstimatorNodelet::setUpInputs() {
 // Callbacks: check stamps, queue for the worker, never touch the estimator.
 // ------------------------------------------------------------------------------------------------------------
 
+void EstimatorNodelet::checkClock() {
+  // ROS time going backwards (rosbag play --loop with use_sim_time, a restarted simulator, a wall-clock step):
+  // restart once, unless the message stamps have already done so (they then agree with the new clock).
+  const double now_s = ros::Time::now().toSec();
+  const double jump_s = last_ros_now_s_ - now_s;
+  const double newest_stamp_s = std::max(last_imu_stamp_s_, last_image_stamp_s_);
+  const bool restart = clockJumpNeedsRestart(last_ros_now_s_, now_s, newest_stamp_s, settings_.time_jump_reset_s);
+  last_ros_now_s_ = now_s;
+  if (restart) {
+    NODELET_WARN("diekf: ROS time jumped back by %.3f s (bag loop / simulated clock reset): restarting the filter",
+                 jump_s);
+    requestRestart("ROS time jumped backwards", true);
+    last_imu_stamp_s_ = -1.0;
+    last_image_stamp_s_ = -1.0;
+  }
+}
+
 void EstimatorNodelet::imuCallback(const sensor_msgs::ImuConstPtr& msg) {
+  checkClock();
   diekf::ImuSample sample;
   if (!imuFromMsg(*msg, &sample)) {
     NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: non-finite IMU message dropped");
@@ -235,6 +253,7 @@ void EstimatorNodelet::imuCallback(const sensor_msgs::ImuConstPtr& msg) {
 }
 
 void EstimatorNodelet::imageCallback(const sensor_msgs::ImageConstPtr& msg) {
+  checkClock();
   image_rate_diag_->tick();
   const double t = msg->header.stamp.toSec();
   if (last_image_stamp_s_ >= 0.0) {
@@ -286,6 +305,8 @@ void EstimatorNodelet::cameraInfoCallback(const sensor_msgs::CameraInfoConstPtr&
   } else {
     NODELET_WARN("diekf: camera_info on %s disagrees with the calibration %s (the calibration is used): %s",
                  settings_.camera_info_topic.c_str(), settings_.camchain_file.c_str(), why.c_str());
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    camera_info_mismatch_ = why;
   }
 }
 
@@ -349,11 +370,22 @@ void EstimatorNodelet::workerLoop() {
         imu_queue_.clear();
       }
     }
-    if (restart) restartFilter(reason, rebuild);
-    for (const diekf::ImuSample& s : imu) forwardImu(s);
-    imu.clear();
-    if (image) forwardImage(image);
-    drainResults();
+    try {
+      if (restart) restartFilter(reason, rebuild);
+      for (const diekf::ImuSample& s : imu) forwardImu(s);
+      imu.clear();
+      if (image) forwardImage(image);
+      drainResults();
+    } catch (const std::exception& e) {
+      // Never let the worker die: start the filter afresh and go on with the next inputs.
+      imu.clear();
+      NODELET_ERROR_THROTTLE(kWarnPeriodS, "diekf: error in the worker thread: %s: restarting the filter", e.what());
+      try {
+        restartFilter(std::string("internal error: ") + e.what(), true);
+      } catch (const std::exception& e2) {
+        NODELET_ERROR_THROTTLE(kWarnPeriodS, "diekf: cannot restart the filter: %s", e2.what());
+      }
+    }
   }
 }
 
@@ -367,6 +399,7 @@ void EstimatorNodelet::restartFilter(const std::string& reason, bool rebuild) {
   NODELET_INFO("diekf: filter restarted: %s", reason.c_str());
   std::lock_guard<std::mutex> lock(stats_mutex_);
   ++restarts_;
+  last_reset_reason_ = reason;
   last_status_ = diekf::FilterStatus::kReset;
   last_message_ = reason;
 }
@@ -493,6 +526,8 @@ void EstimatorNodelet::publishResult(const diekf::FrameResult& r) {
 
   std::lock_guard<std::mutex> lock(stats_mutex_);
   ++frames_published_;
+  estimator_resets_ = r.resets;
+  if (!r.last_reset_reason.empty()) last_reset_reason_ = r.last_reset_reason;
   last_status_ = r.status;
   last_message_ = r.message;
   last_distance_m_ = state.distance;
@@ -537,6 +572,9 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
   stat.add("images dropped", images_dropped_);
   stat.add("frames skipped (non-finite)", frames_skipped_nonfinite_);
   stat.add("filter restarts", restarts_);
+  stat.add("estimator resets (divergence and input faults)", estimator_resets_);
+  stat.add("last reset reason", last_reset_reason_);
+  if (!camera_info_mismatch_.empty()) stat.add("camera_info disagrees with the calibration", camera_info_mismatch_);
   stat.add("last update time (ms)", last_update_ms_);
   stat.add("mean update time (ms)", update_count_ > 0 ? update_ms_sum_ / update_count_ : 0.0);
   stat.add("max update time (ms)", update_ms_max_);

@@ -4,6 +4,7 @@
 
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <filesystem>
 #include <fstream>
 #include <iostream>
@@ -42,6 +43,16 @@ using diekf::eval::RunnerOptions;
 constexpr const char* kProgram = "diekf_bag_runner";
 constexpr const char* kDefaultImageTopic = "/mynteye/left/image_raw";
 constexpr const char* kDefaultImuTopic = "/mynteye/imu/data_raw";
+
+/// A field of /proc/self/status in kB (VmRSS: resident set, VmHWM: its peak); -1 where unavailable.
+long procStatusKb(const std::string& key) {
+  std::ifstream f("/proc/self/status");
+  std::string line;
+  while (std::getline(f, line)) {
+    if (line.compare(0, key.size(), key) == 0) return std::atol(line.c_str() + key.size());
+  }
+  return -1;
+}
 
 /// A failure with a one-line reason (exit status 1).
 class RunError : public std::runtime_error {
@@ -285,11 +296,18 @@ int run(const RunnerOptions& o) {
   diekf::Estimator estimator(camera, params);
   diekf::eval::EstimatesCsvWriter csv((out_dir / "estimates.csv").string());
   std::vector<diekf::eval::EstimateRow> rows;
+  bool keep_rows = true;       // --repeat: only the first pass is kept for the evaluation
+  std::size_t soak_rows = 0;   // estimates of the later passes (written to the CSV only)
   auto drain = [&]() {
     diekf::FrameResult result;
     while (estimator.popResult(&result)) {
-      rows.push_back(toRow(result));
-      csv.write(rows.back());
+      if (keep_rows) {
+        rows.push_back(toRow(result));
+        csv.write(rows.back());
+      } else {
+        csv.write(toRow(result));
+        ++soak_rows;
+      }
     }
     if (!o.quiet) {
       const std::string warning = estimator.takeWarning();
@@ -303,6 +321,10 @@ int run(const RunnerOptions& o) {
   const double limit_s = o.max_duration_s > 0.0 ? std::min(o.max_duration_s, bag_span_s) : bag_span_s;
   auto last_progress = std::chrono::steady_clock::now();
   std::size_t images = 0;
+  for (int pass = 0; pass < o.repeat; ++pass) {
+  // --repeat: later passes shift every stamp so that sensor time runs on (one IMU period after the end).
+  const double shift_s = pass * (bag_span_s + 0.002);
+  keep_rows = pass == 0;
   for (const rosbag::MessageInstance& m : view) {
     const double rel_s = m.getTime().toSec() - bag_start_s;
     if (o.max_duration_s > 0.0 && rel_s > o.max_duration_s) break;
@@ -310,14 +332,14 @@ int run(const RunnerOptions& o) {
       const auto imu = m.instantiate<sensor_msgs::Imu>();
       if (!imu) continue;
       diekf::ImuSample s;
-      s.t_s = stampOf(imu->header.stamp, m.getTime());
+      s.t_s = stampOf(imu->header.stamp, m.getTime()) + shift_s;
       s.accel_mps2 = diekf::Vec3(imu->linear_acceleration.x, imu->linear_acceleration.y, imu->linear_acceleration.z);
       s.gyro_radps = diekf::Vec3(imu->angular_velocity.x, imu->angular_velocity.y, imu->angular_velocity.z);
       estimator.addImu(s);
     } else {
       const auto img = m.instantiate<sensor_msgs::Image>();
       if (!img) continue;
-      estimator.addImage(stampOf(img->header.stamp, m.getTime()), toGrey(*img));
+      estimator.addImage(stampOf(img->header.stamp, m.getTime()) + shift_s, toGrey(*img));
       ++images;
     }
     drain();
@@ -327,9 +349,15 @@ int run(const RunnerOptions& o) {
         last_progress = now;
         const double wall_s = std::chrono::duration<double>(now - wall_start).count();
         std::fprintf(stderr, "%s: %6.1f / %.1f s of data, %zu images, %zu estimates, %.2fx real time\n", kProgram,
-                     rel_s, limit_s, images, rows.size(), wall_s > 0.0 ? rel_s / wall_s : 0.0);
+                     rel_s, limit_s, images, rows.size() + soak_rows, wall_s > 0.0 ? rel_s / wall_s : 0.0);
       }
     }
+  }
+  if (o.repeat > 1) {
+    drain();
+    std::fprintf(stderr, "%s: pass %d/%d done: %zu estimates, VmRSS %ld kB, VmHWM %ld kB\n", kProgram, pass + 1,
+                 o.repeat, rows.size() + soak_rows, procStatusKb("VmRSS:"), procStatusKb("VmHWM:"));
+  }
   }
   drain();
   csv.close();

@@ -60,6 +60,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          ia.sigma_mu0_rad == ib.sigma_mu0_rad && ia.sigma_g0_rad == ib.sigma_g0_rad &&
          ia.sigma_ba0_mps2 == ib.sigma_ba0_mps2 && ia.sigma_bw0_radps == ib.sigma_bw0_radps &&
          ia.tracking_max_relative_sigma_d == ib.tracking_max_relative_sigma_d &&
+         ia.warm_restart == ib.warm_restart && ia.warm_restart_max_age_s == ib.warm_restart_max_age_s &&
          ma.accel_noise_density == mb.accel_noise_density && ma.gyro_noise_density == mb.gyro_noise_density &&
          ma.accel_random_walk == mb.accel_random_walk && ma.gyro_random_walk == mb.gyro_random_walk &&
          ma.input_rate_hz == mb.input_rate_hz && ma.lowpass_cutoff_hz == mb.lowpass_cutoff_hz &&
@@ -81,8 +82,18 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          fa.working_width_px == fb.working_width_px && da.min_distance_m == db.min_distance_m &&
          da.max_distance_m == db.max_distance_m && da.max_sigma_distance_m == db.max_sigma_distance_m &&
          da.max_photometric_rms == db.max_photometric_rms &&
-         da.bad_frames_before_reset == db.bad_frames_before_reset && a.max_imu_gap_s == b.max_imu_gap_s &&
-         a.max_queued_images == b.max_queued_images && a.interval_mean_velocity == b.interval_mean_velocity;
+         da.bad_frames_before_reset == db.bad_frames_before_reset && da.max_speed_mps == db.max_speed_mps &&
+         da.max_sigma_velocity_mps == db.max_sigma_velocity_mps &&
+         a.input.max_imu_bridge_s == b.input.max_imu_bridge_s &&
+         a.input.time_jump_reset_s == b.input.time_jump_reset_s &&
+         a.input.max_frame_interval_s == b.input.max_frame_interval_s &&
+         a.input.max_image_gap_s == b.input.max_image_gap_s &&
+         a.input.min_image_contrast_grey == b.input.min_image_contrast_grey &&
+         a.input.min_unclipped_ratio == b.input.min_unclipped_ratio &&
+         a.input.max_accel_mps2 == b.input.max_accel_mps2 && a.input.max_gyro_radps == b.input.max_gyro_radps &&
+         a.max_imu_gap_s == b.max_imu_gap_s &&
+         a.max_queued_images == b.max_queued_images &&
+         a.interval_mean_velocity == b.interval_mean_velocity;
 }
 
 // Leaf keys ("a/b") of a YAML map.

@@ -138,6 +138,55 @@ TEST(Conversions, ImageEncodingsToMono8) {
   EXPECT_FALSE(diekf_ros::imageToMono8(msg, &out, &error));
 }
 
+TEST(Conversions, MalformedImagesRejectedWithReason) {
+  sensor_msgs::Image msg;
+  msg.width = 4;
+  msg.height = 2;
+  msg.encoding = "mono16";
+  msg.step = 9;  // not a multiple of 2 bytes
+  msg.data.assign(18, 7);
+  cv::Mat out;
+  std::string error;
+  EXPECT_FALSE(diekf_ros::imageToMono8(msg, &out, &error));
+  EXPECT_NE(error.find("step"), std::string::npos) << error;
+  msg.step = 6;  // below width * 2
+  EXPECT_FALSE(diekf_ros::imageToMono8(msg, &out, &error));
+  msg.step = 10;  // padded rows are fine
+  msg.data.assign(20, 0);
+  msg.data[10] = 0;
+  msg.data[11] = 0x80;  // row 1, column 0 = 32768
+  ASSERT_TRUE(diekf_ros::imageToMono8(msg, &out, &error)) << error;
+  EXPECT_EQ(out.at<uint8_t>(1, 0), 128);
+  msg.is_bigendian = 1;
+  EXPECT_FALSE(diekf_ros::imageToMono8(msg, &out, &error));
+  msg = sensor_msgs::Image();
+  msg.encoding = "mono8";  // empty: no size, no data
+  EXPECT_FALSE(diekf_ros::imageToMono8(msg, &out, &error));
+  msg.width = 3;
+  msg.height = 3;
+  msg.step = 3;
+  msg.data.assign(8, 0);  // one byte short
+  EXPECT_FALSE(diekf_ros::imageToMono8(msg, &out, &error));
+  msg.encoding = "";
+  msg.data.assign(9, 0);
+  EXPECT_FALSE(diekf_ros::imageToMono8(msg, &out, &error));
+  msg.encoding = "32FC1";
+  EXPECT_FALSE(diekf_ros::imageToMono8(msg, &out, &error));
+  EXPECT_NE(error.find("32FC1"), std::string::npos);
+}
+
+TEST(Conversions, ClockJumpRestartsOnlyOnce) {
+  // Looping bag: sim time goes from 1600000060 back to 1600000000 while the newest stamp is still at 60 s.
+  EXPECT_TRUE(diekf_ros::clockJumpNeedsRestart(1600000060.0, 1600000000.0, 1600000059.99, 1.0));
+  // The stamps jumped first (their own restart): the clock following them must not restart again.
+  EXPECT_FALSE(diekf_ros::clockJumpNeedsRestart(1600000060.0, 1600000000.0, 1600000000.02, 1.0));
+  // Small jitter backwards, forward time, the first call (previous 0), a zero clock (sim time not yet set).
+  EXPECT_FALSE(diekf_ros::clockJumpNeedsRestart(100.0, 99.5, 100.0, 1.0));
+  EXPECT_FALSE(diekf_ros::clockJumpNeedsRestart(100.0, 160.0, 100.0, 1.0));
+  EXPECT_FALSE(diekf_ros::clockJumpNeedsRestart(0.0, 100.0, -1.0, 1.0));
+  EXPECT_FALSE(diekf_ros::clockJumpNeedsRestart(100.0, 0.0, 100.0, 1.0));
+}
+
 TEST(Conversions, PlanarStateRejectsNonFinite) {
   diekf::FrameResult r;
   r.state = hoverState(2.0, Vec3(0.1, 0.2, 0.0), Vec3(0, 0, 1));

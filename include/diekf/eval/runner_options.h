@@ -25,6 +25,7 @@ struct RunnerOptions {
   double gt_velocity_window_s = 0.0;      ///< base of the true velocity's central difference, s (0: adjacent)
   double eval_start_delay_s = 3.0;        ///< evaluation starts this long after the first update, s
   double max_duration_s = 0.0;            ///< stop after this much sensor time, s (0: whole bag)
+  int repeat = 1;                         ///< soak test: play the bag this many times back to back, stamps shifted
   bool quiet = false;                     ///< no progress on stderr
   bool help = false;
 };

@@ -26,6 +26,11 @@ bool imageToMono8(const sensor_msgs::Image& msg, cv::Mat* mono8, std::string* er
 /// IMU message -> core sample (stamp in s, base_link frame). False if any value is non-finite.
 bool imuFromMsg(const sensor_msgs::Imu& msg, diekf::ImuSample* sample);
 
+/// Whether ROS time going from previous_now_s to now_s (a jump back by more than threshold_s, e.g. a looping
+/// `rosbag play --clock`) must restart the filter: only when the newest accepted message stamp is still ahead of
+/// the new clock by more than threshold_s (otherwise the stamps have already jumped and restarted it). All in s.
+bool clockJumpNeedsRestart(double previous_now_s, double now_s, double newest_stamp_s, double threshold_s);
+
 uint8_t statusToMsg(diekf::FilterStatus status);
 
 /// Full filter output (camera frame C). False (message untouched) if any value would be non-finite.

@@ -74,6 +74,8 @@ class EstimatorNodelet : public nodelet::Nodelet {
   void imuCallback(const sensor_msgs::ImuConstPtr& msg);
   void imageCallback(const sensor_msgs::ImageConstPtr& msg);
   void cameraInfoCallback(const sensor_msgs::CameraInfoConstPtr& msg);
+  /// Restarts the filter when ROS time (sim time) jumps backwards ahead of the message stamps.
+  void checkClock();
   bool resetService(std_srvs::Trigger::Request& req, std_srvs::Trigger::Response& res);
   void filterDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat);
 
@@ -110,6 +112,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
   // Input bookkeeping (callback thread only).
   double last_imu_stamp_s_ = -1.0;
   double last_image_stamp_s_ = -1.0;
+  double last_ros_now_s_ = 0.0;  ///< ros::Time::now() at the previous callback, s
   bool camera_info_checked_ = false;
 
   // Counters and the filter snapshot for /diagnostics (stats_mutex_).
@@ -117,6 +120,9 @@ class EstimatorNodelet : public nodelet::Nodelet {
   uint64_t imu_received_ = 0, images_received_ = 0, frames_published_ = 0;
   uint64_t imu_dropped_ = 0, images_dropped_ = 0, frames_skipped_nonfinite_ = 0, restarts_ = 0;
   diekf::FilterStatus last_status_ = diekf::FilterStatus::kInitializing;
+  int estimator_resets_ = 0;           ///< the estimator's own restarts (FrameResult::resets)
+  std::string last_reset_reason_;      ///< why the filter last restarted (estimator or nodelet)
+  std::string camera_info_mismatch_;   ///< what camera_info disagreed on (empty: agrees or not seen)
   std::string last_message_;
   double last_update_ms_ = 0.0, update_ms_sum_ = 0.0, update_ms_max_ = 0.0;
   uint64_t update_count_ = 0;

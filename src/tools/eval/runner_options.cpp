@@ -57,6 +57,8 @@ Options:
   --gt-velocity-window S   base of the true velocity's central difference, s (default 0: adjacent poses)
   --eval-start S           evaluation starts S seconds after the first image update (default 3)
   --max-duration S         process only the first S seconds of the bag (default: all)
+  --repeat N               soak test: play the bag N times back to back, stamps shifted so that time runs on;
+                           only the first pass is kept for the evaluation; RSS printed to stderr after each pass
   --quiet                  no progress output on stderr
   --help                   this text
 Exit status: 0 on success, 1 on a bad command line, unreadable input or a processing error.
@@ -126,6 +128,10 @@ RunnerOptions parseRunnerOptions(int argc, const char* const* argv) {
     } else if (arg == "--eval-start") {
       o.eval_start_delay_s = toDouble(arg, next());
       if (o.eval_start_delay_s < 0.0) throw UsageError("--eval-start must not be negative");
+    } else if (arg == "--repeat") {
+      const double n = toDouble(arg, next());
+      if (!(n >= 1.0) || n != std::floor(n) || n > 1e6) throw UsageError("--repeat must be a positive integer");
+      o.repeat = static_cast<int>(n);
     } else if (arg == "--max-duration") {
       o.max_duration_s = toDouble(arg, next());
       if (o.max_duration_s < 0.0) throw UsageError("--max-duration must not be negative");
