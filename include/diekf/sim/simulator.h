@@ -1,0 +1,79 @@
+// Whole-sequence simulation: trajectory + IMU + rendered images + ground truth -> bag and calibration files.
+#pragma once
+
+#include <cstdint>
+#include <iosfwd>
+#include <string>
+#include <vector>
+
+#include "diekf/sim/imu_sim.h"
+#include "diekf/sim/renderer.h"
+#include "diekf/sim/sequence_io.h"
+#include "diekf/sim/trajectory.h"
+
+namespace diekf {
+namespace sim {
+
+struct SimulationOptions {
+  std::string preset = "flight1";
+  double duration_s = 60.0;
+  std::uint64_t seed = 1;
+  std::string texture;              ///< "" = the preset's; "checkerboard", "natural" or an image path
+  double texture_size_m = 1.0;      ///< physical width of one tile of an image texture (m)
+  double square_m = 0.05;           ///< checkerboard square (m)
+  double incline_deg = 0.0;         ///< plane tilt about a horizontal axis (deg, 0..30 validated by the CLI)
+  double incline_azimuth_deg = 0.0; ///< azimuth of that axis in W (deg)
+  double height_m = -1.0;           ///< mean IMU height above the plane; < 0 = the preset's
+  double fps = 30.0;                ///< image rate (Hz)
+  double exposure_ms = 4.0;         ///< exposure time (ms); motion blur integrates over it
+  int max_subframes = 8;            ///< cap on sub-frame renders per image
+  double blur_step_px = 1.0;        ///< image motion between two sub-frames (px)
+  double scale = 1.0;               ///< resolution/intrinsics scale of the 752x480 camera
+  int threads = 2;
+  double gain_ramp = 0.0;           ///< slow brightness change: relative amplitude (e.g. 0.2 = +-20 %)
+  double gain_ramp_period_s = 20.0;
+  double flicker_prob = 0.0;        ///< probability per frame of an abrupt brightness jump
+  double flicker_amplitude = 0.25;  ///< relative size of such a jump
+  double drop_prob = 0.0;           ///< probability per frame of a dropped image
+  double pose_rate_hz = 200.0;      ///< /mocap/pose rate
+  bool vibration = true;            ///< propeller vibration (on for flight presets)
+  bool imu_errors = true;           ///< IMU noise, biases and vibration
+  SensorOptions sensor;             ///< vignetting and image noise
+  bool camera_info = true;          ///< also write /mynteye/left/camera_info
+  bool lz4 = false;                 ///< LZ4-compress the bag chunks
+  double start_stamp_s = 1600000000.0;  ///< stamp of t = 0 on the bag clock
+  ImuNoiseParams imu_noise;
+  std::string output_dir;
+};
+
+struct SimulationSummary {
+  SpeedStats speed;
+  int frames_written = 0;
+  int frames_dropped = 0;
+  double mean_subframes = 0.0;
+  std::size_t imu_samples = 0;
+  std::size_t poses = 0;
+  Vec3 accel_bias0 = Vec3::Zero(), gyro_bias0 = Vec3::Zero();
+  double wall_s = 0.0;
+  std::string bag_path;
+};
+
+/// Result of command-line parsing.
+enum class ParseResult { kOk, kHelp, kListPresets, kError };
+
+/// Parses diekf_simulate's arguments (without argv[0]); on kError `error` holds a one-line reason.
+ParseResult parseSimulateArgs(const std::vector<std::string>& args, SimulationOptions* opt, std::string* error);
+std::string simulateUsage();
+
+/// Builds the trajectory for the options (preset, duration, seed, incline, height).
+Trajectory makeTrajectory(const SimulationOptions& opt);
+
+/// Builds the camera pose of the IMU state with the camera's extrinsics.
+CameraPose cameraPose(const KinematicState& k, const CameraModel& cam);
+
+/// Runs the simulation; writes output_dir/{sequence.bag, camchain.yaml, imu.yaml}.
+/// Progress goes to `progress` (may be null). Throws std::runtime_error with a one-line reason.
+SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* progress);
+
+}  // namespace sim
+}  // namespace diekf

@@ -1,0 +1,118 @@
+// Tiled ground textures with a box-filtered mip pyramid, sampled trilinearly by the pixel footprint.
+#pragma once
+
+#include <cmath>
+#include <cstdint>
+#include <string>
+#include <vector>
+
+namespace diekf {
+namespace sim {
+
+/// A periodic (tiled) grey texture on the plane. Level-0 texel (i, j) covers
+/// u in [i su, (i+1) su), v in [j sv, (j+1) sv) (metres, plane coordinates); its value applies at its centre.
+/// Tile width and height are powers of two so wrapping is a bit mask. Levels are stored in 4x4-texel blocks
+/// (one 64-byte cache line each) so that bilinear lookups along any image direction stay cache friendly.
+class Texture {
+ public:
+  /// Builds the pyramid from a level-0 image (row-major, `width` x `height`, powers of two, grey 0..255).
+  Texture(const std::vector<float>& level0, int width, int height, double texel_u_m, double texel_v_m);
+
+  /// Procedural checkerboard: squares of `square_m`, dark/bright grey levels, `texels_per_square` (power of 2).
+  static Texture checkerboard(double square_m = 0.05, int squares_per_tile = 16, int texels_per_square = 64,
+                              float dark = 40.f, float bright = 200.f);
+  /// Procedural vegetation-like texture (multi-octave noise, dirt, leaf blobs, grass blades), seedable.
+  /// Moderate contrast: mean 110, standard deviation 30 grey levels. `tile_px` a power of two.
+  static Texture natural(std::uint64_t seed, double texel_m = 0.002, int tile_px = 2048);
+  /// Any image file (read as grey), resampled to power-of-two dimensions, tile width `tile_width_m` metres.
+  /// Throws std::runtime_error naming the file when it cannot be read.
+  static Texture fromImage(const std::string& path, double tile_width_m);
+
+  /// Trilinear sample at plane coordinates (u, v) in metres for a pixel footprint `footprint_m` (metres).
+  inline float sample(double u_m, double v_m, float footprint_m) const;
+  /// Fast path: trilinear sample at level-0 texel coordinates (xt = u / texelU, yt = v / texelV; texel i's
+  /// centre at i + 0.5) and level of detail `lod` = log2(footprint / texel size).
+  inline float sampleTexel(float xt, float yt, float lod) const;
+
+  int levels() const { return static_cast<int>(levels_.size()); }
+  int width(int level = 0) const { return levels_[level].w; }
+  int height(int level = 0) const { return levels_[level].h; }
+  /// Texel (x, y) of a level (indices wrap).
+  float at(int level, int x, int y) const;
+  double texelU() const { return texel_u_m_; }
+  double texelV() const { return texel_v_m_; }
+  double tileU() const { return texel_u_m_ * levels_[0].w; }  ///< tile period along u (m)
+  double tileV() const { return texel_v_m_ * levels_[0].h; }  ///< tile period along v (m)
+  float mean() const { return mean_; }
+  float invTexelGeo() const { return inv_texel_geo_m_; }  ///< 1 / sqrt(texelU texelV) (1/m)
+
+ private:
+  struct Level {
+    int w = 0, h = 0;        // logical size (texels)
+    int W = 0, H = 0;        // stored size: max(w, 4) x max(h, 4), periodic replication of small levels
+    int blocks_per_row = 0;  // W / 4
+    float sx = 1.f, sy = 1.f;  // level-0 texel coordinates -> this level's
+    std::vector<float> px;   // 4x4 blocks, row-major inside and across blocks
+  };
+  static inline std::size_t blockIndex(const Level& L, int x, int y) {
+    return (static_cast<std::size_t>((y >> 2) * L.blocks_per_row + (x >> 2)) << 4) | ((y & 3) << 2) | (x & 3);
+  }
+  inline float bilinearTexel(const Level& L, float xt, float yt) const;
+  static Level makeLevel(const std::vector<float>& linear, int w, int h, float sx, float sy);
+
+  std::vector<Level> levels_;
+  double texel_u_m_ = 0.0, texel_v_m_ = 0.0;
+  float inv_texel_geo_m_ = 0.f;  // 1 / sqrt(su sv)
+  float mean_ = 0.f;
+};
+
+/// Fast log2 for positive floats (about 0.01 accuracy), used to pick mip levels.
+inline float fastLog2(float x) {
+  union {
+    float f;
+    std::uint32_t i;
+  } v{x};
+  const float e = static_cast<float>(static_cast<int>((v.i >> 23) & 255) - 128);
+  v.i = (v.i & 0x007FFFFF) | 0x3F800000;  // mantissa in [1, 2)
+  const float m = v.f;
+  return e + (-0.34484843f * m + 2.02466578f) * m - 0.67487759f;  // ~ 1 + log2(m) on [1, 2)
+}
+
+inline float Texture::bilinearTexel(const Level& L, float xt, float yt) const {
+  float x = xt * L.sx - 0.5f, y = yt * L.sy - 0.5f;
+  x = x < -1e9f ? -1e9f : (x > 1e9f ? 1e9f : x);
+  y = y < -1e9f ? -1e9f : (y > 1e9f ? 1e9f : y);
+  int ix = static_cast<int>(x), iy = static_cast<int>(y);
+  ix -= (x < static_cast<float>(ix));  // floor
+  iy -= (y < static_cast<float>(iy));
+  const float fx = x - static_cast<float>(ix), fy = y - static_cast<float>(iy);
+  const int mw = L.W - 1, mh = L.H - 1;
+  const int x0 = ix & mw, y0 = iy & mh, x1 = (x0 + 1) & mw, y1 = (y0 + 1) & mh;
+  const float* p = L.px.data();
+  const float a00 = p[blockIndex(L, x0, y0)], a10 = p[blockIndex(L, x1, y0)];
+  const float a01 = p[blockIndex(L, x0, y1)], a11 = p[blockIndex(L, x1, y1)];
+  const float a = a00 + fx * (a10 - a00);
+  const float b = a01 + fx * (a11 - a01);
+  return a + fy * (b - a);
+}
+
+inline float Texture::sampleTexel(float xt, float yt, float lod) const {
+  if (!(lod > 0.f)) return bilinearTexel(levels_[0], xt, yt);
+  const int top = static_cast<int>(levels_.size()) - 1;
+  if (lod >= static_cast<float>(top)) return bilinearTexel(levels_[top], xt, yt);
+  const int l0 = static_cast<int>(lod);
+  const float f = lod - static_cast<float>(l0);
+  const float a = bilinearTexel(levels_[l0], xt, yt);
+  if (f < 1.f / 64.f) return a;
+  const float b = bilinearTexel(levels_[l0 + 1], xt, yt);
+  return a + f * (b - a);
+}
+
+inline float Texture::sample(double u_m, double v_m, float footprint_m) const {
+  const float xt = static_cast<float>(std::fmod(u_m, tileU()) / texel_u_m_);
+  const float yt = static_cast<float>(std::fmod(v_m, tileV()) / texel_v_m_);
+  return sampleTexel(xt, yt, footprint_m > 0.f ? fastLog2(footprint_m * inv_texel_geo_m_) : 0.f);
+}
+
+}  // namespace sim
+}  // namespace diekf

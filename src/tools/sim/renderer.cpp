@@ -1,0 +1,210 @@
+// Ray-table renderer for a camera over a textured plane.
+#include "diekf/sim/renderer.h"
+
+#include <algorithm>
+#include <cmath>
+#include <random>
+#include <stdexcept>
+#include <thread>
+
+namespace diekf {
+namespace sim {
+namespace {
+
+/// Inverts the camera's distortion by Gauss-Newton on distort(xn) = xd (numerical Jacobian).
+Vec2 invertDistortion(const CameraModel& cam, const Vec2& xd) {
+  Vec2 xn = xd;
+  for (int it = 0; it < 30; ++it) {
+    const Vec2 r = cam.distort(xn) - xd;
+    if (r.norm() < 1e-13) break;
+    const double h = 1e-7;
+    Mat2 J;
+    J.col(0) = (cam.distort(xn + Vec2(h, 0)) - cam.distort(xn - Vec2(h, 0))) / (2 * h);
+    J.col(1) = (cam.distort(xn + Vec2(0, h)) - cam.distort(xn - Vec2(0, h))) / (2 * h);
+    xn -= J.partialPivLu().solve(r);
+  }
+  return xn;
+}
+
+/// Cheap per-row hash for noise offsets (splitmix64).
+std::uint64_t mix(std::uint64_t x) {
+  x += 0x9E3779B97F4A7C15ull;
+  x = (x ^ (x >> 30)) * 0xBF58476D1CE4E5B9ull;
+  x = (x ^ (x >> 27)) * 0x94D049BB133111EBull;
+  return x ^ (x >> 31);
+}
+
+constexpr int kNoiseTableSize = 1 << 20;
+
+}  // namespace
+
+Renderer::Renderer(const CameraModel& cam, int threads) : cam_(cam), threads_(std::max(1, threads)) {
+  width_ = cam.K.width;
+  height_ = cam.K.height;
+  if (width_ <= 0 || height_ <= 0 || !(cam.K.fx > 0) || !(cam.K.fy > 0))
+    throw std::invalid_argument("Renderer: camera needs a resolution and positive focal lengths");
+  // Unit rays at pixel centres plus one extra column/row for the angular pixel size.
+  const int W = width_ + 1, H = height_ + 1;
+  std::vector<Vec3> unit(static_cast<std::size_t>(W) * H);
+  std::vector<Vec2> xy(unit.size());
+  for (int v = 0; v < H; ++v)
+    for (int u = 0; u < W; ++u) {
+      const Vec2 xd((u - cam.K.cx) / cam.K.fx, (v - cam.K.cy) / cam.K.fy);
+      const Vec2 xn = invertDistortion(cam, xd);
+      xy[static_cast<std::size_t>(v) * W + u] = xn;
+      unit[static_cast<std::size_t>(v) * W + u] = Vec3(xn.x(), xn.y(), 1.0).normalized();
+    }
+  rays_.resize(static_cast<std::size_t>(width_) * height_);
+  vignette_r2_.resize(rays_.size());
+  const double rmax2 = std::max(cam.K.cx * cam.K.cx, (width_ - 1 - cam.K.cx) * (width_ - 1 - cam.K.cx)) +
+                       std::max(cam.K.cy * cam.K.cy, (height_ - 1 - cam.K.cy) * (height_ - 1 - cam.K.cy));
+  for (int v = 0; v < height_; ++v)
+    for (int u = 0; u < width_; ++u) {
+      const std::size_t i = static_cast<std::size_t>(v) * W + u;
+      const Vec2& xn = xy[i];
+      const double norm = std::sqrt(xn.squaredNorm() + 1.0);
+      const double du = std::acos(std::clamp(unit[i].dot(unit[i + 1]), -1.0, 1.0));
+      const double dv = std::acos(std::clamp(unit[i].dot(unit[i + W]), -1.0, 1.0));
+      RayEntry& e = rays_[static_cast<std::size_t>(v) * width_ + u];
+      e.x = static_cast<float>(xn.x());
+      e.y = static_cast<float>(xn.y());
+      e.footprint = static_cast<float>(norm * std::sqrt(du * dv));
+      e.inv_norm = static_cast<float>(1.0 / norm);
+      const double r2 = ((u - cam.K.cx) * (u - cam.K.cx) + (v - cam.K.cy) * (v - cam.K.cy)) / rmax2;
+      vignette_r2_[static_cast<std::size_t>(v) * width_ + u] = static_cast<float>(r2);
+    }
+  std::mt19937_64 rng(12345);
+  std::normal_distribution<float> nd(0.f, 1.f);
+  noise_table_.resize(kNoiseTableSize);
+  for (float& x : noise_table_) x = nd(rng);
+}
+
+Eigen::Vector3d Renderer::ray(int u, int v) const {
+  const RayEntry& e = rays_.at(static_cast<std::size_t>(v) * width_ + u);
+  return Eigen::Vector3d(e.x, e.y, 1.0);
+}
+
+void Renderer::renderRows(const std::vector<CameraPose>& poses, const Plane& plane, const Texture& tex, float* out,
+                          int row0, int row1) const {
+  Eigen::Vector3d t1, t2;
+  plane.basis(&t1, &t2);
+  const Eigen::Vector3d origin = -plane.e_m * plane.n;  // a point on the plane (texture origin)
+  const float inv_n = 1.0f / static_cast<float>(poses.size());
+  const float miss = tex.mean();
+  const double isu = 1.0 / tex.texelU(), isv = 1.0 / tex.texelV();
+  for (std::size_t k = 0; k < poses.size(); ++k) {
+    const CameraPose& P = poses[k];
+    // Everything in level-0 texel units: X(r) = p + lambda R r, lambda = -dist / (n_C . r).
+    const Eigen::Vector3d nC = P.R_WC.transpose() * plane.n;
+    const Eigen::Vector3d aC = P.R_WC.transpose() * t1 * isu, bC = P.R_WC.transpose() * t2 * isv;
+    const double dist = plane.n.dot(P.p_WC) + plane.e_m;  // > 0 on the normal's side
+    const float uc = static_cast<float>(std::fmod(t1.dot(P.p_WC - origin), tex.tileU()) * isu);
+    const float vc = static_cast<float>(std::fmod(t2.dot(P.p_WC - origin), tex.tileV()) * isv);
+    const float nx = static_cast<float>(nC.x()), ny = static_cast<float>(nC.y()), nz = static_cast<float>(nC.z());
+    const float ax = static_cast<float>(aC.x()), ay = static_cast<float>(aC.y()), az = static_cast<float>(aC.z());
+    const float bx = static_cast<float>(bC.x()), by = static_cast<float>(bC.y()), bz = static_cast<float>(bC.z());
+    const float fdist = static_cast<float>(dist), fp_scale = tex.invTexelGeo();
+    const bool above = dist > 0.0;
+    for (int v = row0; v < row1; ++v) {
+      const RayEntry* re = &rays_[static_cast<std::size_t>(v) * width_];
+      float* o = out + static_cast<std::size_t>(v) * width_;
+      for (int u = 0; u < width_; ++u) {
+        const RayEntry& e = re[u];
+        const float dn = nx * e.x + ny * e.y + nz;  // n . r (r = (x, y, 1) in C)
+        float val = miss;
+        if (above && dn < -1e-6f) {
+          const float lambda = -fdist / dn;
+          const float xt = uc + lambda * (ax * e.x + ay * e.y + az);
+          const float yt = vc + lambda * (bx * e.x + by * e.y + bz);
+          // Footprint: distance x angular size, stretched by 1/sqrt(cos incidence) (area-equivalent side).
+          const float fp = lambda * e.footprint * fp_scale / std::sqrt(-dn * e.inv_norm);
+          val = tex.sampleTexel(xt, yt, fastLog2(fp));
+        }
+        if (k == 0)
+          o[u] = val * inv_n;
+        else
+          o[u] += val * inv_n;
+      }
+    }
+  }
+}
+
+void Renderer::renderRadiance(const std::vector<CameraPose>& poses, const Plane& plane, const Texture& tex,
+                              std::vector<float>* out) const {
+  if (poses.empty()) throw std::invalid_argument("renderRadiance: no pose");
+  out->resize(static_cast<std::size_t>(width_) * height_);
+  const int n = std::min(threads_, height_);
+  if (n <= 1) {
+    renderRows(poses, plane, tex, out->data(), 0, height_);
+    return;
+  }
+  std::vector<std::thread> pool;
+  for (int i = 1; i < n; ++i) {
+    const int r0 = height_ * i / n, r1 = height_ * (i + 1) / n;
+    pool.emplace_back([&, r0, r1] { renderRows(poses, plane, tex, out->data(), r0, r1); });
+  }
+  renderRows(poses, plane, tex, out->data(), 0, height_ / n);
+  for (auto& t : pool) t.join();
+}
+
+cv::Mat Renderer::applySensor(const std::vector<float>& radiance, double gain, const SensorOptions& opt,
+                              std::uint64_t noise_seed) const {
+  cv::Mat img(height_, width_, CV_8UC1);
+  sensorRows(radiance.data(), gain, opt, noise_seed, &img, 0, height_);
+  return img;
+}
+
+void Renderer::sensorRows(const float* radiance, double gain, const SensorOptions& opt, std::uint64_t noise_seed,
+                          cv::Mat* img, int row0, int row1) const {
+  const float g = static_cast<float>(gain), vig = static_cast<float>(opt.vignetting);
+  const float read2 = static_cast<float>(opt.read_noise_dn * opt.read_noise_dn);
+  const float shot = static_cast<float>(opt.shot_noise_dn);
+  for (int v = row0; v < row1; ++v) {
+    const std::size_t off = mix(noise_seed * 1000003ull + static_cast<std::uint64_t>(v)) % (kNoiseTableSize - width_);
+    const float* nz = &noise_table_[off];
+    const float* rad = radiance + static_cast<std::size_t>(v) * width_;
+    const float* r2 = &vignette_r2_[static_cast<std::size_t>(v) * width_];
+    unsigned char* row = img->ptr<unsigned char>(v);
+    for (int u = 0; u < width_; ++u) {
+      float s = g * (1.0f - vig * r2[u]) * rad[u];
+      if (opt.noise) s += nz[u] * std::sqrt(read2 + shot * std::max(s, 0.0f));
+      row[u] = static_cast<unsigned char>(std::clamp(s + 0.5f, 0.0f, 255.0f));
+    }
+  }
+}
+
+cv::Mat Renderer::renderImage(const std::vector<CameraPose>& poses, const Plane& plane, const Texture& tex,
+                              double gain, const SensorOptions& opt, std::uint64_t noise_seed) const {
+  if (poses.empty()) throw std::invalid_argument("renderImage: no pose");
+  cv::Mat img(height_, width_, CV_8UC1);
+  std::vector<float> rad(static_cast<std::size_t>(width_) * height_);
+  const auto work = [&](int r0, int r1) {
+    renderRows(poses, plane, tex, rad.data(), r0, r1);
+    sensorRows(rad.data(), gain, opt, noise_seed, &img, r0, r1);
+  };
+  const int n = std::min(threads_, height_);
+  std::vector<std::thread> pool;
+  for (int i = 1; i < n; ++i) pool.emplace_back(work, height_ * i / n, height_ * (i + 1) / n);
+  work(0, height_ / std::max(n, 1));
+  for (auto& t : pool) t.join();
+  return img;
+}
+
+double Renderer::motionPixels(const CameraPose& a, const CameraPose& b, const Plane& plane) const {
+  double worst = 0.0;
+  for (int gy = 0; gy < 3; ++gy)
+    for (int gx = 0; gx < 3; ++gx) {
+      const int u = (width_ - 1) * (1 + 3 * gx) / 7, v = (height_ - 1) * (1 + 3 * gy) / 7;  // inner 3x3 grid
+      const Eigen::Vector3d rW = a.R_WC * ray(u, v);
+      const double dn = plane.n.dot(rW), dist = plane.n.dot(a.p_WC) + plane.e_m;
+      if (!(dn < -1e-9) || dist <= 0.0) continue;
+      const Eigen::Vector3d X = a.p_WC + (-dist / dn) * rW;
+      Vec2 px;
+      if (!cam_.project(b.R_WC.transpose() * (X - b.p_WC), &px)) continue;
+      worst = std::max(worst, (px - Vec2(u, v)).norm());
+    }
+  return worst;
+}
+
+}  // namespace sim
+}  // namespace diekf

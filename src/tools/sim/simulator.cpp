@@ -1,0 +1,351 @@
+// Sequence simulation driver and diekf_simulate's argument parsing.
+#include "diekf/sim/simulator.h"
+
+#include <algorithm>
+#include <chrono>
+#include <cmath>
+#include <filesystem>
+#include <iomanip>
+#include <map>
+#include <ostream>
+#include <random>
+#include <sstream>
+#include <stdexcept>
+
+namespace diekf {
+namespace sim {
+namespace {
+
+bool parseDouble(const std::string& s, double* v) {
+  try {
+    std::size_t pos = 0;
+    *v = std::stod(s, &pos);
+    return pos == s.size() && std::isfinite(*v);
+  } catch (...) {
+    return false;
+  }
+}
+
+bool parseUint(const std::string& s, std::uint64_t* v) {
+  if (s.empty() || s.find_first_not_of("0123456789") != std::string::npos) return false;
+  try {
+    *v = std::stoull(s);
+    return true;
+  } catch (...) {
+    return false;
+  }
+}
+
+}  // namespace
+
+std::string simulateUsage() {
+  std::ostringstream os;
+  os << "usage: diekf_simulate [--preset NAME] [--duration S] [--seed N] [--texture checkerboard|natural|IMAGE]\n"
+        "                      [--incline-deg A] [options] --output DIR\n"
+        "  -> DIR/sequence.bag, DIR/camchain.yaml, DIR/imu.yaml\n"
+        "Renders a downward MYNT EYE S-like camera (752x480 @ 30 Hz, radtan) over a textured plane, with a 500 Hz\n"
+        "IMU and ground truth (/mocap/pose = T_W_I, /ground_truth/plane).\n"
+        "Scenario:\n"
+        "  --preset NAME            flight1..flight7 (paper's flights), incline, hover   [flight1]\n"
+        "  --list-presets           print presets with measured RMS/max speeds and exit\n"
+        "  --duration S             sequence length (s)                                 [60]\n"
+        "  --seed N                 random seed (trajectory, texture, noise)            [1]\n"
+        "  --height M               mean IMU height above the plane (m)                [preset]\n"
+        "  --incline-deg A          plane tilt about a horizontal axis, 0..45 (deg)     [0]\n"
+        "  --incline-azimuth-deg A  direction of that axis in W (deg)                   [0]\n"
+        "Texture:\n"
+        "  --texture T              checkerboard | natural | image file (tiled)         [preset]\n"
+        "  --texture-size M         physical width of one image tile (m)                [1.0]\n"
+        "  --square M               checkerboard square size (m)                        [0.05]\n"
+        "Camera:\n"
+        "  --fps HZ                 image rate                                          [30]\n"
+        "  --exposure-ms MS         exposure time, motion blur over it                  [4]\n"
+        "  --max-subframes N        sub-frame renders per image (motion blur)           [8]\n"
+        "  --scale F                resolution/intrinsics scale (e.g. 0.25)             [1]\n"
+        "  --vignetting V           brightness loss at the corners (0..1)               [0.35]\n"
+        "  --read-noise DN          image read noise, 1-sigma grey levels               [1.5]\n"
+        "  --no-image-noise         noise-free images\n"
+        "  --gain-ramp R            slow brightness change, relative amplitude          [0]\n"
+        "  --gain-ramp-period S     its period (s)                                      [20]\n"
+        "  --flicker-prob P         per-frame probability of an abrupt brightness jump  [0]\n"
+        "  --flicker-amplitude R    relative size of a jump                             [0.25]\n"
+        "  --drop-prob P            per-frame probability of a dropped image            [0]\n"
+        "  --no-camera-info         do not write /mynteye/left/camera_info\n"
+        "IMU:\n"
+        "  --no-vibration           no propeller vibration (on by default)\n"
+        "  --no-imu-noise           exact IMU readings (no noise, bias, vibration)\n"
+        "  --accel-noise-density X  m/s^2/sqrt(Hz)                                      [2e-3]\n"
+        "  --accel-random-walk X    m/s^3/sqrt(Hz)                                      [4e-4]\n"
+        "  --gyro-noise-density X   rad/s/sqrt(Hz)                                      [1.7e-4]\n"
+        "  --gyro-random-walk X     rad/s^2/sqrt(Hz)                                    [2e-5]\n"
+        "Output:\n"
+        "  --pose-rate HZ           /mocap/pose rate (>= 100)                           [200]\n"
+        "  --start-stamp S          bag stamp of t = 0 (s)                              [1600000000]\n"
+        "  --threads N              render threads                                      [2]\n"
+        "  --lz4                    LZ4-compress the bag\n"
+        "  --output DIR             output directory (created)\n"
+        "  --help                   this text\n";
+  return os.str();
+}
+
+ParseResult parseSimulateArgs(const std::vector<std::string>& args_in, SimulationOptions* opt, std::string* error) {
+  // Split --key=value into two tokens.
+  std::vector<std::string> args;
+  for (const std::string& a : args_in) {
+    const std::size_t eq = a.find('=');
+    if (a.rfind("--", 0) == 0 && eq != std::string::npos) {
+      args.push_back(a.substr(0, eq));
+      args.push_back(a.substr(eq + 1));
+    } else {
+      args.push_back(a);
+    }
+  }
+  struct NumOpt {
+    double* d;
+    double lo, hi;
+  };
+  std::map<std::string, NumOpt> nums = {
+      {"--duration", {&opt->duration_s, 0.5, 3600}},
+      {"--height", {&opt->height_m, 0.1, 20}},
+      {"--incline-deg", {&opt->incline_deg, 0, 45}},
+      {"--incline-azimuth-deg", {&opt->incline_azimuth_deg, -360, 360}},
+      {"--texture-size", {&opt->texture_size_m, 1e-3, 1000}},
+      {"--square", {&opt->square_m, 1e-3, 10}},
+      {"--fps", {&opt->fps, 1, 1000}},
+      {"--exposure-ms", {&opt->exposure_ms, 0, 30}},
+      {"--scale", {&opt->scale, 0.05, 4}},
+      {"--vignetting", {&opt->sensor.vignetting, 0, 1}},
+      {"--read-noise", {&opt->sensor.read_noise_dn, 0, 100}},
+      {"--gain-ramp", {&opt->gain_ramp, 0, 0.9}},
+      {"--gain-ramp-period", {&opt->gain_ramp_period_s, 0.1, 1e6}},
+      {"--flicker-prob", {&opt->flicker_prob, 0, 1}},
+      {"--flicker-amplitude", {&opt->flicker_amplitude, 0, 0.9}},
+      {"--drop-prob", {&opt->drop_prob, 0, 0.9}},
+      {"--pose-rate", {&opt->pose_rate_hz, 100, 10000}},
+      {"--start-stamp", {&opt->start_stamp_s, 1, 4e9}},
+      {"--accel-noise-density", {&opt->imu_noise.accel_noise_density, 0, 10}},
+      {"--accel-random-walk", {&opt->imu_noise.accel_random_walk, 0, 10}},
+      {"--gyro-noise-density", {&opt->imu_noise.gyro_noise_density, 0, 10}},
+      {"--gyro-random-walk", {&opt->imu_noise.gyro_random_walk, 0, 10}},
+  };
+  bool list = false;
+  for (std::size_t i = 0; i < args.size(); ++i) {
+    const std::string& a = args[i];
+    const auto value = [&](std::string* v) {
+      if (i + 1 >= args.size()) {
+        *error = "missing value after " + a;
+        return false;
+      }
+      *v = args[++i];
+      return true;
+    };
+    std::string v;
+    if (a == "--help" || a == "-h") return ParseResult::kHelp;
+    if (a == "--list-presets") list = true;
+    else     if (a == "--no-vibration") {
+      opt->vibration = false;
+    } else if (a == "--vibration") {
+      opt->vibration = true;
+    } else if (a == "--no-imu-noise") {
+      opt->imu_errors = false;
+    } else if (a == "--no-image-noise") {
+      opt->sensor.noise = false;
+    } else if (a == "--no-camera-info") {
+      opt->camera_info = false;
+    } else if (a == "--lz4") {
+      opt->lz4 = true;
+    } else if (a == "--preset") {
+      if (!value(&v)) return ParseResult::kError;
+      PresetSpec spec;
+      if (!findPreset(v, &spec)) {
+        *error = "unknown preset '" + v + "' (flight1..flight7, incline, hover)";
+        return ParseResult::kError;
+      }
+      opt->preset = v;
+    } else if (a == "--texture") {
+      if (!value(&v)) return ParseResult::kError;
+      if (v.empty()) {
+        *error = "empty --texture";
+        return ParseResult::kError;
+      }
+      opt->texture = v;
+    } else if (a == "--output") {
+      if (!value(&v)) return ParseResult::kError;
+      opt->output_dir = v;
+    } else if (a == "--seed") {
+      if (!value(&v)) return ParseResult::kError;
+      if (!parseUint(v, &opt->seed)) {
+        *error = "--seed needs a non-negative integer, got '" + v + "'";
+        return ParseResult::kError;
+      }
+    } else if (a == "--threads" || a == "--max-subframes") {
+      if (!value(&v)) return ParseResult::kError;
+      std::uint64_t n = 0;
+      if (!parseUint(v, &n) || n < 1 || n > 64) {
+        *error = a + " needs an integer in [1, 64], got '" + v + "'";
+        return ParseResult::kError;
+      }
+      (a == "--threads" ? opt->threads : opt->max_subframes) = static_cast<int>(n);
+    } else if (nums.count(a)) {
+      if (!value(&v)) return ParseResult::kError;
+      const NumOpt& n = nums.at(a);
+      double d = 0;
+      if (!parseDouble(v, &d) || d < n.lo || d > n.hi) {
+        std::ostringstream os;
+        os << a << " needs a number in [" << n.lo << ", " << n.hi << "], got '" << v << "'";
+        *error = os.str();
+        return ParseResult::kError;
+      }
+      *n.d = d;
+    } else {
+      *error = "unknown argument '" + a + "' (see --help)";
+      return ParseResult::kError;
+    }
+  }
+  if (list) return ParseResult::kListPresets;
+  if (opt->output_dir.empty()) {
+    *error = "--output DIR is required";
+    return ParseResult::kError;
+  }
+  return ParseResult::kOk;
+}
+
+Trajectory makeTrajectory(const SimulationOptions& opt) {
+  PresetSpec spec;
+  if (!findPreset(opt.preset, &spec)) throw std::runtime_error("unknown preset '" + opt.preset + "'");
+  if (opt.height_m > 0.0) spec.height_m = opt.height_m;
+  const Plane plane = Plane::inclined(opt.incline_deg, opt.incline_azimuth_deg);
+  return Trajectory(makePresetTrajectory(spec, opt.duration_s, opt.seed, plane));
+}
+
+CameraPose cameraPose(const KinematicState& k, const CameraModel& cam) {
+  const Eigen::Isometry3d T_IC = cam.T_cam_imu.inverse();
+  CameraPose P;
+  P.R_WC = k.R_WI * T_IC.linear();
+  P.p_WC = k.p_W + k.R_WI * T_IC.translation();
+  return P;
+}
+
+SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* progress) {
+  namespace fs = std::filesystem;
+  using Clock = std::chrono::steady_clock;
+  const auto t_start = Clock::now();
+  SimulationSummary sum;
+
+  std::error_code ec;
+  fs::create_directories(opt.output_dir, ec);
+  if (ec || !fs::is_directory(opt.output_dir))
+    throw std::runtime_error("cannot create output directory '" + opt.output_dir + "'");
+
+  PresetSpec spec;
+  if (!findPreset(opt.preset, &spec)) throw std::runtime_error("unknown preset '" + opt.preset + "'");
+  const Trajectory traj = makeTrajectory(opt);
+  const Plane& plane = traj.params().plane;
+  sum.speed = traj.stats(100.0);
+
+  // Texture.
+  const std::string tex_name = opt.texture.empty() ? spec.texture : opt.texture;
+  if (progress) *progress << "[diekf_simulate] preparing texture '" << tex_name << "'\n";
+  const Texture tex = tex_name == "checkerboard" ? Texture::checkerboard(opt.square_m)
+                      : tex_name == "natural"    ? Texture::natural(opt.seed)
+                                                 : Texture::fromImage(tex_name, opt.texture_size_m);
+
+  const CameraModel cam = myntEyeSimCamera(opt.scale);
+  const Renderer renderer(cam, opt.threads);
+  TopicNames topics;
+  writeCamchainYaml((fs::path(opt.output_dir) / "camchain.yaml").string(), cam, topics.image);
+  writeImuYaml((fs::path(opt.output_dir) / "imu.yaml").string(), opt.imu_noise, topics.imu);
+
+  ImuSimOptions imu_opt;
+  imu_opt.noise = opt.imu_noise;
+  imu_opt.errors = opt.imu_errors;
+  imu_opt.vibration.enabled = opt.vibration && spec.vibration;
+  const ImuSimResult imu = simulateImu(traj, opt.duration_s, imu_opt, opt.seed);
+  sum.accel_bias0 = imu.accel_bias0;
+  sum.gyro_bias0 = imu.gyro_bias0;
+  sum.imu_samples = imu.samples.size();
+
+  BagClock clock;
+  clock.start_ns = static_cast<std::int64_t>(std::llround(opt.start_stamp_s * 1e9));
+  sum.bag_path = (fs::path(opt.output_dir) / "sequence.bag").string();
+  SequenceBagWriter bag(sum.bag_path, topics, opt.lz4);
+  bag.writePlane(clock.toNs(0.0), plane);
+
+  std::mt19937_64 rng(opt.seed ^ 0x1234567887654321ull);
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+  const double exposure_s = opt.exposure_ms * 1e-3;
+  const double frame_dt = 1.0 / opt.fps;
+  const int n_frames = std::max(0, static_cast<int>(std::floor((opt.duration_s - 0.5 * exposure_s) / frame_dt)));
+  const double pose_dt = 1.0 / opt.pose_rate_hz;
+  std::size_t next_imu = 0, next_pose_idx = 0;
+  std::uint32_t imu_seq = 0;
+  // Writes IMU and pose messages with t <= t_until, in stamp order.
+  const auto flushUntil = [&](double t_until) {
+    while (true) {
+      const double t_imu = next_imu < imu.samples.size() ? imu.samples[next_imu].t_s : 1e300;
+      const double t_pose = next_pose_idx * pose_dt;
+      const double t_next = std::min(t_imu, t_pose <= opt.duration_s + 1e-9 ? t_pose : 1e300);
+      if (t_next > t_until + 1e-12 || t_next >= 1e300) break;
+      if (t_imu <= t_pose) {
+        const ImuSample& s = imu.samples[next_imu++];
+        bag.writeImu(clock.toNs(s.t_s), s.accel_mps2, s.gyro_radps, imu_seq++);
+      } else {
+        const KinematicState k = traj.evaluate(t_pose);
+        bag.writePose(clock.toNs(t_pose), k.R_WI, k.p_W, static_cast<std::uint32_t>(next_pose_idx));
+        ++next_pose_idx;
+      }
+    }
+  };
+
+  std::vector<CameraPose> subposes;
+  long subframes_total = 0;
+  for (int f = 0; f < n_frames; ++f) {
+    const double t = (f + 1) * frame_dt;  // mid-exposure stamp (s)
+    flushUntil(t);
+    // Brightness for this frame (draws happen for every frame so dropping does not change the others).
+    double gain = 1.0 + opt.gain_ramp * std::sin(2.0 * M_PI * t / opt.gain_ramp_period_s);
+    const bool flicker = uni(rng) < opt.flicker_prob;
+    const double flicker_draw = uni(rng);
+    const bool drop = uni(rng) < opt.drop_prob;
+    if (flicker) gain *= 1.0 + opt.flicker_amplitude * (flicker_draw < 0.5 ? -1.0 : 1.0) * (0.5 + flicker_draw);
+    if (drop) {
+      ++sum.frames_dropped;
+      continue;
+    }
+    const CameraPose p0 = cameraPose(traj.evaluate(t - 0.5 * exposure_s), cam);
+    const CameraPose p1 = cameraPose(traj.evaluate(t + 0.5 * exposure_s), cam);
+    int n_sub = 1;
+    if (exposure_s > 0.0) {
+      const double blur_px = renderer.motionPixels(p0, p1, plane);
+      n_sub = std::clamp(static_cast<int>(std::ceil(blur_px / opt.blur_step_px)), 1, opt.max_subframes);
+    }
+    subposes.clear();
+    for (int j = 0; j < n_sub; ++j) {
+      const double ts = n_sub == 1 ? t : t + exposure_s * ((j + 0.5) / n_sub - 0.5);
+      subposes.push_back(cameraPose(traj.evaluate(ts), cam));
+    }
+    subframes_total += n_sub;
+    const cv::Mat img =
+        renderer.renderImage(subposes, plane, tex, gain, opt.sensor, opt.seed * 7919ull + static_cast<std::uint64_t>(f));
+    const std::int64_t stamp = clock.toNs(t);
+    if (opt.camera_info) bag.writeCameraInfo(stamp, cam, static_cast<std::uint32_t>(f));
+    bag.writeImage(stamp, img, static_cast<std::uint32_t>(f));
+    ++sum.frames_written;
+    if (progress && (f % 30 == 29 || f + 1 == n_frames)) {
+      const double el = std::chrono::duration<double>(Clock::now() - t_start).count();
+      *progress << "\r[diekf_simulate] frame " << (f + 1) << "/" << n_frames << " (" << (100 * (f + 1) / n_frames)
+                << " %), " << std::fixed << std::setprecision(1) << el << " s elapsed, ETA "
+                << el / (f + 1) * (n_frames - f - 1) << " s   " << std::defaultfloat << std::flush;
+    }
+  }
+  flushUntil(opt.duration_s);
+  bag.close();
+  if (progress && n_frames > 0) *progress << "\n";
+  sum.poses = next_pose_idx;
+  sum.mean_subframes = sum.frames_written > 0 ? static_cast<double>(subframes_total) / sum.frames_written : 0.0;
+  sum.wall_s = std::chrono::duration<double>(Clock::now() - t_start).count();
+  return sum;
+}
+
+}  // namespace sim
+}  // namespace diekf
