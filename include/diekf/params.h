@@ -22,6 +22,7 @@ struct InitParams {
   double sigma_g0_rad = 0.1;                    ///< 1-sigma of each tangent axis of g0, rad
   double sigma_ba0_mps2 = 0.1;                  ///< 1-sigma of the initial accelerometer bias, m/s^2
   double sigma_bw0_radps = 0.01;                ///< 1-sigma of the initial gyroscope bias, rad/s
+  double tracking_max_relative_sigma_d = 0.15;  ///< status turns tracking once sigma_d / d falls below this
 };
 
 struct ImuParams {

@@ -18,6 +18,9 @@ struct UpdateStats {
 
 /// Observed error-state columns: vartheta (3), mu (2), b_w (3).
 using WarpJacobian = Eigen::Matrix<double, 2, 8>;
+/// Information block over the observed columns (8x8) and the matching information vector (8).
+using ObservedInfo = Eigen::Matrix<double, 8, 8>;
+using ObservedVec = Eigen::Matrix<double, 8, 1>;
 
 /// Position in the reference image of current-image pixel (x, y) and its Jacobian w.r.t. the observed error
 /// state [d_vartheta, d_mu, d_b_w]. `gyro_mean_C` is the raw mean gyro over the interval (bias subtracted inside).
@@ -30,8 +33,17 @@ class PhotometricUpdate {
   /// Updates x and P in place from the pair (ref, cur) separated by dt_s.
   UpdateStats update(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PinholeK& K,
                      const Vec3& gyro_mean_C, double dt_s, State* x, ErrorCov* P);
-  /// Residual I_c(p) - I_r(p_r) at the final estimate of the last update (CV_32FC1, 0 outside the mask).
+  /// Residual I_c(p) - I_r(p_r) at the final estimate of the last update (CV_32FC1, 0 outside the mask and
+  /// on pixels skipped by pixel_stride).
   const cv::Mat& residualImage() const { return residual_; }
+
+  /// One linearisation at x (what every Gauss-Newton pass accumulates), without the solve:
+  /// A = sum w_p S_p^T S_p (full symmetric 8x8) and b = sum w_p S_p^T r_p over the observed columns
+  /// [d_vartheta, d_mu, d_b_w]. Returns the number of valid pixels; `candidates` (optional) receives the number
+  /// of pixels tried. Frames must be valid CV_32FC1 of equal size (not checked here; update() checks).
+  int linearize(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PinholeK& K,
+                const Vec3& gyro_mean_C, double dt_s, const State& x, ObservedInfo* A, ObservedVec* b,
+                int* candidates = nullptr) const;
 
  private:
   PhotometricParams params_;

@@ -143,6 +143,7 @@ struct Estimator::Impl {
     gyro_time_s = 0.0;
     bad_frames = 0;
     updates_since_reset = 0;
+    converged = false;
   }
 
   /// Gravity direction from the mean specific force of the recent filtered samples (if the vehicle is near
@@ -275,9 +276,20 @@ struct Estimator::Impl {
       have_reference = true;
       r.status = FilterStatus::kReset;
       r.message = reason;
-    } else if (updates_since_reset == 0) {
-      r.status = FilterStatus::kInitializing;
-      r.message = had_reference ? "waiting for a valid image update" : "first image: reference set";
+    } else if (!converged) {
+      const double relative_sigma_d = std::sqrt(std::max(0.0, P(0, 0))) / x.alpha;  // sigma_d / d
+      converged = updates_since_reset > 0 && relative_sigma_d < params.init.tracking_max_relative_sigma_d;
+      r.status = converged ? FilterStatus::kTracking : FilterStatus::kInitializing;
+      if (!had_reference) {
+        r.message = "first image: reference set";
+      } else if (updates_since_reset == 0) {
+        r.message = "waiting for a valid image update";
+      } else if (!converged) {
+        std::ostringstream os;
+        os << "converging: sigma_d/d = " << relative_sigma_d << " (tracking below "
+           << params.init.tracking_max_relative_sigma_d << ")";
+        r.message = os.str();
+      }
     } else {
       r.status = FilterStatus::kTracking;
       if (!stats.applied) r.message = "update skipped: too few valid pixels or non-finite system";
@@ -322,6 +334,7 @@ struct Estimator::Impl {
   double gyro_time_s = 0.0;
   int bad_frames = 0;
   int updates_since_reset = 0;
+  bool converged = false;  // sigma_d / d has fallen below the tracking threshold since the last reset
   int resets = 0;
 
   bool have_raw_imu = false;

@@ -4,11 +4,13 @@
 // Its footprint in the raw image is the image of a 1x1 working pixel under that map, with extents
 // F_x = |d c / d p'_row 0| and F_y = |row 1| (raw px per working px, from central differences). The pixel's
 // value is a separable box average over the footprint, sampled by a grid of integer raw taps:
-//   n = clamp(ceil(F / 2), 2, 8) taps per axis, spaced step = max(1, round(F / n)) raw px,
+//   n = clamp(ceil(F / 2.5), 2, 8) taps per axis, spaced step = max(1, round(F / n)) raw px
+//   (752 -> 90 px: F ~ 8.4 at the centre, 4x4 taps 2 px apart),
 //   weights w_i = 1/n + d (x_i - m) / sum_k (x_k - m)^2   (m = mean tap position, d = c - m),
 // so the weights sum to one and the weighted tap centroid is exactly c (up to the 1/16 px quantisation of d
 // that lets pixels share tap sets). With n = 2, step = 1 this is bilinear interpolation. Per frame the
-// resampling is one pass over a table of (base offset, x tap set, y tap set), 8 bytes per working pixel.
+// resampling is one pass over a table of (output index, base offset, x tap set, y tap set), 12 bytes per
+// working pixel, grouped by tap counts so each group runs an unrolled kernel.
 //
 // Then, at working resolution: separable Gaussian blur (radius ceil(3 sigma), replicated border), brightness
 // normalisation (zero mean, unit variance; a uniform image gives zeros), central-difference gradients.
@@ -144,7 +146,7 @@ ImagePreprocessor::ImagePreprocessor(const CameraModel& camera, const Preprocess
   // Builds the 1-D taps for centre c (raw px), footprint F (raw px), image size `size`; returns the first
   // tap's coordinate and the tap set index.
   auto taps1d = [&](int axis, double c, double F, int size) -> std::pair<int, uint16_t> {
-    int n = std::clamp(static_cast<int>(std::ceil(F / 2.0 - 1e-9)), 2, kMaxTaps);
+    int n = std::clamp(static_cast<int>(std::ceil(F / 2.5 - 1e-9)), 2, kMaxTaps);
     int step = std::max(1, static_cast<int>(std::lround(F / n)));
     while ((n - 1) * step > size - 1 && step > 1) --step;
     while ((n - 1) * step > size - 1 && n > 2) --n;

@@ -225,11 +225,11 @@ Entry vec3(const std::string& key, std::function<Vec3&(EstimatorParams&)> field,
 }
 
 UpdateMode modeFromName(const std::string& origin, const std::string& key, const std::string& name) {
-  // Same names as parseUpdateMode (params.h).
-  if (name == "iekf") return UpdateMode::kIterated;
-  if (name == "ekf") return UpdateMode::kEkf;
-  if (name == "lk") return UpdateMode::kFeature;
-  failKey(origin, key, "unknown mode '" + name + "' (expected iekf, ekf or lk)");
+  try {
+    return parseUpdateMode(name);
+  } catch (const std::invalid_argument& e) {
+    failKey(origin, key, e.what());
+  }
 }
 
 #define DIEKF_FIELD(type, expr) [](EstimatorParams& p) -> type& { return p.expr; }
@@ -253,6 +253,8 @@ const std::vector<Entry>& table() {
     t.push_back(real("init/sigma_g0_rad", DIEKF_FIELD(double, init.sigma_g0_rad), positive(M_PI)));
     t.push_back(real("init/sigma_ba0_mps2", DIEKF_FIELD(double, init.sigma_ba0_mps2), positive()));
     t.push_back(real("init/sigma_bw0_radps", DIEKF_FIELD(double, init.sigma_bw0_radps), positive()));
+    t.push_back(real("init/tracking_max_relative_sigma_d", DIEKF_FIELD(double, init.tracking_max_relative_sigma_d),
+                     positive()));
     // imu
     t.push_back(real("imu/accel_noise_density", DIEKF_FIELD(double, imu.accel_noise_density), positive()));
     t.push_back(real("imu/gyro_noise_density", DIEKF_FIELD(double, imu.gyro_noise_density), positive()));

@@ -59,6 +59,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          ia.sigma_alpha0_inv_m == ib.sigma_alpha0_inv_m && ia.sigma_vartheta0_inv_s == ib.sigma_vartheta0_inv_s &&
          ia.sigma_mu0_rad == ib.sigma_mu0_rad && ia.sigma_g0_rad == ib.sigma_g0_rad &&
          ia.sigma_ba0_mps2 == ib.sigma_ba0_mps2 && ia.sigma_bw0_radps == ib.sigma_bw0_radps &&
+         ia.tracking_max_relative_sigma_d == ib.tracking_max_relative_sigma_d &&
          ma.accel_noise_density == mb.accel_noise_density && ma.gyro_noise_density == mb.gyro_noise_density &&
          ma.accel_random_walk == mb.accel_random_walk && ma.gyro_random_walk == mb.gyro_random_walk &&
          ma.input_rate_hz == mb.input_rate_hz && ma.lowpass_cutoff_hz == mb.lowpass_cutoff_hz &&

@@ -1,0 +1,56 @@
+// Message <-> core conversions of the ROS layer (no estimation logic here).
+#pragma once
+
+#include <string>
+
+#include <geometry_msgs/TwistWithCovarianceStamped.h>
+#include <nav_msgs/Odometry.h>
+#include <opencv2/core.hpp>
+#include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/Image.h>
+#include <sensor_msgs/Imu.h>
+#include <sensor_msgs/Range.h>
+#include <visualization_msgs/MarkerArray.h>
+
+#include "diekf/PlanarState.h"
+#include "diekf/camera_model.h"
+#include "diekf/estimator.h"
+#include "diekf/ros/body_odometry.h"
+
+namespace diekf_ros {
+
+/// Grey 8-bit copy of an image in mono8, mono16 (scaled by 1/256), bgr8, rgb8, bgra8 or rgba8 (also 8UC1 and
+/// 16UC1). Returns false and says why for any other encoding or a malformed message.
+bool imageToMono8(const sensor_msgs::Image& msg, cv::Mat* mono8, std::string* error);
+
+/// IMU message -> core sample (stamp in s, base_link frame). False if any value is non-finite.
+bool imuFromMsg(const sensor_msgs::Imu& msg, diekf::ImuSample* sample);
+
+uint8_t statusToMsg(diekf::FilterStatus status);
+
+/// Full filter output (camera frame C). False (message untouched) if any value would be non-finite.
+bool fillPlanarState(const diekf::FrameResult& result, const std_msgs::Header& header, diekf::PlanarState* msg);
+
+/// Odometry of base_link in odom with body-frame twist. False if any value would be non-finite.
+bool fillOdometry(const BodyPose& pose, const std::string& odom_frame, const std::string& base_frame,
+                  nav_msgs::Odometry* msg);
+
+/// Camera height along gravity as a range reading in the camera frame (what flight controllers consume).
+/// field_of_view_rad, min/max range in m. False if non-finite.
+bool fillRange(const diekf::FrameResult& result, const std_msgs::Header& header, double field_of_view_rad,
+               double min_range_m, double max_range_m, sensor_msgs::Range* msg);
+
+/// Checks a CameraInfo against the calibration: size, K (1 % relative) and distortion (1e-3 absolute, when the
+/// model matches). Returns true if they agree; otherwise `why` lists the differences.
+bool cameraInfoAgrees(const sensor_msgs::CameraInfo& info, const diekf::CameraModel& camera, std::string* why);
+
+/// Photometric residual (CV_32FC1, normalised intensity) -> mono8 picture, 128 = zero residual,
+/// `gain_levels_per_unit` grey levels per normalised intensity unit, clipped to 0..255.
+cv::Mat residualToMono8(const cv::Mat& residual, double gain_levels_per_unit);
+
+/// Arrows for the normal (camera -> plane, length d), gravity (length gravity_arrow_m) and velocity (1 s of
+/// motion), and a thin square marking the plane (side plane_size_m), all in the camera frame.
+visualization_msgs::MarkerArray makeMarkers(const diekf::FrameResult& result, const std_msgs::Header& header,
+                                            double gravity_arrow_m, double plane_size_m);
+
+}  // namespace diekf_ros

@@ -1,0 +1,144 @@
+// diekf/EstimatorNodelet: ROS front end of the estimator. onInit only wires things up; the image update runs on
+// a worker thread that owns the diekf::Estimator, so the IMU callback only stamps, checks and queues.
+#pragma once
+
+#include <atomic>
+#include <condition_variable>
+#include <deque>
+#include <memory>
+#include <mutex>
+#include <string>
+#include <thread>
+
+#include <diagnostic_updater/diagnostic_updater.h>
+#include <diagnostic_updater/publisher.h>
+#include <geometry_msgs/PoseStamped.h>
+#include <image_transport/image_transport.h>
+#include <nodelet/nodelet.h>
+#include <ros/ros.h>
+#include <sensor_msgs/CameraInfo.h>
+#include <sensor_msgs/Image.h>
+#include <sensor_msgs/Imu.h>
+#include <std_srvs/Trigger.h>
+#include <tf2_ros/static_transform_broadcaster.h>
+#include <tf2_ros/transform_broadcaster.h>
+
+#include "diekf/camera_model.h"
+#include "diekf/estimator.h"
+#include "diekf/params.h"
+#include "diekf/ros/body_odometry.h"
+
+namespace diekf_ros {
+
+/// Everything the nodelet reads from its private namespace besides the estimator's own keys (config/mynteye.yaml
+/// documents each one).
+struct NodeletSettings {
+  std::string camchain_file;                  ///< Kalibr camchain YAML (required)
+  std::string camera_name = "cam0";           ///< camera entry in the camchain
+  std::string imu_file;                       ///< Kalibr IMU YAML with noise densities (optional)
+  std::string image_topic = "/mynteye/left/image_raw";
+  std::string imu_topic = "/mynteye/imu/data_raw";
+  std::string camera_info_topic = "/mynteye/left/camera_info";  ///< "" disables the check
+  std::string odom_frame = "odom";
+  std::string base_frame = "base_link";
+  std::string camera_frame = "mynteye_left_frame";
+  bool publish_tf = true;                     ///< odom -> base_link
+  bool publish_static_tf = true;              ///< base_link -> camera from the extrinsics
+  bool publish_odometry_imu_rate = false;     ///< ~odometry_imu_rate at the raw IMU rate
+  int image_queue_size = 4;                   ///< images waiting for the worker before the oldest is dropped
+  int imu_queue_size = 2000;                  ///< IMU samples waiting for the worker (4 s at 500 Hz)
+  double expected_imu_rate_hz = 500.0;        ///< for the /diagnostics rate check, Hz
+  double expected_image_rate_hz = 30.0;       ///< for the /diagnostics rate check, Hz
+  double rate_tolerance = 0.3;                ///< accepted relative deviation of the input rates
+  double time_jump_reset_s = 1.0;             ///< a stamp this far backwards restarts the filter, s
+  double late_image_warn_s = 0.25;            ///< warn when an image is older than the newest IMU by more, s
+  double residual_image_gain = 64.0;          ///< grey levels per normalised-intensity unit in ~residual_image
+  int path_max_poses = 3000;                  ///< poses kept in ~path
+  double gravity_arrow_m = 0.5;               ///< length of the gravity arrow marker, m
+  double plane_marker_size_m = 2.0;           ///< side of the plane marker, m
+  double diagnostic_period_s = 1.0;           ///< /diagnostics period, s
+};
+
+class EstimatorNodelet : public nodelet::Nodelet {
+ public:
+  EstimatorNodelet() = default;
+  ~EstimatorNodelet() override;
+
+ private:
+  void onInit() override;
+  void loadSettings();
+  void setUpOutputs();
+  void setUpInputs();
+
+  // Callbacks (nodelet's single-threaded queue: never run concurrently with each other).
+  void imuCallback(const sensor_msgs::ImuConstPtr& msg);
+  void imageCallback(const sensor_msgs::ImageConstPtr& msg);
+  void cameraInfoCallback(const sensor_msgs::CameraInfoConstPtr& msg);
+  bool resetService(std_srvs::Trigger::Request& req, std_srvs::Trigger::Response& res);
+  void filterDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat);
+
+  // Worker thread: owns estimator_ and odometry_.
+  void workerLoop();
+  void forwardImu(const diekf::ImuSample& sample);
+  void forwardImage(const sensor_msgs::ImageConstPtr& msg);
+  void drainResults();
+  void publishResult(const diekf::FrameResult& result);
+  void restartFilter(const std::string& reason, bool rebuild);
+  void requestRestart(const std::string& reason, bool rebuild);
+
+  NodeletSettings settings_;
+  ros::NodeHandle nh_, pnh_;
+  bool ready_ = false;
+  std::string init_error_;
+
+  std::unique_ptr<diekf::CameraModel> camera_;
+  diekf::EstimatorParams params_;
+  std::unique_ptr<diekf::Estimator> estimator_;
+  std::unique_ptr<BodyOdometry> odometry_;
+
+  // Inputs handed from the callbacks to the worker.
+  std::mutex queue_mutex_;
+  std::condition_variable queue_cv_;
+  std::deque<diekf::ImuSample> imu_queue_;
+  std::deque<sensor_msgs::ImageConstPtr> image_queue_;
+  bool stop_ = false;
+  bool restart_requested_ = false;
+  bool restart_rebuild_ = false;
+  std::string restart_reason_;
+  std::thread worker_;
+
+  // Input bookkeeping (callback thread only).
+  double last_imu_stamp_s_ = -1.0;
+  double last_image_stamp_s_ = -1.0;
+  bool camera_info_checked_ = false;
+
+  // Counters and the filter snapshot for /diagnostics (stats_mutex_).
+  std::mutex stats_mutex_;
+  uint64_t imu_received_ = 0, images_received_ = 0, frames_published_ = 0;
+  uint64_t imu_dropped_ = 0, images_dropped_ = 0, frames_skipped_nonfinite_ = 0, restarts_ = 0;
+  diekf::FilterStatus last_status_ = diekf::FilterStatus::kInitializing;
+  std::string last_message_;
+  double last_update_ms_ = 0.0, update_ms_sum_ = 0.0, update_ms_max_ = 0.0;
+  uint64_t update_count_ = 0;
+  double last_distance_m_ = 0.0, last_height_m_ = 0.0;
+
+  // Outputs.
+  ros::Publisher state_pub_, odom_pub_, odom_imu_pub_, twist_pub_, range_pub_, path_pub_, markers_pub_;
+  std::unique_ptr<image_transport::ImageTransport> it_, pit_;
+  image_transport::Publisher residual_pub_;
+  image_transport::Subscriber image_sub_;
+  ros::Subscriber imu_sub_, camera_info_sub_;
+  ros::ServiceServer reset_srv_;
+  std::unique_ptr<tf2_ros::TransformBroadcaster> tf_broadcaster_;
+  std::unique_ptr<tf2_ros::StaticTransformBroadcaster> static_tf_broadcaster_;
+  std::deque<geometry_msgs::PoseStamped> path_;  ///< worker thread only
+
+  // Diagnostics.
+  std::unique_ptr<diagnostic_updater::Updater> updater_;
+  double imu_rate_min_hz_ = 0.0, imu_rate_max_hz_ = 0.0, image_rate_min_hz_ = 0.0, image_rate_max_hz_ = 0.0;
+  std::unique_ptr<diagnostic_updater::HeaderlessTopicDiagnostic> imu_rate_diag_, image_rate_diag_;
+  ros::WallTimer diagnostic_timer_;
+  double field_of_view_rad_ = 1.0;
+};
+
+}  // namespace diekf_ros

@@ -1,0 +1,113 @@
+// Internal (not installed): the iterated Gauss-Newton update in information form shared by the photometric
+// and the feature-based update (ALGORITHM.md §3). The measurement model only enters through a callback that
+// linearises it at the current iterate and returns the 8x8 observed block of the information matrix and the
+// matching 8-vector, so both updates run exactly the same solve, stopping rule and covariance update.
+#pragma once
+
+#include <Eigen/Cholesky>
+#include <Eigen/Core>
+
+#include "diekf/state.h"
+#include "diekf/types.h"
+
+namespace diekf {
+namespace internal {
+
+/// Number of error-state columns a camera measurement observes: vartheta (3), mu (2), b_w (3).
+constexpr int kObsDim = 8;
+using ObsMat = Eigen::Matrix<double, kObsDim, kObsDim>;
+using ObsVec = Eigen::Matrix<double, kObsDim, 1>;
+
+/// Index in the 14-D error state of observed column k (k = 0..7).
+constexpr int kObsToErr[kObsDim] = {ErrIdx::kVartheta,     ErrIdx::kVartheta + 1, ErrIdx::kVartheta + 2,
+                                    ErrIdx::kMu,           ErrIdx::kMu + 1,       ErrIdx::kBw,
+                                    ErrIdx::kBw + 1,       ErrIdx::kBw + 2};
+
+/// Outcome of an iterated update.
+struct IterationResult {
+  bool ok = false;              ///< false: nothing was changed (linearisation refused or non-finite system)
+  int passes = 0;               ///< linearisations performed
+  double last_step_norm = 0.0;  ///< |delta| of the last pass
+};
+
+/// Iterated information-form update.
+///
+/// `linearize(const State& x_j, ObsMat* A, ObsVec* b) -> bool` must fill the UPPER triangle of
+/// A = sum w S^T S and b = sum w S^T r (r = z - h(x_j), dr/d delta = -S) at x_j, and return false to abort
+/// (too few measurements); it may leave the strictly lower triangle of A undefined.
+///
+/// Per pass: Lambda = L^T P^-1 L, delta = (A + Lambda)^-1 (b - L^T P^-1 e), e = x_j [-] x^-,
+/// x_{j+1} = x_j [+] delta; stop at |delta| < stop_threshold or after max_passes.
+/// P+ = (A + Lambda)^-1 of the last pass, symmetrised. `x` and `P` are written only on success.
+///
+/// All storage is fixed-size: no heap allocation.
+template <typename LinearizeFn>
+IterationResult iterateInformationForm(int max_passes, double stop_threshold, LinearizeFn&& linearize,
+                                       State* x, ErrorCov* P) {
+  IterationResult result;
+  const State x_prior = *x;
+
+  // P^-1 once per update (LDLT of the prior, solved against the identity).
+  const Eigen::LDLT<ErrorCov> prior_ldlt(*P);
+  if (prior_ldlt.info() != Eigen::Success || !prior_ldlt.isPositive()) return result;
+  ErrorCov P_inv = prior_ldlt.solve(ErrorCov::Identity());
+  P_inv = 0.5 * (P_inv + P_inv.transpose()).eval();
+  if (!P_inv.allFinite()) return result;
+
+  State x_j = x_prior;
+  ObsMat A;
+  ObsVec b;
+  ErrorCov info;
+  ErrorVec rhs;
+  Eigen::LDLT<ErrorCov> info_ldlt(kErrorDim);
+  const int passes = max_passes < 1 ? 1 : max_passes;
+
+  for (int pass = 0; pass < passes; ++pass) {
+    A.setZero();
+    b.setZero();
+    if (!linearize(static_cast<const State&>(x_j), &A, &b)) return result;
+    A.template triangularView<Eigen::StrictlyLower>() = A.transpose();
+    if (!A.allFinite() || !b.allFinite()) return result;
+
+    // Prior term. On the first pass e = 0 and L = I.
+    if (pass == 0) {
+      info = P_inv;
+      rhs.setZero();
+    } else {
+      const ErrorCov L = x_j.boxminusJacobian(x_prior);
+      const ErrorVec e = x_j.boxminus(x_prior);
+      const ErrorCov LtPinv = L.transpose() * P_inv;
+      info.noalias() = LtPinv * L;
+      rhs.noalias() = -(LtPinv * e);
+    }
+    // Measurement term: only the 8 observed rows/columns.
+    for (int r = 0; r < kObsDim; ++r) {
+      rhs(kObsToErr[r]) += b(r);
+      for (int c = 0; c < kObsDim; ++c) info(kObsToErr[r], kObsToErr[c]) += A(r, c);
+    }
+
+    info_ldlt.compute(info);
+    if (info_ldlt.info() != Eigen::Success || !info_ldlt.isPositive()) return result;
+    const ErrorVec delta = info_ldlt.solve(rhs);
+    if (!delta.allFinite()) return result;
+
+    x_j = x_j.boxplus(delta);
+    if (!x_j.allFinite()) return result;
+    result.passes = pass + 1;
+    result.last_step_norm = delta.norm();
+    if (result.last_step_norm < stop_threshold) break;
+  }
+
+  // Covariance from the last pass's information matrix (its factorisation is reused).
+  ErrorCov P_post = info_ldlt.solve(ErrorCov::Identity());
+  P_post = 0.5 * (P_post + P_post.transpose()).eval();
+  if (!P_post.allFinite() || (P_post.diagonal().array() <= 0.0).any()) return result;
+
+  *x = x_j;
+  *P = P_post;
+  result.ok = true;
+  return result;
+}
+
+}  // namespace internal
+}  // namespace diekf

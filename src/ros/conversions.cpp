@@ -1,0 +1,284 @@
+#include "diekf/ros/conversions.h"
+
+#include <cmath>
+#include <sstream>
+
+#include <opencv2/imgproc.hpp>
+#include <sensor_msgs/image_encodings.h>
+
+namespace diekf_ros {
+
+namespace enc = sensor_msgs::image_encodings;
+
+namespace {
+
+geometry_msgs::Vector3 toVector3(const Vec3& v) {
+  geometry_msgs::Vector3 m;
+  m.x = v.x();
+  m.y = v.y();
+  m.z = v.z();
+  return m;
+}
+
+geometry_msgs::Point toPoint(const Vec3& v) {
+  geometry_msgs::Point m;
+  m.x = v.x();
+  m.y = v.y();
+  m.z = v.z();
+  return m;
+}
+
+template <typename Array>
+void copyCovariance(const Mat6& C, Array* out) {
+  for (int r = 0; r < 6; ++r)
+    for (int c = 0; c < 6; ++c) (*out)[6 * r + c] = C(r, c);
+}
+
+}  // namespace
+
+bool imageToMono8(const sensor_msgs::Image& msg, cv::Mat* mono8, std::string* error) {
+  const std::string& e = msg.encoding;
+  int type = -1;
+  int code = -1;  // cv::cvtColor code, -1 = none
+  if (e == enc::MONO8 || e == enc::TYPE_8UC1) {
+    type = CV_8UC1;
+  } else if (e == enc::MONO16 || e == enc::TYPE_16UC1) {
+    type = CV_16UC1;
+  } else if (e == enc::BGR8) {
+    type = CV_8UC3;
+    code = cv::COLOR_BGR2GRAY;
+  } else if (e == enc::RGB8) {
+    type = CV_8UC3;
+    code = cv::COLOR_RGB2GRAY;
+  } else if (e == enc::BGRA8) {
+    type = CV_8UC4;
+    code = cv::COLOR_BGRA2GRAY;
+  } else if (e == enc::RGBA8) {
+    type = CV_8UC4;
+    code = cv::COLOR_RGBA2GRAY;
+  } else {
+    *error = "unsupported image encoding '" + e + "' (mono8, mono16, bgr8, rgb8, bgra8, rgba8)";
+    return false;
+  }
+  const size_t min_step = static_cast<size_t>(msg.width) * CV_ELEM_SIZE(type);
+  if (msg.width == 0 || msg.height == 0 || msg.step < min_step ||
+      msg.data.size() < static_cast<size_t>(msg.step) * msg.height) {
+    *error = "malformed image message (size, step and data length disagree)";
+    return false;
+  }
+  if (CV_MAT_DEPTH(type) == CV_16U && msg.is_bigendian != 0) {
+    *error = "big-endian mono16 images are not supported";
+    return false;
+  }
+  // Wraps the message buffer without copying; the result below is always an owned copy.
+  const cv::Mat view(static_cast<int>(msg.height), static_cast<int>(msg.width), type,
+                     const_cast<uint8_t*>(msg.data.data()), msg.step);
+  if (type == CV_8UC1) {
+    view.copyTo(*mono8);
+  } else if (type == CV_16UC1) {
+    view.convertTo(*mono8, CV_8U, 1.0 / 256.0);
+  } else {
+    cv::cvtColor(view, *mono8, code);
+  }
+  return true;
+}
+
+bool imuFromMsg(const sensor_msgs::Imu& msg, diekf::ImuSample* sample) {
+  diekf::ImuSample s;
+  s.t_s = msg.header.stamp.toSec();
+  s.accel_mps2 = Vec3(msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z);
+  s.gyro_radps = Vec3(msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z);
+  if (!std::isfinite(s.t_s) || !s.accel_mps2.allFinite() || !s.gyro_radps.allFinite()) return false;
+  *sample = s;
+  return true;
+}
+
+uint8_t statusToMsg(diekf::FilterStatus status) {
+  switch (status) {
+    case diekf::FilterStatus::kTracking:
+      return diekf::PlanarState::STATUS_TRACKING;
+    case diekf::FilterStatus::kReset:
+      return diekf::PlanarState::STATUS_RESET;
+    case diekf::FilterStatus::kInitializing:
+    default:
+      return diekf::PlanarState::STATUS_INITIALIZING;
+  }
+}
+
+bool fillPlanarState(const diekf::FrameResult& r, const std_msgs::Header& header, diekf::PlanarState* msg) {
+  const diekf::State& x = r.state;
+  const ErrorCov& P = r.covariance;
+  if (!x.allFinite() || !P.allFinite()) return false;
+  Row14 J_h;
+  const double h = heightAbovePlane(x, Vec3::Zero(), &J_h);
+  const Vec3 sigma_v = velocityCovariance(x, P).diagonal().cwiseMax(0.0).cwiseSqrt();
+  diekf::PlanarState m;
+  m.header = header;
+  m.distance = x.distance_m();
+  m.height = h;
+  m.velocity = toVector3(x.velocity_mps());
+  m.normal = toVector3(x.mu.vector());
+  m.gravity = toVector3(x.g.vector());
+  m.inverse_distance = x.alpha;
+  m.velocity_over_distance = toVector3(x.vartheta);
+  m.accel_bias = toVector3(x.b_a);
+  m.gyro_bias = toVector3(x.b_w);
+  for (int i = 0; i < diekf::kErrorDim; ++i)
+    for (int j = 0; j < diekf::kErrorDim; ++j) m.covariance[diekf::kErrorDim * i + j] = P(i, j);
+  const double var_alpha = std::max(P(diekf::ErrIdx::kAlpha, diekf::ErrIdx::kAlpha), 0.0);
+  m.sigma_distance = std::sqrt(var_alpha) / (x.alpha * x.alpha);
+  m.sigma_height = std::sqrt(std::max((J_h * P * J_h.transpose())(0, 0), 0.0));
+  m.sigma_velocity = toVector3(sigma_v);
+  m.sigma_normal = std::sqrt(std::max(P.block<2, 2>(diekf::ErrIdx::kMu, diekf::ErrIdx::kMu).trace(), 0.0));
+  m.sigma_gravity = std::sqrt(std::max(P.block<2, 2>(diekf::ErrIdx::kG, diekf::ErrIdx::kG).trace(), 0.0));
+  m.passes = r.passes;
+  m.update_ms = r.update_ms;
+  m.photometric_rms = r.photometric_rms;
+  m.valid_ratio = r.valid_ratio;
+  m.status = statusToMsg(r.status);
+  m.status_text = r.message;
+  const bool finite = std::isfinite(m.distance) && std::isfinite(m.height) && sigma_v.allFinite() &&
+                      std::isfinite(m.sigma_distance) && std::isfinite(m.sigma_height) &&
+                      std::isfinite(m.sigma_normal) && std::isfinite(m.sigma_gravity) &&
+                      x.velocity_mps().allFinite() && std::isfinite(m.update_ms) &&
+                      std::isfinite(m.photometric_rms) && std::isfinite(m.valid_ratio);
+  if (!finite) return false;
+  *msg = m;
+  return true;
+}
+
+bool fillOdometry(const BodyPose& pose, const std::string& odom_frame, const std::string& base_frame,
+                  nav_msgs::Odometry* msg) {
+  if (!pose.allFinite()) return false;
+  nav_msgs::Odometry m;
+  m.header.stamp = ros::Time(pose.t_s);
+  m.header.frame_id = odom_frame;
+  m.child_frame_id = base_frame;
+  m.pose.pose.position = toPoint(pose.position_m);
+  m.pose.pose.orientation.w = pose.orientation.w();
+  m.pose.pose.orientation.x = pose.orientation.x();
+  m.pose.pose.orientation.y = pose.orientation.y();
+  m.pose.pose.orientation.z = pose.orientation.z();
+  copyCovariance(pose.pose_covariance, &m.pose.covariance);
+  m.twist.twist.linear = toVector3(pose.linear_velocity_mps);
+  m.twist.twist.angular = toVector3(pose.angular_velocity_radps);
+  copyCovariance(pose.twist_covariance, &m.twist.covariance);
+  *msg = m;
+  return true;
+}
+
+bool fillRange(const diekf::FrameResult& r, const std_msgs::Header& header, double field_of_view_rad,
+               double min_range_m, double max_range_m, sensor_msgs::Range* msg) {
+  if (!r.state.allFinite()) return false;
+  const double h = heightAbovePlane(r.state, Vec3::Zero());
+  if (!std::isfinite(h)) return false;
+  sensor_msgs::Range m;
+  m.header = header;
+  m.radiation_type = sensor_msgs::Range::INFRARED;  // closest of the two types for an optical sensor
+  m.field_of_view = static_cast<float>(field_of_view_rad);
+  m.min_range = static_cast<float>(min_range_m);
+  m.max_range = static_cast<float>(max_range_m);
+  m.range = static_cast<float>(h);
+  *msg = m;
+  return true;
+}
+
+bool cameraInfoAgrees(const sensor_msgs::CameraInfo& info, const diekf::CameraModel& camera, std::string* why) {
+  std::ostringstream out;
+  const diekf::PinholeK& K = camera.K;
+  if (static_cast<int>(info.width) != K.width || static_cast<int>(info.height) != K.height) {
+    out << "size " << info.width << "x" << info.height << " vs calibration " << K.width << "x" << K.height << "; ";
+  } else {
+    const double k_info[4] = {info.K[0], info.K[4], info.K[2], info.K[5]};
+    const double k_cal[4] = {K.fx, K.fy, K.cx, K.cy};
+    const char* names[4] = {"fx", "fy", "cx", "cy"};
+    for (int i = 0; i < 4; ++i) {
+      if (std::abs(k_info[i] - k_cal[i]) > 0.01 * std::abs(k_cal[i]) + 1e-9) {
+        out << names[i] << " " << k_info[i] << " vs " << k_cal[i] << "; ";
+      }
+    }
+  }
+  const bool info_equidistant = info.distortion_model == "equidistant" || info.distortion_model == "fisheye";
+  const bool info_radtan = info.distortion_model == "plumb_bob" || info.distortion_model == "rational_polynomial";
+  const bool cal_equidistant = camera.distortion == diekf::DistortionModel::kEquidistant;
+  const bool cal_radtan = camera.distortion == diekf::DistortionModel::kRadTan;
+  if ((info_equidistant && !cal_equidistant) || (info_radtan && !cal_radtan && !info.D.empty() &&
+                                                 camera.distortion != diekf::DistortionModel::kNone)) {
+    out << "distortion model '" << info.distortion_model << "' differs from the calibration's; ";
+  } else if ((info_equidistant || info_radtan) && info.D.size() >= 4) {
+    for (int i = 0; i < 4; ++i) {
+      if (std::abs(info.D[i] - camera.distortion_coeffs[i]) > 1e-3) {
+        out << "D[" << i << "] " << info.D[i] << " vs " << camera.distortion_coeffs[i] << "; ";
+      }
+    }
+  }
+  *why = out.str();
+  return why->empty();
+}
+
+cv::Mat residualToMono8(const cv::Mat& residual, double gain_levels_per_unit) {
+  cv::Mat out;
+  if (residual.empty()) return out;
+  cv::Mat r32;
+  residual.convertTo(r32, CV_32F);
+  cv::patchNaNs(r32, 0.0);
+  r32.convertTo(out, CV_8U, gain_levels_per_unit, 128.0);  // saturate_cast clips to 0..255
+  return out;
+}
+
+visualization_msgs::MarkerArray makeMarkers(const diekf::FrameResult& r, const std_msgs::Header& header,
+                                            double gravity_arrow_m, double plane_size_m) {
+  visualization_msgs::MarkerArray out;
+  if (!r.state.allFinite()) return out;
+  const Vec3 mu = r.state.mu.vector();
+  const Vec3 g = r.state.g.vector();
+  const double d = r.state.distance_m();
+  const Vec3 v = r.state.velocity_mps();
+  auto arrow = [&](int id, const Vec3& tip, float red, float green, float blue) {
+    visualization_msgs::Marker m;
+    m.header = header;
+    m.ns = "diekf";
+    m.id = id;
+    m.type = visualization_msgs::Marker::ARROW;
+    m.action = visualization_msgs::Marker::ADD;
+    m.pose.orientation.w = 1.0;
+    m.points.push_back(toPoint(Vec3::Zero()));
+    m.points.push_back(toPoint(tip));
+    m.scale.x = 0.02;  // shaft diameter, m
+    m.scale.y = 0.04;  // head diameter, m
+    m.scale.z = 0.06;  // head length, m
+    m.color.r = red;
+    m.color.g = green;
+    m.color.b = blue;
+    m.color.a = 1.0f;
+    return m;
+  };
+  if (std::isfinite(d) && d > 0.0) out.markers.push_back(arrow(0, mu * d, 0.1f, 0.4f, 1.0f));  // normal
+  out.markers.push_back(arrow(1, g * gravity_arrow_m, 1.0f, 0.2f, 0.2f));                       // gravity
+  if (v.allFinite()) out.markers.push_back(arrow(2, v, 0.2f, 1.0f, 0.2f));                      // velocity x 1 s
+  if (std::isfinite(d) && d > 0.0) {
+    visualization_msgs::Marker plane;
+    plane.header = header;
+    plane.ns = "diekf";
+    plane.id = 3;
+    plane.type = visualization_msgs::Marker::CUBE;
+    plane.action = visualization_msgs::Marker::ADD;
+    plane.pose.position = toPoint(mu * d);
+    const Eigen::Quaterniond q = Eigen::Quaterniond::FromTwoVectors(Vec3::UnitZ(), mu);
+    plane.pose.orientation.w = q.w();
+    plane.pose.orientation.x = q.x();
+    plane.pose.orientation.y = q.y();
+    plane.pose.orientation.z = q.z();
+    plane.scale.x = plane_size_m;
+    plane.scale.y = plane_size_m;
+    plane.scale.z = 0.002;
+    plane.color.r = 0.8f;
+    plane.color.g = 0.8f;
+    plane.color.b = 0.5f;
+    plane.color.a = 0.5f;
+    out.markers.push_back(plane);
+  }
+  return out;
+}
+
+}  // namespace diekf_ros

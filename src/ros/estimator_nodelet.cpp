@@ -1,0 +1,549 @@
+#include "diekf/ros/estimator_nodelet.h"
+
+#include <cmath>
+#include <exception>
+#include <utility>
+
+#include <cv_bridge/cv_bridge.h>
+#include <geometry_msgs/TransformStamped.h>
+#include <nav_msgs/Path.h>
+#include <pluginlib/class_list_macros.hpp>
+#include <sensor_msgs/image_encodings.h>
+
+#include "diekf/PlanarState.h"
+#include "diekf/param_source.h"
+#include "diekf/ros/conversions.h"
+#include "diekf/ros/ros_param_source.h"
+
+namespace diekf_ros {
+
+namespace {
+
+constexpr double kWarnPeriodS = 5.0;  // ROS_WARN_THROTTLE period, s
+
+geometry_msgs::TransformStamped toTransform(const Eigen::Isometry3d& T_parent_child, const ros::Time& stamp,
+                                            const std::string& parent, const std::string& child) {
+  geometry_msgs::TransformStamped t;
+  t.header.stamp = stamp;
+  t.header.frame_id = parent;
+  t.child_frame_id = child;
+  t.transform.translation.x = T_parent_child.translation().x();
+  t.transform.translation.y = T_parent_child.translation().y();
+  t.transform.translation.z = T_parent_child.translation().z();
+  const Eigen::Quaterniond q(T_parent_child.linear());
+  t.transform.rotation.w = q.w();
+  t.transform.rotation.x = q.x();
+  t.transform.rotation.y = q.y();
+  t.transform.rotation.z = q.z();
+  return t;
+}
+
+}  // namespace
+
+EstimatorNodelet::~EstimatorNodelet() {
+  {
+    std::lock_guard<std::mutex> lock(queue_mutex_);
+    stop_ = true;
+  }
+  queue_cv_.notify_all();
+  if (worker_.joinable()) worker_.join();
+}
+
+void EstimatorNodelet::onInit() {
+  nh_ = getNodeHandle();
+  pnh_ = getPrivateNodeHandle();
+  updater_ = std::make_unique<diagnostic_updater::Updater>(nh_, pnh_, getName());
+  updater_->setHardwareID("diekf");
+  updater_->add("filter", this, &EstimatorNodelet::filterDiagnostics);
+
+  try {
+    loadSettings();
+    camera_ = std::make_unique<diekf::CameraModel>(
+        diekf::CameraModel::fromKalibrYaml(settings_.camchain_file, settings_.camera_name));
+    // Estimator keys from the private namespace (config/estimator.yaml); the Kalibr IMU file, when given, is the
+    // calibration of this very sensor and overrides the noise densities and rate.
+    diekf::loadEstimatorParams(RosParamSource(pnh_), &params_);
+    if (!settings_.imu_file.empty()) diekf::loadKalibrImuYaml(settings_.imu_file, &params_.imu);
+    estimator_ = std::make_unique<diekf::Estimator>(*camera_, params_);
+    odometry_ = std::make_unique<BodyOdometry>(camera_->T_cam_imu, params_.imu.gyro_noise_density,
+                                               params_.imu.input_rate_hz, params_.imu.gravity_mps2);
+    odometry_->max_integration_gap_s = std::max(1.0, 5.0 / settings_.expected_image_rate_hz);
+  } catch (const std::exception& e) {
+    init_error_ = e.what();
+    NODELET_FATAL("diekf: cannot start: %s", e.what());
+    diagnostic_timer_ = nh_.createWallTimer(ros::WallDuration(settings_.diagnostic_period_s),
+                                            [this](const ros::WallTimerEvent&) { updater_->update(); });
+    return;
+  }
+  field_of_view_rad_ = 2.0 * std::atan2(0.5 * camera_->K.width, camera_->K.fx);
+
+  setUpOutputs();
+  ready_ = true;
+  worker_ = std::thread(&EstimatorNodelet::workerLoop, this);
+  try {
+    setUpInputs();
+  } catch (const std::exception& e) {  // e.g. the requested image_transport plugin is not installed
+    ready_ = false;
+    init_error_ = std::string("cannot subscribe to the inputs: ") + e.what();
+    NODELET_FATAL("diekf: %s", init_error_.c_str());
+    return;
+  }
+  NODELET_INFO("diekf: %s, camera '%s' %dx%d from %s; image %s, IMU %s, mode %s", getName().c_str(),
+               settings_.camera_name.c_str(), camera_->K.width, camera_->K.height, settings_.camchain_file.c_str(),
+               settings_.image_topic.c_str(), settings_.imu_topic.c_str(), diekf::toString(params_.mode));
+}
+
+void EstimatorNodelet::loadSettings() {
+  NodeletSettings& s = settings_;
+  if (!pnh_.getParam("camchain_file", s.camchain_file) || s.camchain_file.empty()) {
+    throw std::runtime_error("parameter " + pnh_.resolveName("camchain_file") +
+                             " (Kalibr camchain YAML) is required");
+  }
+  pnh_.param("camera_name", s.camera_name, s.camera_name);
+  pnh_.param("imu_file", s.imu_file, s.imu_file);
+  pnh_.param("image_topic", s.image_topic, s.image_topic);
+  pnh_.param("imu_topic", s.imu_topic, s.imu_topic);
+  pnh_.param("camera_info_topic", s.camera_info_topic, s.camera_info_topic);
+  pnh_.param("odom_frame", s.odom_frame, s.odom_frame);
+  pnh_.param("base_frame", s.base_frame, s.base_frame);
+  pnh_.param("camera_frame", s.camera_frame, s.camera_frame);
+  pnh_.param("publish_tf", s.publish_tf, s.publish_tf);
+  pnh_.param("publish_static_tf", s.publish_static_tf, s.publish_static_tf);
+  pnh_.param("publish_odometry_imu_rate", s.publish_odometry_imu_rate, s.publish_odometry_imu_rate);
+  pnh_.param("image_queue_size", s.image_queue_size, s.image_queue_size);
+  pnh_.param("imu_queue_size", s.imu_queue_size, s.imu_queue_size);
+  pnh_.param("expected_imu_rate_hz", s.expected_imu_rate_hz, s.expected_imu_rate_hz);
+  pnh_.param("expected_image_rate_hz", s.expected_image_rate_hz, s.expected_image_rate_hz);
+  pnh_.param("rate_tolerance", s.rate_tolerance, s.rate_tolerance);
+  pnh_.param("time_jump_reset_s", s.time_jump_reset_s, s.time_jump_reset_s);
+  pnh_.param("late_image_warn_s", s.late_image_warn_s, s.late_image_warn_s);
+  pnh_.param("residual_image_gain", s.residual_image_gain, s.residual_image_gain);
+  pnh_.param("path_max_poses", s.path_max_poses, s.path_max_poses);
+  pnh_.param("gravity_arrow_m", s.gravity_arrow_m, s.gravity_arrow_m);
+  pnh_.param("plane_marker_size_m", s.plane_marker_size_m, s.plane_marker_size_m);
+  pnh_.param("diagnostic_period_s", s.diagnostic_period_s, s.diagnostic_period_s);
+  auto require = [this](bool ok, const char* key, const char* what) {
+    if (!ok) throw std::runtime_error("parameter " + pnh_.resolveName(key) + " must be " + what);
+  };
+  require(s.image_queue_size >= 1, "image_queue_size", ">= 1");
+  require(s.imu_queue_size >= 10, "imu_queue_size", ">= 10");
+  require(s.expected_imu_rate_hz > 0.0, "expected_imu_rate_hz", "> 0");
+  require(s.expected_image_rate_hz > 0.0, "expected_image_rate_hz", "> 0");
+  require(s.rate_tolerance > 0.0 && s.rate_tolerance < 1.0, "rate_tolerance", "in (0, 1)");
+  require(s.time_jump_reset_s > 0.0, "time_jump_reset_s", "> 0");
+  require(s.diagnostic_period_s > 0.0, "diagnostic_period_s", "> 0");
+  require(s.path_max_poses >= 0, "path_max_poses", ">= 0");
+  require(!s.odom_frame.empty() && !s.base_frame.empty() && !s.camera_frame.empty(), "odom_frame",
+          "non-empty (as base_frame and camera_frame)");
+}
+
+void EstimatorNodelet::setUpOutputs() {
+  state_pub_ = pnh_.advertise<diekf::PlanarState>("state", 10);
+  odom_pub_ = pnh_.advertise<nav_msgs::Odometry>("odometry", 10);
+  twist_pub_ = pnh_.advertise<geometry_msgs::TwistWithCovarianceStamped>("twist", 10);
+  range_pub_ = pnh_.advertise<sensor_msgs::Range>("height", 10);
+  path_pub_ = pnh_.advertise<nav_msgs::Path>("path", 1);
+  markers_pub_ = pnh_.advertise<visualization_msgs::MarkerArray>("markers", 1);
+  if (settings_.publish_odometry_imu_rate) {
+    odom_imu_pub_ = pnh_.advertise<nav_msgs::Odometry>("odometry_imu_rate", 50);
+  }
+  pit_ = std::make_unique<image_transport::ImageTransport>(pnh_);
+  residual_pub_ = pit_->advertise("residual_image", 1);
+  reset_srv_ = pnh_.advertiseService("reset", &EstimatorNodelet::resetService, this);
+
+  if (settings_.publish_tf) tf_broadcaster_ = std::make_unique<tf2_ros::TransformBroadcaster>();
+  if (settings_.publish_static_tf) {
+    static_tf_broadcaster_ = std::make_unique<tf2_ros::StaticTransformBroadcaster>();
+    static_tf_broadcaster_->sendTransform(toTransform(camera_->T_cam_imu.inverse(), ros::Time::now(),
+                                                      settings_.base_frame, settings_.camera_frame));
+  }
+
+  const double tol = settings_.rate_tolerance;
+  imu_rate_min_hz_ = settings_.expected_imu_rate_hz * (1.0 - tol);
+  imu_rate_max_hz_ = settings_.expected_imu_rate_hz * (1.0 + tol);
+  image_rate_min_hz_ = settings_.expected_image_rate_hz * (1.0 - tol);
+  image_rate_max_hz_ = settings_.expected_image_rate_hz * (1.0 + tol);
+  imu_rate_diag_ = std::make_unique<diagnostic_updater::HeaderlessTopicDiagnostic>(
+      "imu input " + settings_.imu_topic, *updater_,
+      diagnostic_updater::FrequencyStatusParam(&imu_rate_min_hz_, &imu_rate_max_hz_, 0.0, 5));
+  image_rate_diag_ = std::make_unique<diagnostic_updater::HeaderlessTopicDiagnostic>(
+      "image input " + settings_.image_topic, *updater_,
+      diagnostic_updater::FrequencyStatusParam(&image_rate_min_hz_, &image_rate_max_hz_, 0.0, 5));
+  diagnostic_timer_ = nh_.createWallTimer(ros::WallDuration(settings_.diagnostic_period_s),
+                                          [this](const ros::WallTimerEvent&) { updater_->update(); });
+}
+
+void EstimatorNodelet::setUpInputs() {
+  imu_sub_ = nh_.subscribe(settings_.imu_topic, 1000, &EstimatorNodelet::imuCallback, this,
+                           ros::TransportHints().tcpNoDelay());
+  it_ = std::make_unique<image_transport::ImageTransport>(nh_);
+  // The transport ("raw", "compressed", ...) comes from the private parameter ~image_transport.
+  image_sub_ = it_->subscribe(settings_.image_topic, 5, &EstimatorNodelet::imageCallback, this,
+                              image_transport::TransportHints("raw", ros::TransportHints(), pnh_));
+  if (!settings_.camera_info_topic.empty()) {
+    camera_info_sub_ = nh_.subscribe(settings_.camera_info_topic, 1, &EstimatorNodelet::cameraInfoCallback, this);
+  }
+}
+
+// ------------------------------------------------------------------------------------------------------------
+// Callbacks: check stamps, queue for the worker, never touch the estimator.
+// ------------------------------------------------------------------------------------------------------------
+
+void EstimatorNodelet::imuCallback(const sensor_msgs::ImuConstPtr& msg) {
+  diekf::ImuSample sample;
+  if (!imuFromMsg(*msg, &sample)) {
+    NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: non-finite IMU message dropped");
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    ++imu_dropped_;
+    return;
+  }
+  imu_rate_diag_->tick();
+  const double t = sample.t_s;
+  if (last_imu_stamp_s_ >= 0.0) {
+    const double dt = t - last_imu_stamp_s_;
+    if (dt < -settings_.time_jump_reset_s) {
+      NODELET_WARN("diekf: IMU time jumped back by %.3f s (bag loop or clock reset): restarting the filter", -dt);
+      requestRestart("IMU time jumped backwards", true);
+      last_image_stamp_s_ = -1.0;
+    } else if (dt <= 0.0) {
+      NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: %s IMU message (stamp %.6f s, previous %.6f s) dropped",
+                            dt == 0.0 ? "duplicated" : "out-of-order", t, last_imu_stamp_s_);
+      std::lock_guard<std::mutex> lock(stats_mutex_);
+      ++imu_dropped_;
+      return;
+    } else if (dt > params_.max_imu_gap_s) {
+      NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: IMU gap of %.3f s before stamp %.6f s", dt, t);
+    }
+  }
+  last_imu_stamp_s_ = t;
+  bool overflow = false;
+  {
+    std::lock_guard<std::mutex> lock(queue_mutex_);
+    imu_queue_.push_back(sample);
+    while (static_cast<int>(imu_queue_.size()) > settings_.imu_queue_size) {
+      imu_queue_.pop_front();
+      overflow = true;
+    }
+  }
+  queue_cv_.notify_one();
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  ++imu_received_;
+  if (overflow) {
+    ++imu_dropped_;
+    NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: IMU queue full (worker not keeping up): oldest sample dropped");
+  }
+}
+
+void EstimatorNodelet::imageCallback(const sensor_msgs::ImageConstPtr& msg) {
+  image_rate_diag_->tick();
+  const double t = msg->header.stamp.toSec();
+  if (last_image_stamp_s_ >= 0.0) {
+    const double dt = t - last_image_stamp_s_;
+    if (dt < -settings_.time_jump_reset_s) {
+      NODELET_WARN("diekf: image time jumped back by %.3f s: restarting the filter", -dt);
+      requestRestart("image time jumped backwards", true);
+      last_imu_stamp_s_ = -1.0;
+    } else if (dt <= 0.0) {
+      NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: %s image (stamp %.6f s, previous %.6f s) dropped",
+                            dt == 0.0 ? "duplicated" : "out-of-order", t, last_image_stamp_s_);
+      std::lock_guard<std::mutex> lock(stats_mutex_);
+      ++images_dropped_;
+      return;
+    } else if (dt > 3.0 / settings_.expected_image_rate_hz) {
+      NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: image gap of %.3f s before stamp %.6f s", dt, t);
+    }
+  }
+  last_image_stamp_s_ = t;
+  const double t_imu_clock = t + camera_->timeshift_cam_imu_s;
+  if (last_imu_stamp_s_ >= 0.0 && t_imu_clock < last_imu_stamp_s_ - settings_.late_image_warn_s) {
+    NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: late image: %.3f s older than the newest IMU sample",
+                          last_imu_stamp_s_ - t_imu_clock);
+  }
+  bool overflow = false;
+  {
+    std::lock_guard<std::mutex> lock(queue_mutex_);
+    image_queue_.push_back(msg);
+    while (static_cast<int>(image_queue_.size()) > settings_.image_queue_size) {
+      image_queue_.pop_front();
+      overflow = true;
+    }
+  }
+  queue_cv_.notify_one();
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  ++images_received_;
+  if (overflow) {
+    ++images_dropped_;
+    NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: image queue full (update slower than the camera): oldest dropped");
+  }
+}
+
+void EstimatorNodelet::cameraInfoCallback(const sensor_msgs::CameraInfoConstPtr& msg) {
+  if (camera_info_checked_) return;
+  camera_info_checked_ = true;
+  std::string why;
+  if (cameraInfoAgrees(*msg, *camera_, &why)) {
+    NODELET_INFO("diekf: camera_info agrees with the calibration %s", settings_.camchain_file.c_str());
+  } else {
+    NODELET_WARN("diekf: camera_info on %s disagrees with the calibration %s (the calibration is used): %s",
+                 settings_.camera_info_topic.c_str(), settings_.camchain_file.c_str(), why.c_str());
+  }
+}
+
+bool EstimatorNodelet::resetService(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
+  if (!ready_) {
+    res.success = false;
+    res.message = "not running: " + init_error_;
+    return true;
+  }
+  requestRestart("reset requested through the service", false);
+  res.success = true;
+  res.message = "filter reset; the next image becomes the reference";
+  return true;
+}
+
+void EstimatorNodelet::requestRestart(const std::string& reason, bool rebuild) {
+  {
+    std::lock_guard<std::mutex> lock(queue_mutex_);
+    restart_requested_ = true;
+    restart_rebuild_ = restart_rebuild_ || rebuild;
+    restart_reason_ = reason;
+    if (rebuild) {  // stamps before the jump are useless now
+      imu_queue_.clear();
+      image_queue_.clear();
+    }
+  }
+  queue_cv_.notify_one();
+}
+
+// ------------------------------------------------------------------------------------------------------------
+// Worker thread.
+// ------------------------------------------------------------------------------------------------------------
+
+void EstimatorNodelet::workerLoop() {
+  std::deque<diekf::ImuSample> imu;
+  while (true) {
+    sensor_msgs::ImageConstPtr image;
+    bool restart = false, rebuild = false;
+    std::string reason;
+    {
+      std::unique_lock<std::mutex> lock(queue_mutex_);
+      queue_cv_.wait(lock, [this] {
+        return stop_ || restart_requested_ || !imu_queue_.empty() || !image_queue_.empty();
+      });
+      if (stop_) return;
+      std::swap(restart, restart_requested_);
+      std::swap(rebuild, restart_rebuild_);
+      std::swap(reason, restart_reason_);
+      // Stamp order: the IMU samples up to the oldest waiting image, then that image. Without an image, all IMU
+      // samples (the estimator keeps enough IMU history for an image that arrives after its samples).
+      if (!image_queue_.empty()) {
+        image = image_queue_.front();
+        image_queue_.pop_front();
+        const double t_img = image->header.stamp.toSec() + camera_->timeshift_cam_imu_s;
+        while (!imu_queue_.empty() && imu_queue_.front().t_s <= t_img) {
+          imu.push_back(imu_queue_.front());
+          imu_queue_.pop_front();
+        }
+      } else {
+        imu.insert(imu.end(), imu_queue_.begin(), imu_queue_.end());
+        imu_queue_.clear();
+      }
+    }
+    if (restart) restartFilter(reason, rebuild);
+    for (const diekf::ImuSample& s : imu) forwardImu(s);
+    imu.clear();
+    if (image) forwardImage(image);
+    drainResults();
+  }
+}
+
+void EstimatorNodelet::restartFilter(const std::string& reason, bool rebuild) {
+  if (rebuild) {
+    estimator_ = std::make_unique<diekf::Estimator>(*camera_, params_);
+  } else {
+    estimator_->reset(reason);
+  }
+  odometry_->restart();
+  NODELET_INFO("diekf: filter restarted: %s", reason.c_str());
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  ++restarts_;
+  last_status_ = diekf::FilterStatus::kReset;
+  last_message_ = reason;
+}
+
+void EstimatorNodelet::forwardImu(const diekf::ImuSample& s) {
+  if (!estimator_->addImu(s)) {
+    NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: estimator rejected the IMU sample at %.6f s: %s", s.t_s,
+                          estimator_->takeWarning().c_str());
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    ++imu_dropped_;
+    return;
+  }
+  odometry_->addImu(s.t_s, s.accel_mps2, s.gyro_radps);
+  if (settings_.publish_odometry_imu_rate && odometry_->hasFrame()) {
+    nav_msgs::Odometry odom;
+    if (fillOdometry(odometry_->imuRatePose(), settings_.odom_frame, settings_.base_frame, &odom)) {
+      odom_imu_pub_.publish(odom);
+    } else {
+      NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: non-finite IMU-rate odometry not published");
+    }
+  }
+}
+
+void EstimatorNodelet::forwardImage(const sensor_msgs::ImageConstPtr& msg) {
+  cv::Mat mono;
+  std::string error;
+  bool ok = imageToMono8(*msg, &mono, &error);
+  if (ok && (mono.cols != camera_->K.width || mono.rows != camera_->K.height)) {
+    ok = false;
+    error = "image is " + std::to_string(mono.cols) + "x" + std::to_string(mono.rows) + " but the calibration is " +
+            std::to_string(camera_->K.width) + "x" + std::to_string(camera_->K.height);
+  }
+  if (ok && !estimator_->addImage(msg->header.stamp.toSec(), mono)) {
+    ok = false;
+    error = "estimator rejected it: " + estimator_->takeWarning();
+  }
+  if (!ok) {
+    NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: image at %.6f s dropped: %s", msg->header.stamp.toSec(),
+                          error.c_str());
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    ++images_dropped_;
+  }
+}
+
+void EstimatorNodelet::drainResults() {
+  diekf::FrameResult result;
+  while (estimator_->popResult(&result)) publishResult(result);
+  const std::string warning = estimator_->takeWarning();
+  if (!warning.empty()) NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: %s", warning.c_str());
+}
+
+void EstimatorNodelet::publishResult(const diekf::FrameResult& r) {
+  if (!(std::isfinite(r.t_s) && r.t_s >= 0.0)) {
+    NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: estimate with an invalid stamp (%f s) not published", r.t_s);
+    return;
+  }
+  std_msgs::Header header;
+  header.stamp = ros::Time(r.t_s);
+  header.frame_id = settings_.camera_frame;
+
+  diekf::PlanarState state;
+  if (!r.state.allFinite() || !r.covariance.allFinite() || !fillPlanarState(r, header, &state)) {
+    NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: non-finite estimate at %.6f s: nothing published for it", r.t_s);
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    ++frames_skipped_nonfinite_;
+    return;
+  }
+  state_pub_.publish(state);
+
+  sensor_msgs::Range range;
+  if (fillRange(r, header, field_of_view_rad_, params_.divergence.min_distance_m,
+                params_.divergence.max_distance_m, &range)) {
+    range_pub_.publish(range);
+  }
+
+  // After the estimator's own divergence reset the velocity starts again from its prior: do not integrate
+  // across (x, y and yaw stay where they were).
+  if (r.status == diekf::FilterStatus::kReset) odometry_->restart();
+  const BodyPose& pose = odometry_->addFrame(r.t_s, r.state, r.covariance);
+  nav_msgs::Odometry odom;
+  if (fillOdometry(pose, settings_.odom_frame, settings_.base_frame, &odom)) {
+    odom_pub_.publish(odom);
+    geometry_msgs::TwistWithCovarianceStamped twist;
+    twist.header.stamp = odom.header.stamp;
+    twist.header.frame_id = settings_.base_frame;
+    twist.twist = odom.twist;
+    twist_pub_.publish(twist);
+    if (tf_broadcaster_) {
+      geometry_msgs::TransformStamped t;
+      t.header = odom.header;
+      t.child_frame_id = settings_.base_frame;
+      t.transform.translation.x = odom.pose.pose.position.x;
+      t.transform.translation.y = odom.pose.pose.position.y;
+      t.transform.translation.z = odom.pose.pose.position.z;
+      t.transform.rotation = odom.pose.pose.orientation;
+      tf_broadcaster_->sendTransform(t);
+    }
+    if (settings_.path_max_poses > 0) {
+      geometry_msgs::PoseStamped p;
+      p.header = odom.header;
+      p.pose = odom.pose.pose;
+      path_.push_back(p);
+      while (static_cast<int>(path_.size()) > settings_.path_max_poses) path_.pop_front();
+      if (path_pub_.getNumSubscribers() > 0) {
+        nav_msgs::Path path;
+        path.header = odom.header;
+        path.poses.assign(path_.begin(), path_.end());
+        path_pub_.publish(path);
+      }
+    }
+  } else {
+    NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: non-finite odometry at %.6f s not published", r.t_s);
+  }
+
+  if (markers_pub_.getNumSubscribers() > 0) {
+    markers_pub_.publish(makeMarkers(r, header, settings_.gravity_arrow_m, settings_.plane_marker_size_m));
+  }
+  if (residual_pub_.getNumSubscribers() > 0) {
+    const cv::Mat picture = residualToMono8(estimator_->lastResidualImage(), settings_.residual_image_gain);
+    if (!picture.empty()) {
+      residual_pub_.publish(cv_bridge::CvImage(header, sensor_msgs::image_encodings::MONO8, picture).toImageMsg());
+    }
+  }
+
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  ++frames_published_;
+  last_status_ = r.status;
+  last_message_ = r.message;
+  last_distance_m_ = state.distance;
+  last_height_m_ = state.height;
+  if (r.update_applied) {
+    last_update_ms_ = r.update_ms;
+    update_ms_sum_ += r.update_ms;
+    update_ms_max_ = std::max(update_ms_max_, r.update_ms);
+    ++update_count_;
+  }
+}
+
+// ------------------------------------------------------------------------------------------------------------
+// Diagnostics.
+// ------------------------------------------------------------------------------------------------------------
+
+void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat) {
+  using diagnostic_msgs::DiagnosticStatus;
+  if (!ready_) {
+    stat.summary(DiagnosticStatus::ERROR, "not running: " + init_error_);
+    return;
+  }
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  if (imu_received_ == 0) {
+    stat.summary(DiagnosticStatus::WARN, "waiting for IMU messages on " + settings_.imu_topic);
+  } else if (images_received_ == 0) {
+    stat.summary(DiagnosticStatus::WARN, "waiting for images on " + settings_.image_topic);
+  } else if (frames_published_ == 0) {
+    stat.summary(DiagnosticStatus::WARN, "waiting for the first estimate (IMU must cover the image stamps)");
+  } else if (last_status_ == diekf::FilterStatus::kTracking) {
+    stat.summary(DiagnosticStatus::OK, "tracking");
+  } else {
+    stat.summaryf(DiagnosticStatus::WARN, "%s%s%s", diekf::toString(last_status_), last_message_.empty() ? "" : ": ",
+                  last_message_.c_str());
+  }
+  stat.add("status", diekf::toString(last_status_));
+  stat.add("reason", last_message_);
+  stat.add("frames published", frames_published_);
+  stat.add("IMU messages received", imu_received_);
+  stat.add("images received", images_received_);
+  stat.add("IMU messages dropped", imu_dropped_);
+  stat.add("images dropped", images_dropped_);
+  stat.add("frames skipped (non-finite)", frames_skipped_nonfinite_);
+  stat.add("filter restarts", restarts_);
+  stat.add("last update time (ms)", last_update_ms_);
+  stat.add("mean update time (ms)", update_count_ > 0 ? update_ms_sum_ / update_count_ : 0.0);
+  stat.add("max update time (ms)", update_ms_max_);
+  stat.add("distance (m)", last_distance_m_);
+  stat.add("height (m)", last_height_m_);
+}
+
+}  // namespace diekf_ros
+
+PLUGINLIB_EXPORT_CLASS(diekf_ros::EstimatorNodelet, nodelet::Nodelet)

@@ -1,0 +1,170 @@
+#!/usr/bin/env python3
+"""rostest (b): the ROS interface of diekf, run through the standalone node diekf_node (which loads the same
+nodelet in process) on a short simulated bag replayed with rosbag play.
+
+Checks: every advertised output topic publishes with its documented type; the TF tree odom -> base_link ->
+camera exists and the static part matches the calibration; /diagnostics carries the filter status; the ~reset
+service (std_srvs/Trigger) brings the filter back to initializing, then tracking again.
+"""
+import os
+import subprocess
+import sys
+import threading
+import time
+import unittest
+
+import numpy as np
+import rospy
+import rostest
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray
+from diekf.msg import PlanarState
+from geometry_msgs.msg import TwistWithCovarianceStamped
+from nav_msgs.msg import Odometry, Path
+from sensor_msgs.msg import Image, Range
+from std_srvs.srv import Trigger
+from tf2_msgs.msg import TFMessage
+from visualization_msgs.msg import MarkerArray
+
+sys.path.insert(0, os.path.dirname(os.path.abspath(__file__)))
+import diekf_rostest_utils as util  # noqa: E402
+
+NODE = "/diekf"
+# Documented outputs (docs/ros.md): topic -> (type name, message class).
+OUTPUTS = {
+    NODE + "/state": ("diekf/PlanarState", PlanarState),
+    NODE + "/odometry": ("nav_msgs/Odometry", Odometry),
+    NODE + "/odometry_imu_rate": ("nav_msgs/Odometry", Odometry),
+    NODE + "/twist": ("geometry_msgs/TwistWithCovarianceStamped", TwistWithCovarianceStamped),
+    NODE + "/height": ("sensor_msgs/Range", Range),
+    NODE + "/path": ("nav_msgs/Path", Path),
+    NODE + "/markers": ("visualization_msgs/MarkerArray", MarkerArray),
+    NODE + "/residual_image": ("sensor_msgs/Image", Image),
+}
+FRAMES = ("odom", "base_link", "mynteye_left_frame")
+
+
+class Interface(unittest.TestCase):
+
+    def setUp(self):
+        self.lock = threading.Lock()
+        self.count = {topic: 0 for topic in OUTPUTS}
+        self.statuses = []  # (wall time, status)
+        self.tf = {}
+        self.tf_static = {}
+        self.diagnostics = []
+        self.node = None
+        self.player = None
+        self.tmp = None
+
+    def tearDown(self):
+        util.stop(self.player)
+        util.stop(self.node)
+        if self.tmp:
+            util.cleanup(self.tmp)
+
+    def counter(self, topic):
+        def callback(msg):
+            with self.lock:
+                self.count[topic] += 1
+                if topic.endswith("/state"):
+                    self.statuses.append((time.time(), msg.status))
+        return callback
+
+    def on_tf(self, store):
+        def callback(msg):
+            with self.lock:
+                for t in msg.transforms:
+                    store[(t.header.frame_id, t.child_frame_id)] = t
+        return callback
+
+    def on_diagnostics(self, msg):
+        with self.lock:
+            self.diagnostics.extend(s for s in msg.status if "filter" in s.name and "diekf" in s.name)
+
+    def statuses_after(self, wall_t):
+        with self.lock:
+            return [s for t, s in self.statuses if t > wall_t]
+
+    def test_interface(self):
+        duration_s = float(rospy.get_param("~duration_s", 8.0))
+        self.tmp, bag, camchain, imu_yaml = util.simulate(rospy.get_param("~preset", "flight1"), duration_s)
+        util.upload_params(NODE, util.package_file("config", "estimator.yaml"))
+        util.upload_params(NODE, util.package_file("config", "mynteye.yaml"),
+                           {"camchain_file": camchain, "imu_file": imu_yaml, "publish_odometry_imu_rate": True})
+        for topic, (_, cls) in OUTPUTS.items():
+            rospy.Subscriber(topic, cls, self.counter(topic), queue_size=100)
+        rospy.Subscriber("/tf", TFMessage, self.on_tf(self.tf), queue_size=100)
+        rospy.Subscriber("/tf_static", TFMessage, self.on_tf(self.tf_static), queue_size=10)
+        rospy.Subscriber("/diagnostics", DiagnosticArray, self.on_diagnostics, queue_size=10)
+
+        self.node = util.start(["rosrun", "diekf", "diekf_node", "__name:=diekf"])
+        self.assertTrue(util.wait_for(lambda: util.has_subscriber("/mynteye/imu/data_raw") and
+                                      util.has_subscriber("/mynteye/left/image_raw"), 20.0),
+                        "diekf_node did not subscribe to the MYNT EYE topics")
+        rospy.wait_for_service(NODE + "/reset", timeout=10.0)
+        time.sleep(1.0)
+
+        # Types of everything the node advertises, as the master sees them.
+        advertised = dict(rospy.get_published_topics(NODE))
+        for topic, (type_name, _) in OUTPUTS.items():
+            self.assertEqual(advertised.get(topic), type_name, "%s not advertised as %s" % (topic, type_name))
+        for topic in advertised:
+            documented = topic in OUTPUTS or topic.startswith(NODE + "/residual_image/")
+            self.assertTrue(documented, "undocumented output topic " + topic)
+
+        self.player = subprocess.Popen(["rosbag", "play", "--quiet", bag], stdout=subprocess.DEVNULL,
+                                       stderr=subprocess.STDOUT)
+        # Tracking first, then reset, then initializing followed by tracking again.
+        self.assertTrue(util.wait_for(lambda: PlanarState.STATUS_TRACKING in self.statuses_after(0.0), 20.0),
+                        "never tracking before the reset")
+        time.sleep(1.0)
+        reset = rospy.ServiceProxy(NODE + "/reset", Trigger)
+        t_reset = time.time()
+        response = reset()
+        self.assertTrue(response.success, response.message)
+
+        def reinitialised_then_tracking():
+            after = self.statuses_after(t_reset)
+            if PlanarState.STATUS_INITIALIZING not in after:
+                return False
+            return PlanarState.STATUS_TRACKING in after[after.index(PlanarState.STATUS_INITIALIZING):]
+        self.assertTrue(util.wait_for(reinitialised_then_tracking, 10.0),
+                        "after ~reset: statuses %s" % self.statuses_after(t_reset)[:20])
+
+        self.player.wait(timeout=duration_s + 30)
+        time.sleep(1.5)  # at least one /diagnostics period after the end
+
+        with self.lock:
+            counts = dict(self.count)
+            tf, tf_static, diagnostics = dict(self.tf), dict(self.tf_static), list(self.diagnostics)
+        rospy.loginfo("messages per output: %s", counts)
+        print("\n[diekf rostest] messages per output: %s" % counts)
+        n_state = counts[NODE + "/state"]
+        self.assertGreater(n_state, 0.5 * 30 * duration_s)
+        for topic in (NODE + "/odometry", NODE + "/twist", NODE + "/height"):
+            self.assertGreater(counts[topic], 0.9 * n_state, topic + " not published for every image")
+        self.assertGreater(counts[NODE + "/odometry_imu_rate"], 5 * n_state, "IMU-rate odometry too rare")
+        for topic in (NODE + "/path", NODE + "/markers", NODE + "/residual_image"):
+            self.assertGreater(counts[topic], 0, topic + " never published while subscribed")
+
+        # TF tree odom -> base_link -> camera; the static part is T_cam_imu^-1 of the calibration.
+        self.assertIn((FRAMES[0], FRAMES[1]), tf, "no odom -> base_link on /tf: %s" % list(tf))
+        self.assertIn((FRAMES[1], FRAMES[2]), tf_static, "no base_link -> camera on /tf_static: %s" % list(tf_static))
+        with open(camchain) as f:
+            T_cam_imu = np.array(yaml.safe_load(f)["cam0"]["T_cam_imu"], dtype=float)
+        t_IC = np.linalg.inv(T_cam_imu)[:3, 3]
+        tr = tf_static[(FRAMES[1], FRAMES[2])].transform.translation
+        np.testing.assert_allclose([tr.x, tr.y, tr.z], t_IC, atol=1e-9)
+
+        self.assertTrue(diagnostics, "no diekf filter status on /diagnostics")
+        keys = {kv.key for kv in diagnostics[-1].values}
+        for key in ("status", "mean update time (ms)", "frames published", "filter restarts"):
+            self.assertIn(key, keys)
+        restarts = [int(kv.value) for kv in diagnostics[-1].values if kv.key == "filter restarts"]
+        self.assertGreaterEqual(restarts[0], 1, "the reset is not counted in /diagnostics")
+
+
+if __name__ == "__main__":
+    rospy.init_node("interface_test")
+    rostest.rosrun("diekf", "interface", Interface, sys.argv)

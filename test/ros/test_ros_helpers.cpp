@@ -1,0 +1,202 @@
+// Unit tests of the ROS layer's helpers: body-frame odometry, height Jacobian, image and message conversions.
+#include <cmath>
+#include <limits>
+
+#include <gtest/gtest.h>
+
+#include "diekf/ros/body_odometry.h"
+#include "diekf/ros/conversions.h"
+
+namespace {
+
+using diekf::State;
+using diekf::Vec3;
+using diekf_ros::BodyOdometry;
+
+// Camera looking straight down from a z-up body: camera x = body x, camera y = -body y, camera z = -body z;
+// the IMU origin sits 5 cm along the optical axis from the camera (t_CI = (0, 0, 0.05) m).
+Eigen::Isometry3d downwardExtrinsics() {
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.linear() = Eigen::Vector3d(1.0, -1.0, -1.0).asDiagonal();
+  T.translation() = Vec3(0.0, 0.0, 0.05);
+  return T;
+}
+
+State hoverState(double d_m, const Vec3& v_C_mps, const Vec3& g_C) {
+  State x;
+  x.alpha = 1.0 / d_m;
+  x.vartheta = v_C_mps / d_m;
+  x.mu = diekf::UnitVector(Vec3(0.0, 0.0, 1.0));
+  x.g = diekf::UnitVector(g_C);
+  return x;
+}
+
+TEST(HeightAbovePlane, MatchesGeometryAndFiniteDifferenceJacobian) {
+  State x;
+  x.alpha = 0.5;
+  x.mu = diekf::UnitVector(Vec3(0.1, -0.2, 1.0));
+  x.g = diekf::UnitVector(Vec3(-0.05, 0.1, 1.0));
+  const Vec3 point(0.03, -0.02, 0.05);
+  diekf_ros::Row14 J;
+  const double h = diekf_ros::heightAbovePlane(x, point, &J);
+  const Vec3 mu = x.mu.vector(), g = x.g.vector();
+  EXPECT_NEAR(h, (2.0 - mu.dot(point)) / mu.dot(g), 1e-12);
+  const double eps = 1e-6;
+  for (int i = 0; i < diekf::kErrorDim; ++i) {
+    diekf::ErrorVec delta = diekf::ErrorVec::Zero();
+    delta(i) = eps;
+    const double hp = diekf_ros::heightAbovePlane(x.boxplus(delta), point);
+    const double hm = diekf_ros::heightAbovePlane(x.boxplus(-delta), point);
+    EXPECT_NEAR(J(i), (hp - hm) / (2.0 * eps), 1e-5) << "column " << i;
+  }
+}
+
+TEST(BodyOdometry, LevelHoverWithForwardVelocity) {
+  BodyOdometry odom(downwardExtrinsics(), 1e-3, 500.0, 9.81);
+  const diekf::ErrorCov P = diekf::ErrorCov::Identity() * 1e-4;
+  const State x = hoverState(2.0, Vec3(0.5, 0.0, 0.0), Vec3(0.0, 0.0, 1.0));
+  for (int k = 0; k <= 30; ++k) {
+    const double t = k / 30.0;
+    for (int j = 0; j < 17; ++j) odom.addImu(t - 0.033 + j * 0.002, Vec3(0, 0, 9.81), Vec3::Zero());
+    odom.addFrame(t, x, P);
+  }
+  const diekf_ros::BodyPose& pose = odom.framePose();
+  EXPECT_NEAR(pose.position_m.x(), 0.5, 1e-9);  // 1 s at 0.5 m/s
+  EXPECT_NEAR(pose.position_m.y(), 0.0, 1e-9);
+  EXPECT_NEAR(pose.position_m.z(), 1.95, 1e-9);  // camera 2 m up, IMU 5 cm below it
+  EXPECT_NEAR(pose.linear_velocity_mps.x(), 0.5, 1e-9);
+  EXPECT_NEAR(pose.orientation.angularDistance(Eigen::Quaterniond::Identity()), 0.0, 1e-9);
+  EXPECT_GT(pose.pose_covariance(0, 0), 0.0);
+  EXPECT_GT(pose.pose_covariance(2, 2), 0.0);
+  EXPECT_TRUE(pose.allFinite());
+}
+
+TEST(BodyOdometry, RollFromGravityAndYawFromGyro) {
+  BodyOdometry odom(downwardExtrinsics(), 1e-3, 500.0, 9.81);
+  const diekf::ErrorCov P = diekf::ErrorCov::Identity() * 1e-4;
+  // Body rolled by +0.2 rad about x: up in the body frame is (0, sin 0.2, cos 0.2); gravity in C = R_CI * (-up).
+  const double roll = 0.2;
+  const Vec3 g_I(0.0, -std::sin(roll), -std::cos(roll));
+  const Vec3 g_C = downwardExtrinsics().linear() * g_I;
+  // Yaw: 1 s at 0.3 rad/s about body z (roll is small, so yaw ~ 0.3 rad).
+  odom.addImu(0.0, Vec3::Zero(), Vec3::Zero());
+  for (int k = 1; k <= 500; ++k) odom.addImu(k * 0.002, Vec3::Zero(), Vec3(0.0, 0.0, 0.3));
+  const diekf_ros::BodyPose& pose = odom.addFrame(1.0, hoverState(1.0, Vec3::Zero(), g_C), P);
+  const Eigen::Matrix3d R = pose.orientation.toRotationMatrix();
+  const Vec3 ypr = R.eulerAngles(2, 1, 0);
+  EXPECT_NEAR(ypr(2), roll, 1e-9);
+  EXPECT_NEAR(ypr(1), 0.0, 1e-9);
+  EXPECT_NEAR(ypr(0), 0.3, 0.01);
+  // Up seen from the body matches the gravity estimate.
+  EXPECT_NEAR((R.transpose() * Vec3::UnitZ() + g_I).norm(), 0.0, 1e-9);
+}
+
+TEST(BodyOdometry, ImuRatePropagationFollowsAcceleration) {
+  BodyOdometry odom(downwardExtrinsics(), 1e-3, 500.0, 9.81);
+  const diekf::ErrorCov P = diekf::ErrorCov::Identity() * 1e-4;
+  odom.addImu(0.0, Vec3(0, 0, 9.81), Vec3::Zero());
+  odom.addFrame(0.0, hoverState(1.0, Vec3::Zero(), Vec3(0, 0, 1)), P);
+  for (int k = 1; k <= 50; ++k) odom.addImu(k * 0.002, Vec3(1.0, 0, 9.81), Vec3::Zero());  // 1 m/s^2 along x
+  const diekf_ros::BodyPose& p = odom.imuRatePose();
+  EXPECT_NEAR(p.linear_velocity_mps.x(), 0.1, 1e-9);
+  EXPECT_NEAR(p.position_m.x(), 0.5 * 1.0 * 0.1 * 0.1, 2e-4);
+  EXPECT_NEAR(p.t_s, 0.1, 1e-12);
+  EXPECT_FALSE(odom.addImu(0.1, Vec3::Zero(), Vec3::Zero()));  // non-increasing stamp
+}
+
+TEST(Conversions, ImageEncodingsToMono8) {
+  sensor_msgs::Image msg;
+  msg.width = 2;
+  msg.height = 1;
+  msg.encoding = "bgr8";
+  msg.step = 6;
+  msg.data = {255, 0, 0, 0, 0, 255};  // pure blue, pure red
+  cv::Mat out;
+  std::string error;
+  ASSERT_TRUE(diekf_ros::imageToMono8(msg, &out, &error)) << error;
+  ASSERT_EQ(out.type(), CV_8UC1);
+  EXPECT_NEAR(out.at<uint8_t>(0, 0), 29, 1);  // 0.114 * 255
+  EXPECT_NEAR(out.at<uint8_t>(0, 1), 76, 1);  // 0.299 * 255
+  msg.encoding = "rgb8";
+  ASSERT_TRUE(diekf_ros::imageToMono8(msg, &out, &error));
+  EXPECT_NEAR(out.at<uint8_t>(0, 0), 76, 1);
+
+  msg.encoding = "mono16";
+  msg.step = 4;
+  msg.data = {0x00, 0x80, 0xff, 0xff};  // little endian 32768, 65535
+  ASSERT_TRUE(diekf_ros::imageToMono8(msg, &out, &error)) << error;
+  EXPECT_EQ(out.at<uint8_t>(0, 0), 128);
+  EXPECT_EQ(out.at<uint8_t>(0, 1), 255);
+
+  msg.encoding = "bayer_rggb8";
+  EXPECT_FALSE(diekf_ros::imageToMono8(msg, &out, &error));
+  EXPECT_NE(error.find("bayer_rggb8"), std::string::npos);
+
+  msg.encoding = "mono8";
+  msg.step = 2;
+  msg.data = {1};  // too short
+  EXPECT_FALSE(diekf_ros::imageToMono8(msg, &out, &error));
+}
+
+TEST(Conversions, PlanarStateRejectsNonFinite) {
+  diekf::FrameResult r;
+  r.state = hoverState(2.0, Vec3(0.1, 0.2, 0.0), Vec3(0, 0, 1));
+  r.covariance = diekf::ErrorCov::Identity() * 1e-3;
+  r.status = diekf::FilterStatus::kTracking;
+  std_msgs::Header header;
+  header.frame_id = "cam";
+  diekf::PlanarState msg;
+  ASSERT_TRUE(diekf_ros::fillPlanarState(r, header, &msg));
+  EXPECT_NEAR(msg.distance, 2.0, 1e-12);
+  EXPECT_NEAR(msg.height, 2.0, 1e-12);
+  EXPECT_NEAR(msg.velocity.y, 0.2, 1e-12);
+  EXPECT_EQ(msg.status, diekf::PlanarState::STATUS_TRACKING);
+  EXPECT_NEAR(msg.sigma_distance, std::sqrt(1e-3) * 4.0, 1e-9);  // sigma_alpha / alpha^2
+  r.state.vartheta.x() = std::numeric_limits<double>::quiet_NaN();
+  diekf::PlanarState untouched;
+  EXPECT_FALSE(diekf_ros::fillPlanarState(r, header, &untouched));
+  EXPECT_TRUE(untouched.header.frame_id.empty());
+}
+
+TEST(Conversions, CameraInfoCheck) {
+  diekf::CameraModel cam;
+  cam.K.fx = 400;
+  cam.K.fy = 400;
+  cam.K.cx = 376;
+  cam.K.cy = 240;
+  cam.K.width = 752;
+  cam.K.height = 480;
+  cam.distortion = diekf::DistortionModel::kRadTan;
+  cam.distortion_coeffs = diekf::Vec4(-0.1, 0.01, 0.0, 0.0);
+  sensor_msgs::CameraInfo info;
+  info.width = 752;
+  info.height = 480;
+  info.K = {400, 0, 376, 0, 400, 240, 0, 0, 1};
+  info.distortion_model = "plumb_bob";
+  info.D = {-0.1, 0.01, 0.0, 0.0, 0.0};
+  std::string why;
+  EXPECT_TRUE(diekf_ros::cameraInfoAgrees(info, cam, &why)) << why;
+  info.K[0] = 450;
+  info.D[1] = 0.05;
+  EXPECT_FALSE(diekf_ros::cameraInfoAgrees(info, cam, &why));
+  EXPECT_NE(why.find("fx"), std::string::npos);
+  EXPECT_NE(why.find("D[1]"), std::string::npos);
+}
+
+TEST(Conversions, ResidualPicture) {
+  cv::Mat r(1, 3, CV_32FC1);
+  r.at<float>(0, 0) = 0.0f;
+  r.at<float>(0, 1) = 1.0f;
+  r.at<float>(0, 2) = -10.0f;
+  const cv::Mat p = diekf_ros::residualToMono8(r, 64.0);
+  EXPECT_EQ(p.at<uint8_t>(0, 0), 128);
+  EXPECT_EQ(p.at<uint8_t>(0, 1), 192);
+  EXPECT_EQ(p.at<uint8_t>(0, 2), 0);
+}
+
+}  // namespace
+
+int main(int argc, char** argv) {
+  testing::InitGoogleTest(&argc, argv);
+  return RUN_ALL_TESTS();
+}
