@@ -43,12 +43,17 @@ class PhotometricUpdate {
   /// of pixels tried. Frames must be valid CV_32FC1 of equal size (not checked here; update() checks).
   int linearize(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PinholeK& K,
                 const Vec3& gyro_mean_C, double dt_s, const State& x, ObservedInfo* A, ObservedVec* b,
-                int* candidates = nullptr) const;
+                int* candidates = nullptr);
 
  private:
+  /// linearize() against the reference already packed into ref_packed_.
+  int accumulate(const PreprocessedFrame& cur, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s,
+                 const State& x, ObservedInfo* A, ObservedVec* b, int* candidates) const;
+
   PhotometricParams params_;
   PreprocessParams preprocess_;
   cv::Mat residual_;
+  cv::Mat ref_packed_;  ///< CV_32FC4 (I, dI/dx, dI/dy, 0) of the reference frame, reused between calls
 };
 
 }  // namespace diekf

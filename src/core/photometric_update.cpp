@@ -72,23 +72,51 @@ struct SweepConfig {
   bool gradient_weighting = false;
 };
 
-/// Sums of one sweep. The 36 entries of the upper triangle of A are packed row by row.
+using Vec4f = Eigen::Matrix<float, 4, 1>;
+using Mat4f = Eigen::Matrix<float, 4, 4>;
+using Mat4d = Eigen::Matrix<double, 4, 4>;
+using Vec4d = Eigen::Matrix<double, 4, 1>;
+
+/// Sums of one sweep. A (8x8, symmetric) is kept as its upper block triangle of 4x4 blocks,
+/// A = [[A00, A01], [A01^T, A11]]: the lower off-diagonal block is never accumulated. 4x4 blocks map onto
+/// 4-float SIMD registers, so this costs 48 multiply-adds per pixel in 12 vector operations, fewer
+/// instructions than the 36 scalar multiply-adds of the exact upper triangle.
 struct SweepSums {
   int candidates = 0;
   int valid = 0;
   double sum_r2 = 0.0;
   double grad_sum = 0.0;  // sum of |grad I_c| over valid pixels (gradient weighting normalisation)
-  double A[36] = {};
-  double b[8] = {};
+  Mat4d A00 = Mat4d::Zero(), A01 = Mat4d::Zero(), A11 = Mat4d::Zero();
+  Vec4d b0 = Vec4d::Zero(), b1 = Vec4d::Zero();
 };
 
 enum class SweepMode { kAccumulate, kResidual };
 
+/// The reference image as the sweeps read it. Strides in floats per row.
+struct RefView {
+  const float* packed = nullptr;  // (I, dI/dx, dI/dy, 0) interleaved: one 4-float load per bilinear corner
+  std::ptrdiff_t packed_stride = 0;
+  const float* intensity = nullptr;  // plain intensity, for the residual-only sweep (scalar bilinear)
+  std::ptrdiff_t intensity_stride = 0;
+};
+
+RefView makeRefView(const cv::Mat& packed, const cv::Mat* intensity) {
+  RefView v;
+  v.packed = packed.ptr<float>(0);
+  v.packed_stride = static_cast<std::ptrdiff_t>(packed.step1());
+  if (intensity != nullptr) {
+    v.intensity = intensity->ptr<float>(0);
+    v.intensity_stride = static_cast<std::ptrdiff_t>(intensity->step1());
+  }
+  return v;
+}
+
 /// One sweep over the current image. kAccumulate: A, b with the Jacobian scaled by 1/dt (the caller rescales).
-/// kResidual: writes the residual image (0 where invalid) and sum of squares only.
-template <SweepMode kMode>
-void sweep(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PixelWarp& wp,
-           const SweepConfig& cfg, SweepSums* sums, cv::Mat* residual) {
+/// kResidual: writes the residual image (0 where invalid) and sum of squares only. The weighting options are
+/// template parameters so that the common case compiles without their branches.
+template <SweepMode kMode, bool kHuber = false, bool kGradientWeighting = false>
+void sweep(const RefView& ref, const PreprocessedFrame& cur, const PixelWarp& wp, const SweepConfig& cfg,
+           SweepSums* sums, cv::Mat* residual) {
   const int W = cur.intensity.cols;
   const int H = cur.intensity.rows;
   // The reference sample needs its 2x2 neighbourhood inside the 1-px border where gradients are defined:
@@ -97,18 +125,17 @@ void sweep(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const Pix
   const float ry_lo = 1.0f, ry_hi = static_cast<float>(H - 2);
   const float dt = cfg.dt;
 
-  const float* Ir = ref.intensity.ptr<float>(0);
-  const float* Gxr = ref.grad_x.ptr<float>(0);
-  const float* Gyr = ref.grad_y.ptr<float>(0);
-  const std::ptrdiff_t sI = static_cast<std::ptrdiff_t>(ref.intensity.step1());
-  const std::ptrdiff_t sGx = static_cast<std::ptrdiff_t>(ref.grad_x.step1());
-  const std::ptrdiff_t sGy = static_cast<std::ptrdiff_t>(ref.grad_y.step1());
+  const float* R = ref.packed;
+  const std::ptrdiff_t sR = ref.packed_stride;
+  const float* Ir = ref.intensity;
+  const std::ptrdiff_t sI = ref.intensity_stride;
 
   for (int y = cfg.border; y < H - cfg.border; y += cfg.stride) {
     const float* Ic_row = cur.intensity.ptr<float>(y);
     const float* Gxc_row = cur.grad_x.ptr<float>(y);
     const float* Gyc_row = cur.grad_y.ptr<float>(y);
-    float* res_row = kMode == SweepMode::kResidual ? residual->ptr<float>(y) : nullptr;
+    float* res_row = nullptr;
+    if constexpr (kMode == SweepMode::kResidual) res_row = residual->ptr<float>(y);
 
     // Terms constant along the row: q = (qx, qy, 1), m = G q = qx G_col0 + m_row, etc.
     const float yf = static_cast<float>(y);
@@ -120,14 +147,16 @@ void sweep(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const Pix
     const float qM_row[2] = {wp.M[1][0] * qy + wp.M[2][0], wp.M[1][1] * qy + wp.M[2][1]};
 
     // Single-precision row accumulators (<= a few hundred terms), added to double at the row's end.
-    float acc[36] = {};
-    float bacc[8] = {};
+    Mat4f A00 = Mat4f::Zero(), A01 = Mat4f::Zero(), A11 = Mat4f::Zero();
+    Vec4f b0 = Vec4f::Zero(), b1 = Vec4f::Zero();
     float r2_row = 0.0f, grad_row = 0.0f;
     int valid_row = 0, cand_row = 0;
 
+    const float stride_f = static_cast<float>(cfg.stride);
+    float xf = static_cast<float>(cfg.border) - stride_f;  // exact: small integers
     for (int x = cfg.border; x < W - cfg.border; x += cfg.stride) {
       ++cand_row;
-      const float xf = static_cast<float>(x);
+      xf += stride_f;
       const float qx = (xf - wp.cx) * wp.ifx;
       const float ex = wp.cx - xf;  // D(0, 2)
       const float mx = wp.G[0][0] * qx + m_row[0];
@@ -145,68 +174,63 @@ void sweep(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const Pix
       const float ay = ry - static_cast<float>(y0);
       const float w00 = (1.0f - ax) * (1.0f - ay), w01 = ax * (1.0f - ay);
       const float w10 = (1.0f - ax) * ay, w11 = ax * ay;
-      const float* i0 = Ir + y0 * sI + x0;
-      const float Ir_s = w00 * i0[0] + w01 * i0[1] + w10 * i0[sI] + w11 * i0[sI + 1];
-      const float r = Ic_row[x] - Ir_s;
       ++valid_row;
 
-      if (kMode == SweepMode::kResidual) {
+      if constexpr (kMode == SweepMode::kResidual) {
+        const float* i00 = Ir + y0 * sI + x0;
+        const float r = Ic_row[x] - (w00 * i00[0] + w01 * i00[1] + w10 * i00[sI] + w11 * i00[sI + 1]);
         res_row[x] = r;
         r2_row += r * r;
         continue;
       }
 
-      const float* gx0 = Gxr + y0 * sGx + x0;
-      const float* gy0 = Gyr + y0 * sGy + x0;
-      const float gxr = w00 * gx0[0] + w01 * gx0[1] + w10 * gx0[sGx] + w11 * gx0[sGx + 1];
-      const float gyr = w00 * gy0[0] + w01 * gy0[1] + w10 * gy0[sGy] + w11 * gy0[sGy + 1];
-      // Efficient second-order gradient: mean of current and warped reference gradients.
-      const float gx = 0.5f * (Gxc_row[x] + gxr);
-      const float gy = 0.5f * (Gyc_row[x] + gyr);
+      const float* c00 = R + y0 * sR + 4 * x0;
+      const Vec4f ref_s = w00 * Eigen::Map<const Vec4f>(c00) + w01 * Eigen::Map<const Vec4f>(c00 + 4) +
+                          w10 * Eigen::Map<const Vec4f>(c00 + sR) + w11 * Eigen::Map<const Vec4f>(c00 + sR + 4);
+      const float r = Ic_row[x] - ref_s[0];
+
+      // Efficient second-order gradient: mean of current and warped reference gradients; the factor 1/2 is
+      // applied to A and b by the caller (here g = sum, S = 2 x the true row / dt).
+      const float gx = Gxc_row[x] + ref_s[1];
+      const float gy = Gyc_row[x] + ref_s[2];
 
       // gD = grad^T D (1x3); S = grad^T dp_r/dx / dt.
       const float gD0 = gx * wp.fx, gD1 = gy * wp.fy, gD2 = gx * ex + gy * ey;
       const float s_q = wp.mu[0] * qx + s_row;
       const float u = gD0 * wp.th[0] + gD1 * wp.th[1] + gD2 * wp.th[2];
-      float S[8];
-      S[0] = s_q * gD0;
-      S[1] = s_q * gD1;
-      S[2] = s_q * gD2;
-      S[3] = u * (wp.M[0][0] * qx + qM_row[0]);
-      S[4] = u * (wp.M[0][1] * qx + qM_row[1]);
-      // gD [q]x = (gD x q)^T
-      S[5] = gD1 - gD2 * qy;
-      S[6] = gD2 * qx - gD0;
-      S[7] = gD0 * qy - gD1 * qx;
+      // S = [vartheta (3), mu (2), b_w (3)]; the b_w part is gD [q]x = (gD x q)^T.
+      const Vec4f S0(s_q * gD0, s_q * gD1, s_q * gD2, u * (wp.M[0][0] * qx + qM_row[0]));
+      const Vec4f S1(u * (wp.M[0][1] * qx + qM_row[1]), gD1 - gD2 * qy, gD2 * qx - gD0, gD0 * qy - gD1 * qx);
 
       float w = 1.0f;
-      if (cfg.gradient_weighting) {
+      if constexpr (kGradientWeighting) {
         const float gmag = std::sqrt(Gxc_row[x] * Gxc_row[x] + Gyc_row[x] * Gyc_row[x]);
         grad_row += gmag;
         w = gmag;
       }
-      if (cfg.huber_abs > 0.0f) {
+      if constexpr (kHuber) {
         const float ar = std::fabs(r);
         if (ar > cfg.huber_abs) w *= cfg.huber_abs / ar;
       }
 
-      float wS[8];
-      for (int i = 0; i < 8; ++i) wS[i] = w * S[i];
-      int k = 0;
-      for (int i = 0; i < 8; ++i) {
-        for (int j = i; j < 8; ++j) acc[k++] += wS[i] * S[j];
-        bacc[i] += wS[i] * r;
-      }
-      r2_row += r * r;
+      const Vec4f wS0 = w * S0, wS1 = w * S1;
+      A00.noalias() += S0 * wS0.transpose();
+      A01.noalias() += S0 * wS1.transpose();
+      A11.noalias() += S1 * wS1.transpose();
+      b0 += r * wS0;
+      b1 += r * wS1;
     }
 
     sums->candidates += cand_row;
     sums->valid += valid_row;
     sums->sum_r2 += r2_row;
-    if (kMode == SweepMode::kAccumulate) {
+    if constexpr (kMode == SweepMode::kAccumulate) {
       sums->grad_sum += grad_row;
-      for (int k = 0; k < 36; ++k) sums->A[k] += acc[k];
-      for (int i = 0; i < 8; ++i) sums->b[i] += bacc[i];
+      sums->A00 += A00.cast<double>();
+      sums->A01 += A01.cast<double>();
+      sums->A11 += A11.cast<double>();
+      sums->b0 += b0.cast<double>();
+      sums->b1 += b1.cast<double>();
     }
   }
 }
@@ -221,6 +245,24 @@ SweepConfig makeConfig(const PhotometricParams& params, const PreprocessParams& 
                       : 0.0f;
   cfg.gradient_weighting = params.gradient_weighting;
   return cfg;
+}
+
+/// (I, dI/dx, dI/dy, 0) of the reference frame interleaved into a CV_32FC4 buffer (reallocated only when the
+/// size changes).
+void packReference(const PreprocessedFrame& ref, cv::Mat* packed) {
+  packed->create(ref.intensity.size(), CV_32FC4);
+  for (int y = 0; y < ref.intensity.rows; ++y) {
+    const float* I = ref.intensity.ptr<float>(y);
+    const float* gx = ref.grad_x.ptr<float>(y);
+    const float* gy = ref.grad_y.ptr<float>(y);
+    float* out = packed->ptr<float>(y);
+    for (int x = 0; x < ref.intensity.cols; ++x) {
+      out[4 * x + 0] = I[x];
+      out[4 * x + 1] = gx[x];
+      out[4 * x + 2] = gy[x];
+      out[4 * x + 3] = 0.0f;
+    }
+  }
 }
 
 bool framesUsable(const PreprocessedFrame& ref, const PreprocessedFrame& cur, int border) {
@@ -239,26 +281,45 @@ PhotometricUpdate::PhotometricUpdate(const PhotometricParams& params, const Prep
 
 int PhotometricUpdate::linearize(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PinholeK& K,
                                  const Vec3& gyro_mean_C, double dt_s, const State& x, ObservedInfo* A,
-                                 ObservedVec* b, int* candidates) const {
+                                 ObservedVec* b, int* candidates) {
+  packReference(ref, &ref_packed_);
+  return accumulate(cur, K, gyro_mean_C, dt_s, x, A, b, candidates);
+}
+
+int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& K, const Vec3& gyro_mean_C,
+                                  double dt_s, const State& x, ObservedInfo* A, ObservedVec* b,
+                                  int* candidates) const {
   const SweepConfig cfg = makeConfig(params_, preprocess_, dt_s);
   const PixelWarp wp(x, K, gyro_mean_C);
   SweepSums sums;
-  sweep<SweepMode::kAccumulate>(ref, cur, wp, cfg, &sums, nullptr);
+  constexpr SweepMode kAcc = SweepMode::kAccumulate;
+  const RefView ref = makeRefView(ref_packed_, nullptr);
+  const bool huber = cfg.huber_abs > 0.0f;
+  if (huber && cfg.gradient_weighting) {
+    sweep<kAcc, true, true>(ref, cur, wp, cfg, &sums, nullptr);
+  } else if (huber) {
+    sweep<kAcc, true, false>(ref, cur, wp, cfg, &sums, nullptr);
+  } else if (cfg.gradient_weighting) {
+    sweep<kAcc, false, true>(ref, cur, wp, cfg, &sums, nullptr);
+  } else {
+    sweep<kAcc, false, false>(ref, cur, wp, cfg, &sums, nullptr);
+  }
 
-  // Scale: Jacobian was accumulated divided by dt; weights 1/sigma^2, times the gradient normalisation
-  // (weights |grad I_c| / mean |grad I_c| over the valid pixels) when enabled.
+  // Scale: the sweep's rows are 2/dt times the true S (gradient sum instead of mean, Jacobian without dt);
+  // weights 1/sigma^2, times the gradient normalisation (weights |grad I_c| / mean |grad I_c| over the valid
+  // pixels) when enabled.
   double scale = 1.0 / (params_.intensity_noise_sigma * params_.intensity_noise_sigma);
   if (cfg.gradient_weighting) scale *= sums.grad_sum > 0.0 ? sums.valid / sums.grad_sum : 0.0;
-  const double sA = scale * dt_s * dt_s;
-  const double sb = scale * dt_s;
-  int k = 0;
-  for (int i = 0; i < 8; ++i) {
-    for (int j = i; j < 8; ++j) {
-      (*A)(i, j) = sA * sums.A[k++];
-      (*A)(j, i) = (*A)(i, j);
-    }
-    (*b)(i) = sb * sums.b[i];
-  }
+  const double half_dt = 0.5 * dt_s;
+  const double sA = scale * half_dt * half_dt;
+  const double sb = scale * half_dt;
+  // Upper triangle from the blocks, mirrored (the float diagonal blocks are symmetric only to rounding).
+  A->topLeftCorner<4, 4>() = sA * sums.A00;
+  A->topRightCorner<4, 4>() = sA * sums.A01;
+  A->bottomRightCorner<4, 4>() = sA * sums.A11;
+  A->triangularView<Eigen::StrictlyLower>() = A->transpose();
+  b->head<4>() = sb * sums.b0;
+  b->tail<4>() = sb * sums.b1;
   if (candidates != nullptr) *candidates = sums.candidates;
   return sums.valid;
 }
@@ -274,10 +335,11 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     return stats;
   }
   residual_.create(cur.intensity.size(), CV_32FC1);  // no-op after the first call at this size
+  packReference(ref, &ref_packed_);                   // once per update, shared by every pass
 
   auto linearize_at = [&](const State& x_j, internal::ObsMat* A, internal::ObsVec* b) {
     int candidates = 0;
-    const int valid = linearize(ref, cur, K, gyro_mean_C, dt_s, x_j, A, b, &candidates);
+    const int valid = accumulate(cur, K, gyro_mean_C, dt_s, x_j, A, b, &candidates);
     stats.valid_ratio = candidates > 0 ? static_cast<double>(valid) / candidates : 0.0;
     return valid > 0 && stats.valid_ratio >= params_.min_valid_ratio;
   };
@@ -290,7 +352,8 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   // Residual image and RMS at the final estimate (the prior when skipped): warp + one bilinear sample.
   residual_.setTo(0.0f);
   SweepSums sums;
-  sweep<SweepMode::kResidual>(ref, cur, PixelWarp(*x, K, gyro_mean_C), cfg, &sums, &residual_);
+  sweep<SweepMode::kResidual>(makeRefView(ref_packed_, &ref.intensity), cur, PixelWarp(*x, K, gyro_mean_C), cfg,
+                              &sums, &residual_);
   if (sums.valid > 0) stats.rms_residual = std::sqrt(sums.sum_r2 / sums.valid);
   if (stats.applied && sums.candidates > 0) {
     stats.valid_ratio = static_cast<double>(sums.valid) / sums.candidates;

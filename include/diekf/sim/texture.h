@@ -11,15 +11,17 @@ namespace sim {
 
 /// A periodic (tiled) grey texture on the plane. Level-0 texel (i, j) covers
 /// u in [i su, (i+1) su), v in [j sv, (j+1) sv) (metres, plane coordinates); its value applies at its centre.
-/// Tile width and height are powers of two so wrapping is a bit mask. Levels are stored in 4x4-texel blocks
-/// (one 64-byte cache line each) so that bilinear lookups along any image direction stay cache friendly.
+/// Tile width and height are powers of two so wrapping is a bit mask. Levels are stored in 4x4 blocks
+/// of texel quads: each entry packs texels (x, y), (x+1, y), (x, y+1), (x+1, y+1) as 8.8 fixed point, so a
+/// bilinear lookup is one 8-byte load, and the blocks keep lookups along any image direction cache friendly.
 class Texture {
  public:
   /// Builds the pyramid from a level-0 image (row-major, `width` x `height`, powers of two, grey 0..255).
   Texture(const std::vector<float>& level0, int width, int height, double texel_u_m, double texel_v_m);
 
   /// Procedural checkerboard: squares of `square_m`, dark/bright grey levels, `texels_per_square` (power of 2).
-  static Texture checkerboard(double square_m = 0.05, int squares_per_tile = 16, int texels_per_square = 64,
+  /// The pattern repeats every 2 squares, so the default tile is 2 x 2 squares (small, cache resident).
+  static Texture checkerboard(double square_m = 0.05, int squares_per_tile = 2, int texels_per_square = 64,
                               float dark = 40.f, float bright = 200.f);
   /// Procedural vegetation-like texture (multi-octave noise, dirt, leaf blobs, grass blades), seedable.
   /// Moderate contrast: mean 110, standard deviation 30 grey levels. `tile_px` a power of two.
@@ -52,7 +54,7 @@ class Texture {
     int W = 0, H = 0;        // stored size: max(w, 4) x max(h, 4), periodic replication of small levels
     int blocks_per_row = 0;  // W / 4
     float sx = 1.f, sy = 1.f;  // level-0 texel coordinates -> this level's
-    std::vector<float> px;   // 4x4 blocks, row-major inside and across blocks
+    std::vector<std::uint64_t> quads;  // 4x4 blocks of packed 2x2 texel quads (8.8 fixed point each)
   };
   static inline std::size_t blockIndex(const Level& L, int x, int y) {
     return (static_cast<std::size_t>((y >> 2) * L.blocks_per_row + (x >> 2)) << 4) | ((y & 3) << 2) | (x & 3);
@@ -86,14 +88,13 @@ inline float Texture::bilinearTexel(const Level& L, float xt, float yt) const {
   ix -= (x < static_cast<float>(ix));  // floor
   iy -= (y < static_cast<float>(iy));
   const float fx = x - static_cast<float>(ix), fy = y - static_cast<float>(iy);
-  const int mw = L.W - 1, mh = L.H - 1;
-  const int x0 = ix & mw, y0 = iy & mh, x1 = (x0 + 1) & mw, y1 = (y0 + 1) & mh;
-  const float* p = L.px.data();
-  const float a00 = p[blockIndex(L, x0, y0)], a10 = p[blockIndex(L, x1, y0)];
-  const float a01 = p[blockIndex(L, x0, y1)], a11 = p[blockIndex(L, x1, y1)];
+  const int x0 = ix & (L.W - 1), y0 = iy & (L.H - 1);
+  const std::uint64_t q = L.quads[blockIndex(L, x0, y0)];
+  const float a00 = static_cast<float>(q & 0xFFFF), a10 = static_cast<float>((q >> 16) & 0xFFFF);
+  const float a01 = static_cast<float>((q >> 32) & 0xFFFF), a11 = static_cast<float>(q >> 48);
   const float a = a00 + fx * (a10 - a00);
   const float b = a01 + fx * (a11 - a01);
-  return a + fy * (b - a);
+  return (a + fy * (b - a)) * (1.0f / 256.0f);
 }
 
 inline float Texture::sampleTexel(float xt, float yt, float lod) const {

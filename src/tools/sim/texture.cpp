@@ -83,15 +83,20 @@ Texture::Level Texture::makeLevel(const std::vector<float>& linear, int w, int h
   L.blocks_per_row = L.W / 4;
   L.sx = sx;
   L.sy = sy;
-  L.px.resize(static_cast<std::size_t>(L.W) * L.H);
+  L.quads.resize(static_cast<std::size_t>(L.W) * L.H);
+  const auto fixed = [&](int x, int y) -> std::uint64_t {
+    const float v = linear[static_cast<std::size_t>(y & (h - 1)) * w + (x & (w - 1))];
+    return static_cast<std::uint64_t>(std::clamp(std::lround(v * 256.0f), 0L, 65535L));
+  };
   for (int y = 0; y < L.H; ++y)
-    for (int x = 0; x < L.W; ++x) L.px[blockIndex(L, x, y)] = linear[static_cast<std::size_t>(y & (h - 1)) * w + (x & (w - 1))];
+    for (int x = 0; x < L.W; ++x)
+      L.quads[blockIndex(L, x, y)] = fixed(x, y) | (fixed(x + 1, y) << 16) | (fixed(x, y + 1) << 32) | (fixed(x + 1, y + 1) << 48);
   return L;
 }
 
 float Texture::at(int level, int x, int y) const {
   const Level& L = levels_.at(static_cast<std::size_t>(level));
-  return L.px[blockIndex(L, x & (L.W - 1), y & (L.H - 1))];
+  return static_cast<float>(L.quads[blockIndex(L, x & (L.W - 1), y & (L.H - 1))] & 0xFFFF) / 256.0f;
 }
 
 Texture::Texture(const std::vector<float>& level0, int width, int height, double texel_u_m, double texel_v_m)

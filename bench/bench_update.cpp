@@ -1,0 +1,77 @@
+// One photometric update pass (max_passes = 1, stop_threshold = 0: linearisation sweep, 14x14 solve, covariance,
+// residual image at the final estimate) at the working resolutions of interest, on rendered textured images.
+// Also the bare linearisation sweep, to separate the pixel loop from the fixed per-update cost.
+#include <map>
+#include <memory>
+
+#include <benchmark/benchmark.h>
+
+#include "../test/core/two_view_scene.h"
+#include "diekf/photometric_update.h"
+
+namespace {
+
+using diekf::test_util::TwoViewScene;
+
+const TwoViewScene& sceneForWidth(int width_px) {
+  static std::map<int, std::unique_ptr<TwoViewScene>> cache;
+  auto it = cache.find(width_px);
+  if (it == cache.end()) {
+    const int height_px = width_px == 90 ? 58 : width_px == 180 ? 116 : 240;
+    it = cache
+             .emplace(width_px, std::make_unique<TwoViewScene>(
+                                    diekf::test_util::makeTwoViewScene(width_px, height_px, 2)))
+             .first;
+  }
+  return *it->second;
+}
+
+diekf::State startState(const TwoViewScene& s) {
+  diekf::State x;
+  x.alpha = 1.0 / s.truth.d_m;
+  x.mu = diekf::UnitVector(s.truth.mu);
+  return x;
+}
+
+diekf::ErrorCov priorCov() {
+  diekf::ErrorVec sd;
+  sd << 0.5, 0.5, 0.5, 0.5, 0.1, 0.1, 0.05, 0.05, 0.1, 0.1, 0.1, 0.01, 0.01, 0.01;
+  return sd.array().square().matrix().asDiagonal();
+}
+
+void BM_PhotometricUpdateOnePass(benchmark::State& bs) {
+  const TwoViewScene& s = sceneForWidth(static_cast<int>(bs.range(0)));
+  diekf::PhotometricParams params;
+  params.max_passes = 1;
+  params.stop_threshold = 0.0;
+  diekf::PhotometricUpdate update(params, diekf::PreprocessParams{});
+  const diekf::State x0 = startState(s);
+  const diekf::ErrorCov P0 = priorCov();
+  for (auto _ : bs) {
+    diekf::State x = x0;
+    diekf::ErrorCov P = P0;
+    const diekf::UpdateStats st = update.update(s.ref, s.cur, s.K, s.w_C, s.dt_s, &x, &P);
+    benchmark::DoNotOptimize(st);
+    benchmark::DoNotOptimize(x);
+    if (!st.applied) bs.SkipWithError("update not applied");
+  }
+  bs.counters["px"] = s.K.width * s.K.height;
+}
+BENCHMARK(BM_PhotometricUpdateOnePass)->Arg(90)->Arg(180)->Arg(376)->Unit(benchmark::kMicrosecond);
+
+void BM_PhotometricLinearize(benchmark::State& bs) {
+  const TwoViewScene& s = sceneForWidth(static_cast<int>(bs.range(0)));
+  diekf::PhotometricUpdate update(diekf::PhotometricParams{}, diekf::PreprocessParams{});
+  const diekf::State x = startState(s);
+  diekf::ObservedInfo A;
+  diekf::ObservedVec b;
+  for (auto _ : bs) {
+    const int valid = update.linearize(s.ref, s.cur, s.K, s.w_C, s.dt_s, x, &A, &b);
+    benchmark::DoNotOptimize(valid);
+    benchmark::DoNotOptimize(A);
+  }
+  bs.counters["px"] = s.K.width * s.K.height;
+}
+BENCHMARK(BM_PhotometricLinearize)->Arg(90)->Arg(180)->Arg(376)->Unit(benchmark::kMicrosecond);
+
+}  // namespace
