@@ -93,7 +93,8 @@ struct EstimatorParams {
   FeatureParams feature;
   DivergenceParams divergence;
   double max_imu_gap_s = 0.05;                  ///< larger IMU gaps are bridged by holding the last sample
-  int max_queued_images = 8;                    ///< images waiting for IMU coverage before the oldest is dropped
+  int max_queued_images = 8;
+  bool interval_mean_velocity = true;           ///< warp with the interval's mean velocity (from the prediction)                    ///< images waiting for IMU coverage before the oldest is dropped
 };
 
 /// "iekf" | "ekf" | "lk" -> mode; throws std::invalid_argument naming the value otherwise.

@@ -140,6 +140,7 @@ struct Estimator::Impl {
     have_reference = false;
     state_initialized = false;
     gyro_integral = Vec3::Zero();
+    velocity_integral = Vec3::Zero();
     gyro_time_s = 0.0;
     bad_frames = 0;
     updates_since_reset = 0;
@@ -176,7 +177,9 @@ struct Estimator::Impl {
       const double t_end = std::min(s.t_s, t_target);
       const double dt = t_end - t_state_s;
       if (dt > 0.0) {
+        const Vec3 v_before = x.velocity_mps();
         predict(s.accel_mps2, s.gyro_radps, dt, params.imu, params.process, &x, &P);
+        velocity_integral += 0.5 * (v_before + x.velocity_mps()) * dt;  // trapezoid, m
         gyro_integral += s.gyro_radps * dt;
         gyro_time_s += dt;
         t_state_s = t_end;
@@ -242,12 +245,23 @@ struct Estimator::Impl {
       const PreprocessedFrame& ref = frames[ref_index];
       const double dt = cur.t_s - ref.t_s;
       const Vec3 gyro_mean = gyro_time_s > 0.0 ? Vec3(gyro_integral / gyro_time_s) : Vec3::Zero();
+      // The image pair sees the displacement over the whole interval, i.e. the interval's mean velocity, while
+      // the state holds the velocity at the current image. The prediction knows how the velocity changed over
+      // the interval (from the IMU), so the warp is evaluated at vartheta + offset with the constant offset
+      // alpha * mean(v) - vartheta: an exact change of variable for the update, the Jacobian is unchanged.
+      Vec3 vartheta_offset = Vec3::Zero();
+      if (params.interval_mean_velocity && gyro_time_s > 0.0) {
+        vartheta_offset = x.alpha * velocity_integral / gyro_time_s - x.vartheta;
+      }
+      x.vartheta += vartheta_offset;
       if (params.mode == UpdateMode::kFeature) {
         stats = feature.update(ref, cur, img_pre.workingK(), gyro_mean, dt, &x, &P);
       } else {
         stats = photometric.update(ref, cur, img_pre.workingK(), gyro_mean, dt, &x, &P);
       }
+      x.vartheta -= vartheta_offset;
     }
+    velocity_integral.setZero();
     gyro_integral.setZero();
     gyro_time_s = 0.0;
     ref_index = 1 - ref_index;
@@ -330,8 +344,9 @@ struct Estimator::Impl {
   bool state_initialized = false;
   bool have_reference = false;
   FilterStatus status = FilterStatus::kInitializing;
-  Vec3 gyro_integral = Vec3::Zero();
-  double gyro_time_s = 0.0;
+  Vec3 gyro_integral = Vec3::Zero();      // integral of the raw gyro (C) since the reference image, rad
+  Vec3 velocity_integral = Vec3::Zero();  // integral of the predicted velocity (C) since the reference image, m
+  double gyro_time_s = 0.0;               // time covered by both integrals, s
   int bad_frames = 0;
   int updates_since_reset = 0;
   bool converged = false;  // sigma_d / d has fallen below the tracking threshold since the last reset

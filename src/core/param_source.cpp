@@ -314,6 +314,7 @@ const std::vector<Entry>& table() {
     // queueing
     t.push_back(real("max_imu_gap_s", DIEKF_FIELD(double, max_imu_gap_s), positive()));
     t.push_back(integer("max_queued_images", DIEKF_FIELD(int, max_queued_images), between(1, 10000)));
+    t.push_back(flag("interval_mean_velocity", DIEKF_FIELD(bool, interval_mean_velocity)));
     return t;
   }();
   return entries;

@@ -82,7 +82,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          da.max_distance_m == db.max_distance_m && da.max_sigma_distance_m == db.max_sigma_distance_m &&
          da.max_photometric_rms == db.max_photometric_rms &&
          da.bad_frames_before_reset == db.bad_frames_before_reset && a.max_imu_gap_s == b.max_imu_gap_s &&
-         a.max_queued_images == b.max_queued_images;
+         a.max_queued_images == b.max_queued_images && a.interval_mean_velocity == b.interval_mean_velocity;
 }
 
 // Leaf keys ("a/b") of a YAML map.
