@@ -151,11 +151,11 @@ struct RunResult {
   std::string out, err;
 };
 
-RunResult runRunner(const std::string& args, const fs::path& dir) {
+/// Runs a shell command line, capturing its exit code, stdout and stderr.
+RunResult runCommand(const std::string& command, const fs::path& dir) {
   const fs::path out = dir / "stdout.txt";
   const fs::path err = dir / "stderr.txt";
-  const std::string cmd = std::string("\"") + DIEKF_BAG_RUNNER_EXE + "\" " + args + " >\"" + out.string() +
-                          "\" 2>\"" + err.string() + "\"";
+  const std::string cmd = command + " >\"" + out.string() + "\" 2>\"" + err.string() + "\"";
   const int status = std::system(cmd.c_str());
   RunResult r;
   r.exit_code = WIFEXITED(status) ? WEXITSTATUS(status) : -1;
@@ -166,6 +166,10 @@ RunResult runRunner(const std::string& args, const fs::path& dir) {
   r.out = so.str();
   r.err = se.str();
   return r;
+}
+
+RunResult runRunner(const std::string& args, const fs::path& dir) {
+  return runCommand(std::string("\"") + DIEKF_BAG_RUNNER_EXE + "\" " + args, dir);
 }
 
 std::vector<std::string> readLines(const fs::path& path) {
@@ -241,6 +245,14 @@ TEST(BagRunner, SyntheticFlightProducesEstimatesGroundTruthAndEvaluation) {
   }
   EXPECT_NE(json.str().find("\"sequence\": \"hover\""), std::string::npos);
   EXPECT_NE(r.out.find("distance RMSE"), std::string::npos) << r.out;
+
+  // The plotting script turns the folder into the five PNGs.
+  const RunResult plot = runCommand(std::string("python3 \"") + DIEKF_PLOT_SCRIPT + "\" \"" + out.string() + "\"",
+                                    dirs.root);
+  ASSERT_EQ(plot.exit_code, 0) << plot.err;
+  for (const char* png : {"distance.png", "velocity.png", "normal_gravity.png", "errors.png", "update_time.png"}) {
+    EXPECT_GT(fs::exists(out / png) ? fs::file_size(out / png) : 0u, 1000u) << png;
+  }
 }
 
 TEST(BagRunner, DeterministicAcrossRuns) {
