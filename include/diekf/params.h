@@ -16,6 +16,7 @@ struct InitParams {
   Vec3 mu0 = Vec3(0.2, -0.1, 0.97);             ///< initial plane normal in C (normalised on use)
   Vec3 g0 = Vec3(0.0, 0.0, 1.0);                ///< initial gravity direction in C (normalised on use)
   bool g0_from_accel = true;                    ///< initialise g from the first filtered accelerometer samples
+  bool mu0_from_gravity = true;                 ///< initialise mu as the initial gravity direction (level ground)
   double sigma_alpha0_inv_m = 5.0;              ///< 1-sigma of alpha0, 1/m
   double sigma_vartheta0_inv_s = 1.0;           ///< 1-sigma of each vartheta0 axis, 1/s
   double sigma_mu0_rad = 0.5;                   ///< 1-sigma of each tangent axis of mu0, rad
@@ -111,7 +112,7 @@ struct EstimatorParams {
   InputParams input;
   double max_imu_gap_s = 0.05;                  ///< larger IMU gaps are warned about and re-prime the low-pass, s
   int max_queued_images = 8;                    ///< images waiting for IMU coverage before the oldest is dropped
-  bool interval_mean_velocity = true;           ///< warp with the interval's mean velocity (from the prediction)
+  bool update_at_interval_midpoint = true;      ///< apply the image update at the middle of the image interval
 };
 
 /// "iekf" | "ekf" | "lk" -> mode; throws std::invalid_argument naming the value otherwise.

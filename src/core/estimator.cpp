@@ -141,7 +141,6 @@ struct Estimator::Impl {
     have_reference = false;
     state_initialized = false;
     gyro_integral = Vec3::Zero();
-    velocity_integral = Vec3::Zero();
     gyro_time_s = 0.0;
     bad_frames = 0;
     updates_since_reset = 0;
@@ -170,6 +169,20 @@ struct Estimator::Impl {
     return true;
   }
 
+  /// Integral of the raw gyro over (t0, t1] with the hold convention of propagateTo, rad.
+  Vec3 gyroIntegral(double t0, double t1) const {
+    Vec3 sum = Vec3::Zero();
+    double t = t0;
+    for (size_t i = 0; i < imu_buffer.size() && t < t1; ++i) {
+      const ImuSample& s = imu_buffer[i];
+      if (s.t_s <= t) continue;
+      const double t_end = std::min(s.t_s, t1);
+      sum += s.gyro_radps * (t_end - t);
+      t = t_end;
+    }
+    return sum;
+  }
+
   /// Propagates the state from t_state to t_target with the filtered samples, splitting the last interval.
   /// Sample k (stamp t_k) is held over (t_{k-1}, t_k] (zero-order hold, also across a bridged IMU gap); an
   /// interval longer than two nominal filtered periods is integrated in steps of at most one period.
@@ -184,11 +197,9 @@ struct Estimator::Impl {
       const double t_end = std::min(s.t_s, t_target);
       const double dt = t_end - t_state_s;
       if (dt > 0.0) {
-        const Vec3 v_before = x.velocity_mps();
         const int steps = dt > 2.0 * nominal_dt_s ? static_cast<int>(std::ceil(dt / nominal_dt_s)) : 1;
         const double h = dt / steps;
         for (int k = 0; k < steps; ++k) predict(s.accel_mps2, s.gyro_radps, h, params.imu, params.process, &x, &P);
-        velocity_integral += 0.5 * (v_before + x.velocity_mps()) * dt;  // trapezoid, m
         gyro_integral += s.gyro_radps * dt;
         gyro_time_s += dt;
         t_state_s = t_end;
@@ -302,6 +313,7 @@ struct Estimator::Impl {
   void startAt(double t_s) {
     UnitVector g;
     if (params.init.g0_from_accel && gravityFromAccel(t_s, &g)) x.g = g;
+    if (params.init.mu0_from_gravity) x.mu = x.g;  // level-ground prior; sigma_mu0_rad covers inclines
     t_state_s = t_s;
     last_usable_image_t_s = t_s;
     state_initialized = true;
@@ -358,6 +370,11 @@ struct Estimator::Impl {
     }
     if (!state_initialized) {
       if (usable) startAt(img.t_s);  // otherwise the filter keeps waiting for a usable image
+    } else if (usable && have_reference && params.update_at_interval_midpoint) {
+      // The image pair sees the displacement over the whole interval, i.e. its mean velocity, not the velocity
+      // at the current image: update the state of the interval's midpoint (exact to second order in the
+      // interval), then predict on to the image.
+      propagateTo(std::max(t_state_s, 0.5 * (frames[ref_index].t_s + img.t_s)));
     } else {
       propagateTo(img.t_s);
     }
@@ -370,22 +387,17 @@ struct Estimator::Impl {
     } else if (have_reference) {
       const PreprocessedFrame& ref = frames[ref_index];
       const double dt = cur.t_s - ref.t_s;
-      const Vec3 gyro_mean = gyro_time_s > 0.0 ? Vec3(gyro_integral / gyro_time_s) : Vec3::Zero();
-      // The image pair sees the displacement over the whole interval, i.e. the interval's mean velocity, while
-      // the state holds the velocity at the current image. The prediction knows how the velocity changed over
-      // the interval (from the IMU), so the warp is evaluated at vartheta + offset with the constant offset
-      // alpha * mean(v) - vartheta: an exact change of variable for the update, the Jacobian is unchanged.
-      Vec3 vartheta_offset = Vec3::Zero();
-      if (params.interval_mean_velocity && gyro_time_s > 0.0) {
-        vartheta_offset = x.alpha * velocity_integral / gyro_time_s - x.vartheta;
-      }
+      // Mean raw gyro over the whole interval: what was integrated so far plus the samples up to the image.
+      const double rest_s = img.t_s - t_state_s;
+      const double total_s = gyro_time_s + rest_s;
+      const Vec3 gyro_mean =
+          total_s > 0.0 ? Vec3((gyro_integral + gyroIntegral(t_state_s, img.t_s)) / total_s) : Vec3::Zero();
       if (dt > params.input.max_frame_interval_s) {
         std::ostringstream os;
         os << "update skipped: " << dt << " s since the reference image (max_frame_interval_s = "
            << params.input.max_frame_interval_s << " s); this image is the new reference";
         skip_reason = os.str();
       } else {
-        x.vartheta += vartheta_offset;
         if (params.mode == UpdateMode::kFeature) {
           stats = feature.update(ref, cur, img_pre.workingK(), gyro_mean, dt, &x, &P);
         } else {
@@ -403,14 +415,13 @@ struct Estimator::Impl {
             skip_reason = os.str();
           }
         }
-        x.vartheta -= vartheta_offset;
       }
       if (skip_reason.empty() && !stats.applied) skip_reason = "update skipped: too few valid pixels or non-finite system";
     }
+    if (state_initialized && t_state_s < img.t_s) propagateTo(img.t_s);  // from the interval's midpoint
     const bool had_reference = have_reference;
     if (usable) {
       last_usable_image_t_s = img.t_s;
-      velocity_integral.setZero();
       gyro_integral.setZero();
       gyro_time_s = 0.0;
       ref_index = 1 - ref_index;
@@ -552,8 +563,7 @@ struct Estimator::Impl {
   bool have_reference = false;
   FilterStatus status = FilterStatus::kInitializing;
   Vec3 gyro_integral = Vec3::Zero();      // integral of the raw gyro (C) since the reference image, rad
-  Vec3 velocity_integral = Vec3::Zero();  // integral of the predicted velocity (C) since the reference image, m
-  double gyro_time_s = 0.0;               // time covered by both integrals, s
+  double gyro_time_s = 0.0;               // time covered by gyro_integral, s
   int bad_frames = 0;
   int updates_since_reset = 0;
   bool converged = false;  // sigma_d / d has fallen below the tracking threshold since the last reset

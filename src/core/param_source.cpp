@@ -250,6 +250,7 @@ const std::vector<Entry>& table() {
     t.push_back(vec3("init/mu0", DIEKF_FIELD(Vec3, init.mu0), true));
     t.push_back(vec3("init/g0", DIEKF_FIELD(Vec3, init.g0), true));
     t.push_back(flag("init/g0_from_accel", DIEKF_FIELD(bool, init.g0_from_accel)));
+    t.push_back(flag("init/mu0_from_gravity", DIEKF_FIELD(bool, init.mu0_from_gravity)));
     t.push_back(real("init/sigma_alpha0_inv_m", DIEKF_FIELD(double, init.sigma_alpha0_inv_m), positive()));
     t.push_back(real("init/sigma_vartheta0_inv_s", DIEKF_FIELD(double, init.sigma_vartheta0_inv_s), positive()));
     t.push_back(real("init/sigma_mu0_rad", DIEKF_FIELD(double, init.sigma_mu0_rad), positive(M_PI)));
@@ -332,7 +333,7 @@ const std::vector<Entry>& table() {
     // queueing
     t.push_back(real("max_imu_gap_s", DIEKF_FIELD(double, max_imu_gap_s), positive()));
     t.push_back(integer("max_queued_images", DIEKF_FIELD(int, max_queued_images), between(1, 10000)));
-    t.push_back(flag("interval_mean_velocity", DIEKF_FIELD(bool, interval_mean_velocity)));
+    t.push_back(flag("update_at_interval_midpoint", DIEKF_FIELD(bool, update_at_interval_midpoint)));
     return t;
   }();
   return entries;

@@ -56,6 +56,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
   const DivergenceParams &da = a.divergence, &db = b.divergence;
   return a.mode == b.mode && ia.alpha0_inv_m == ib.alpha0_inv_m && ia.vartheta0_inv_s == ib.vartheta0_inv_s &&
          ia.mu0 == ib.mu0 && ia.g0 == ib.g0 && ia.g0_from_accel == ib.g0_from_accel &&
+         ia.mu0_from_gravity == ib.mu0_from_gravity &&
          ia.sigma_alpha0_inv_m == ib.sigma_alpha0_inv_m && ia.sigma_vartheta0_inv_s == ib.sigma_vartheta0_inv_s &&
          ia.sigma_mu0_rad == ib.sigma_mu0_rad && ia.sigma_g0_rad == ib.sigma_g0_rad &&
          ia.sigma_ba0_mps2 == ib.sigma_ba0_mps2 && ia.sigma_bw0_radps == ib.sigma_bw0_radps &&
@@ -93,7 +94,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          a.input.max_accel_mps2 == b.input.max_accel_mps2 && a.input.max_gyro_radps == b.input.max_gyro_radps &&
          a.max_imu_gap_s == b.max_imu_gap_s &&
          a.max_queued_images == b.max_queued_images &&
-         a.interval_mean_velocity == b.interval_mean_velocity;
+         a.update_at_interval_midpoint == b.update_at_interval_midpoint;
 }
 
 // Leaf keys ("a/b") of a YAML map.
