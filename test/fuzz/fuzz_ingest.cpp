@@ -100,7 +100,9 @@ extern "C" int LLVMFuzzerTestOneInput(const uint8_t* data, size_t size) {
         const int type = kTypes[in.u8() % 8];
         cv::Mat img(h, w, type);
         const uint8_t fill = in.u8();
-        if (fill % 3 == 0) {
+        if (img.empty()) {
+          // nothing to fill: an empty image is a case of its own
+        } else if (fill % 3 == 0) {
           img.setTo(cv::Scalar::all(in.u8()));  // uniform, black or saturated
         } else {
           cv::RNG rng(in.u8() | (in.u8() << 8));
