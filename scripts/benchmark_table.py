@@ -193,8 +193,13 @@ def main(argv=None):
     parser.add_argument("--sim-args", default="", help="extra diekf_simulate arguments")
     parser.add_argument("--runner-args", default="", help="extra diekf_bag_runner arguments, e.g. '--width 90'")
     parser.add_argument("--keep-bags", action="store_true", help="keep the simulated bags")
+    parser.add_argument("--reuse-bags", action="store_true",
+                        help="use the sequences already in OUTPUT/runs (same presets, duration and seed) instead of "
+                             "simulating them again; implies --keep-bags")
     parser.add_argument("--plots", action="store_true", help="also write each run's plots")
     args = parser.parse_args(argv)
+    if args.reuse_bags:
+        args.keep_bags = True
 
     flights = parse_list(args.flights, int)
     modes = parse_list(args.modes, str)
@@ -219,7 +224,8 @@ def main(argv=None):
     for k in flights:
         name = "flight%d" % k
         seq_dir = os.path.join(runs_dir, name, "sequence")
-        simulate(bin_dir, name, args.duration, args.seed, seq_dir, sim_extra)
+        if not (args.reuse_bags and os.path.isfile(os.path.join(seq_dir, "sequence.bag"))):
+            simulate(bin_dir, name, args.duration, args.seed, seq_dir, sim_extra)
         for m in modes:
             results["%s/%s" % (name, m)] = run_estimator(bin_dir, seq_dir, m, name, os.path.join(runs_dir, name, m),
                                                          runner_args, args.plots)
@@ -233,7 +239,8 @@ def main(argv=None):
     for a in inclines:
         name = "incline%g" % a
         seq_dir = os.path.join(runs_dir, name, "sequence")
-        simulate(bin_dir, "incline", incline_duration, args.seed, seq_dir, ["--incline-deg", "%g" % a] + sim_extra)
+        if not (args.reuse_bags and os.path.isfile(os.path.join(seq_dir, "sequence.bag"))):
+            simulate(bin_dir, "incline", incline_duration, args.seed, seq_dir, ["--incline-deg", "%g" % a] + sim_extra)
         for m in incline_modes:
             results["%s/%s" % (name, m)] = run_estimator(bin_dir, seq_dir, m, name, os.path.join(runs_dir, name, m),
                                                          runner_args, args.plots)

@@ -50,7 +50,7 @@ struct ProcessNoiseParams {
 };
 
 struct PreprocessParams {
-  int working_width_px = 90;                    ///< width of the image the update works on, px
+  int working_width_px = 180;                   ///< width of the image the update works on, px (paper: 90)
   int working_height_px = 0;                    ///< height, px; 0 keeps the calibration's aspect ratio
   double blur_sigma_px = 0.8;                   ///< Gaussian blur at working resolution, px (0 = off)
   bool normalize_brightness = true;             ///< zero-mean, unit-variance intensity per frame

@@ -44,7 +44,8 @@ double stdDev(const cv::Mat& m, int border) {
 }
 
 TEST(ImagePreprocessor, WorkingCamera) {
-  PreprocessParams p;  // 90 wide, height from the aspect ratio
+  PreprocessParams p;
+  p.working_width_px = 90;  // the paper's working width; height from the aspect ratio
   ImagePreprocessor pre(mynt(), p);
   const PinholeK& K = pre.workingK();
   EXPECT_EQ(K.width, 90);
@@ -124,6 +125,7 @@ TEST(ImagePreprocessor, AntiAliasing) {
   // wide) must come out nearly uniform; stripes well below it must survive.
   const CameraModel cam = mynt();
   PreprocessParams p;
+  p.working_width_px = 90;
   p.normalize_brightness = false;  // keep grey-level units (intensity = grey / 255)
   ImagePreprocessor pre(cam, p);
   auto stripes = [](double period_px, double angle_rad) {
