@@ -3,6 +3,7 @@
 #include <algorithm>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
 #include <sstream>
 #include <vector>
 
@@ -86,6 +87,8 @@ struct PendingImage {
 };
 
 constexpr size_t kImuBufferCapacity = 1024;  // filtered samples (about 10 s at 100 Hz)
+constexpr size_t kResultCapacity = 64;       // unread results kept (oldest dropped): nobody reads, memory bounded
+constexpr size_t kMessageCapacity = 160;     // chars reserved per result message (formatted without allocation)
 
 }  // namespace
 
@@ -98,7 +101,11 @@ struct Estimator::Impl {
         photometric(photometricParamsFor(p), p.preprocess),
         feature(p.feature, photometricParamsFor(p)),
         imu_buffer(kImuBufferCapacity),
-        images(static_cast<size_t>(std::max(1, p.max_queued_images))) {
+        images(static_cast<size_t>(std::max(1, p.max_queued_images))),
+        results(kResultCapacity) {
+    // Result slots keep their message buffers: no allocation per frame for the usual messages.
+    for (size_t i = 0; i < kResultCapacity; ++i) results.emplaceSlot().message.reserve(kMessageCapacity);
+    results.clear();
     resetFilter();
   }
 
@@ -222,6 +229,7 @@ struct Estimator::Impl {
     const auto t0 = std::chrono::steady_clock::now();
     FrameResult r;
     r.t_s = img.t_s;
+    char msg[kMessageCapacity] = "";  // the result's message, formatted without allocation
 
     if (!state_initialized) {
       // The filter starts at the first image: gravity from the accelerometer, no propagation before.
@@ -275,30 +283,33 @@ struct Estimator::Impl {
       state_initialized = true;
       have_reference = true;
       r.status = FilterStatus::kReset;
-      r.message = reason;
+      std::snprintf(msg, sizeof(msg), "%s", reason.c_str());
     } else if (!converged) {
       const double relative_sigma_d = std::sqrt(std::max(0.0, P(0, 0))) / x.alpha;  // sigma_d / d
       converged = updates_since_reset > 0 && relative_sigma_d < params.init.tracking_max_relative_sigma_d;
       r.status = converged ? FilterStatus::kTracking : FilterStatus::kInitializing;
       if (!had_reference) {
-        r.message = "first image: reference set";
+        std::snprintf(msg, sizeof(msg), "first image: reference set");
       } else if (updates_since_reset == 0) {
-        r.message = "waiting for a valid image update";
+        std::snprintf(msg, sizeof(msg), "waiting for a valid image update");
       } else if (!converged) {
-        std::ostringstream os;
-        os << "converging: sigma_d/d = " << relative_sigma_d << " (tracking below "
-           << params.init.tracking_max_relative_sigma_d << ")";
-        r.message = os.str();
+        std::snprintf(msg, sizeof(msg), "converging: sigma_d/d = %g (tracking below %g)", relative_sigma_d,
+                      params.init.tracking_max_relative_sigma_d);
       }
     } else {
       r.status = FilterStatus::kTracking;
-      if (!stats.applied) r.message = "update skipped: too few valid pixels or non-finite system";
+      if (!stats.applied) {
+        std::snprintf(msg, sizeof(msg), "update skipped: too few valid pixels or non-finite system");
+      }
     }
     status = r.status;
     r.state = x;
     r.covariance = P;
-    results.push_back(std::move(r));
-    if (results.size() > 64) results.pop_front();  // nobody reads: keep memory bounded
+    // Into a ring slot (the oldest unread result is dropped when full), reusing the slot's message buffer.
+    FrameResult& slot = results.emplaceSlot();
+    r.message.swap(slot.message);
+    r.message.assign(msg);
+    slot = std::move(r);
   }
 
   /// Processes every pending image whose stamp is covered by filtered IMU data.
@@ -320,7 +331,7 @@ struct Estimator::Impl {
 
   Ring<ImuSample> imu_buffer;   // filtered samples in C, delay-compensated stamps
   Ring<PendingImage> images;    // images waiting for IMU coverage
-  std::deque<FrameResult> results;
+  Ring<FrameResult> results;    // unread results
   PreprocessedFrame frames[2];
   int ref_index = 0;
 
@@ -431,8 +442,8 @@ bool Estimator::addImage(double t_cam_s, const cv::Mat& image) {
 bool Estimator::popResult(FrameResult* out) {
   Impl& m = *impl_;
   if (m.results.empty()) return false;
-  *out = std::move(m.results.front());
-  m.results.pop_front();
+  *out = m.results[0];  // copy: the slot keeps its message buffer, `out` reuses its own
+  m.results.pop();
   return true;
 }
 
