@@ -23,7 +23,7 @@ APT_PACKAGES := build-essential cmake catkin ros-base-dev libnodeletlib-dev libc
   libtf2-geometry-msgs-dev python3-rosbag python3-rostest python3-roslaunch libnodeletlib-tools ros-base-python-dev rosbash valgrind \
   python3-tf2-msgs image-transport-tools
 
-.PHONY: all deps workspace build test demo benchmark benchmark-core clean
+.PHONY: all deps workspace build test demo benchmark benchmark-core benchmark-callgrind clean
 
 all: build
 
@@ -61,6 +61,11 @@ benchmark: build
 
 benchmark-core: build
 	cd $(WS) && catkin_make -j$(JOBS) diekf_benchmark && ./devel/lib/diekf/diekf_benchmark
+
+# Instruction counts per call of the same cases under valgrind's callgrind (repeatable; docs/performance.md).
+benchmark-callgrind: build
+	cd $(WS) && catkin_make -j$(JOBS) diekf_benchmark && \
+	  bash $(CURDIR)/scripts/callgrind_core.sh devel/lib/diekf/diekf_benchmark
 
 clean:
 	rm -rf $(WS)
