@@ -23,7 +23,11 @@ APT_PACKAGES := build-essential cmake catkin ros-base-dev libnodeletlib-dev libc
   libtf2-geometry-msgs-dev python3-rosbag python3-rostest python3-roslaunch libnodeletlib-tools ros-base-python-dev rosbash valgrind \
   python3-tf2-msgs image-transport-tools clang libclang-rt-14-dev
 
+<<<<<<< HEAD
 .PHONY: all deps workspace build test demo benchmark benchmark-core fuzz sanitize soak clean
+=======
+.PHONY: all deps workspace build test demo benchmark benchmark-core benchmark-callgrind clean
+>>>>>>> perf
 
 all: build
 
@@ -62,6 +66,7 @@ benchmark: build
 benchmark-core: build
 	cd $(WS) && catkin_make -j$(JOBS) diekf_benchmark && ./devel/lib/diekf/diekf_benchmark
 
+<<<<<<< HEAD
 # libFuzzer target of the core's input handling (test/fuzz/fuzz_ingest.cpp), built with clang outside the catkin
 # tree into $(FUZZ_DIR), then run for FUZZ_SECONDS (docs/robustness.md).
 FUZZ_DIR ?= $(CURDIR)/.fuzz
@@ -83,6 +88,12 @@ sanitize:
 # 30 minutes of simulated flight through diekf_bag_runner: peak RSS and growth (scripts/soak.sh).
 soak: build
 	cd $(WS) && source devel/setup.bash && DIEKF_WS=$(WS) bash $(CURDIR)/scripts/soak.sh
+=======
+# Instruction counts per call of the same cases under valgrind's callgrind (repeatable; docs/performance.md).
+benchmark-callgrind: build
+	cd $(WS) && catkin_make -j$(JOBS) diekf_benchmark && \
+	  bash $(CURDIR)/scripts/callgrind_core.sh devel/lib/diekf/diekf_benchmark
+>>>>>>> perf
 
 clean:
 	rm -rf $(WS)

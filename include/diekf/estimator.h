@@ -27,7 +27,8 @@ struct FrameResult {
   bool update_applied = false;       ///< false for the first frame after (re)start or a skipped update
   int passes = 0;                    ///< Gauss-Newton passes used
   double update_ms = 0.0;            ///< wall time of preprocessing + iterations + covariance update, ms
-  double photometric_rms = 0.0;      ///< RMS of the final residual (normalised intensity units, or px for LK)
+  double photometric_rms = 0.0;      ///< RMS residual at the last linearisation (normalised intensity units;
+                                     ///< px for LK at the final estimate); see UpdateStats::rms_residual
   double valid_ratio = 0.0;          ///< fraction of pixels (or features) used
   std::string message;               ///< why initializing / reset / skipped (empty when tracking normally)
   int resets = 0;                    ///< filter restarts since construction (automatic and requested)

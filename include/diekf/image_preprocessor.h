@@ -47,37 +47,58 @@ class ImagePreprocessor {
   void process(const cv::Mat& raw, double t_s, PreprocessedFrame* out);
 
  private:
-  // Resampling lookup table: working pixel k = sum_j wy[j] sum_i wx[i] raw[base + yoff[j] + xoff[i]].
-  // Tap sets are shared between pixels (centroid offsets quantised to 1/16 raw pixel).
+  // ---- Resampling lookup table (built once in the constructor; see image_preprocessor.cpp). ----
+  // Fast path: working pixel k = sum_j wy[j] sum_i wx[i] raw[base + off[j] + i], i over a window of kWindow
+  // contiguous raw pixels (8 or 16), j over an even number of raw rows. Integer row pairs (Q14 weights) and
+  // float column weights, evaluated with OpenCV's portable 128-bit universal intrinsics.
+  static constexpr int kMaxRows = 8;
+  static constexpr int kMaxWindow = 16;
+  struct alignas(16) ColumnWeights {
+    float w[kMaxWindow] = {};  // weight of raw column base + i (already divided by the Q14 row scale)
+  };
+  struct alignas(16) RowTaps {
+    int16_t wpair[kMaxRows / 2][8] = {};  // (w_2k, w_2k+1) repeated 4x, Q14 (sum over rows = 16384)
+    int32_t off[kMaxRows] = {};           // byte offset of row j from the pixel's base
+    int n = 0;                            // rows (even)
+  };
+  struct FastPixel {
+    int32_t dst = 0;   // index into the (blur-padded) float buffer
+    int32_t out8 = 0;  // index into gray8 (row-major)
+    int32_t base = 0;  // byte offset of the first tap in the (continuous) raw image
+    uint16_t cols = 0, rows = 0;  // ColumnWeights / RowTaps indices
+  };
+  struct FastGroup {
+    int window = 8, rows = 2;
+    std::vector<FastPixel> pixels;
+  };
+  // Generic path (footprints wider than 16 raw px, raw images narrower than 16 px): sparse taps,
+  // k = sum_j wy[j] sum_i wx[i] raw[base + yoff[j] + xoff[i]], scalar.
   static constexpr int kMaxTaps = 8;
   struct TapSet {
     int n = 0;
     int32_t off[kMaxTaps] = {};  // byte offsets: i*step (x) or j*step*raw_stride (y)
     float w[kMaxTaps] = {};
   };
-  struct PixelTaps {
-    int32_t out = 0;   // working pixel index (row-major)
-    int32_t base = 0;  // byte offset of the first tap in the (continuous) raw image
+  struct SlowPixel {
+    int32_t dst = 0, out8 = 0, base = 0;
     uint16_t tx = 0, ty = 0;
   };
-  // Pixels grouped by tap counts (nx, ny), so each group runs a kernel with compile-time loop bounds.
-  struct TapGroup {
-    int nx = 0, ny = 0;
-    std::vector<PixelTaps> pixels;
-  };
 
-  static void resampleGroup(int nx, int ny, const PixelTaps* pix, std::size_t count, const TapSet* sets,
-                            const uint8_t* src, float* dst, uint8_t* g8);
+  void resample(const uint8_t* src, float* dst, uint8_t* g8) const;
 
   PreprocessParams params_;
   PinholeK raw_K_;
   PinholeK working_K_;
+  std::vector<ColumnWeights> columns_;
+  std::vector<RowTaps> rows_;
+  std::vector<FastGroup> fast_groups_;  // with slow_pixels_, every working pixel appears exactly once
   std::vector<TapSet> tapsets_;
-  std::vector<TapGroup> groups_;   // every working pixel appears in exactly one group
-  std::vector<float> blur_kernel_;  // odd length, sums to 1 (empty: no blur)
+  std::vector<SlowPixel> slow_pixels_;
+  std::vector<float> blur_kernel_;  // symmetric Gaussian, taps 0..radius (empty: no blur)
+  int pad_ = 0;                     // blur radius, px: columns of replicated border on each side of resampled_
   cv::Mat raw_copy_;                // continuous copy of a non-continuous input
-  cv::Mat resampled_;               // CV_32FC1 working image before blur, grey levels
-  cv::Mat blur_tmp_;                // CV_32FC1 horizontal pass of the blur
+  cv::Mat resampled_;               // CV_32FC1 H x (W + 2 pad_): working image before blur, grey levels
+  cv::Mat blur_tmp_;                // CV_32FC1 H x W: horizontal pass of the blur
 };
 
 }  // namespace diekf

@@ -11,8 +11,12 @@ namespace diekf {
 struct UpdateStats {
   bool applied = false;          ///< false if skipped (too few valid pixels, non-finite system)
   int passes = 0;                ///< Gauss-Newton passes run
-  double rms_residual = 0.0;     ///< RMS residual at the final estimate
-  double valid_ratio = 0.0;      ///< fraction of pixels inside the bounds mask
+  /// RMS of the photometric residual over the valid pixels at the LAST LINEARISATION POINT, i.e. the estimate
+  /// before the final Gauss-Newton step (the prior for a one-pass update: the innovation RMS; x_{J-1} for J
+  /// passes). Normalised intensity units. It is what the last pass already computed, so no extra sweep over
+  /// the image is needed; for divergence detection the innovation is the meaningful quantity anyway.
+  double rms_residual = 0.0;
+  double valid_ratio = 0.0;      ///< fraction of pixels inside the bounds mask (last linearisation)
   double last_step_norm = 0.0;   ///< |delta| of the last pass
 };
 
@@ -33,27 +37,31 @@ class PhotometricUpdate {
   /// Updates x and P in place from the pair (ref, cur) separated by dt_s.
   UpdateStats update(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PinholeK& K,
                      const Vec3& gyro_mean_C, double dt_s, State* x, ErrorCov* P);
-  /// Residual I_c(p) - I_r(p_r) at the final estimate of the last update (CV_32FC1, 0 outside the mask and
-  /// on pixels skipped by pixel_stride).
+  /// Residual I_c(p) - I_r(p_r) of the last linearisation (the point rms_residual refers to; CV_32FC1, 0
+  /// outside the mask and on pixels skipped by pixel_stride).
   const cv::Mat& residualImage() const { return residual_; }
 
   /// One linearisation at x (what every Gauss-Newton pass accumulates), without the solve:
   /// A = sum w_p S_p^T S_p (full symmetric 8x8) and b = sum w_p S_p^T r_p over the observed columns
   /// [d_vartheta, d_mu, d_b_w]. Returns the number of valid pixels; `candidates` (optional) receives the number
   /// of pixels tried. Frames must be valid CV_32FC1 of equal size (not checked here; update() checks).
+  /// Also writes residualImage().
   int linearize(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PinholeK& K,
                 const Vec3& gyro_mean_C, double dt_s, const State& x, ObservedInfo* A, ObservedVec* b,
                 int* candidates = nullptr);
 
  private:
-  /// linearize() against the reference already packed into ref_packed_.
+  /// linearize() against the reference already packed into ref_packed_ (buffers prepared).
   int accumulate(const PreprocessedFrame& cur, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s,
-                 const State& x, ObservedInfo* A, ObservedVec* b, int* candidates) const;
+                 const State& x, ObservedInfo* A, ObservedVec* b, int* candidates, double* sum_r2);
+  /// Residual image and row scratch for images of `size` (allocates only when the size changes).
+  void prepareBuffers(const cv::Size& size);
 
   PhotometricParams params_;
   PreprocessParams preprocess_;
   cv::Mat residual_;
   cv::Mat ref_packed_;  ///< CV_32FC4 (I, dI/dx, dI/dy, 0) of the reference frame, reused between calls
+  cv::Mat scratch_;     ///< CV_32FC1 12 x (width rounded up to 4): row buffers of the sweep
 };
 
 }  // namespace diekf

@@ -4,6 +4,8 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <cstdio>
+#include <cstring>
 #include <sstream>
 #include <vector>
 
@@ -87,6 +89,8 @@ struct PendingImage {
 };
 
 constexpr size_t kImuBufferCapacity = 1024;  // filtered samples (about 10 s at 100 Hz)
+constexpr size_t kResultCapacity = 64;       // unread results kept (oldest dropped): nobody reads, memory bounded
+constexpr size_t kMessageCapacity = 160;     // chars reserved per result message (formatted without allocation)
 
 }  // namespace
 
@@ -99,7 +103,15 @@ struct Estimator::Impl {
         photometric(photometricParamsFor(p), p.preprocess),
         feature(p.feature, photometricParamsFor(p)),
         imu_buffer(kImuBufferCapacity),
-        images(static_cast<size_t>(std::max(1, p.max_queued_images))) {
+        images(static_cast<size_t>(std::max(1, p.max_queued_images))),
+        results(kResultCapacity) {
+    // Result slots keep their message buffers: no allocation per frame for the usual messages.
+    for (size_t i = 0; i < kResultCapacity; ++i) {
+      FrameResult& slot = results.emplaceSlot();
+      slot.message.reserve(kMessageCapacity);
+      slot.last_reset_reason.reserve(kMessageCapacity);
+    }
+    results.clear();
     resetFilter();
   }
 
@@ -350,6 +362,7 @@ struct Estimator::Impl {
     FrameResult r;
     r.t_s = img.t_s;
     std::string restart_reason;  // set when the filter restarts at this image before any update
+    char msg[kMessageCapacity] = "";  // the result's message, formatted without allocation
 
     PreprocessedFrame& cur = frames[1 - ref_index];
     img_pre.process(img.gray, img.t_s, &cur);
@@ -462,36 +475,37 @@ struct Estimator::Impl {
       if (usable) startAt(img.t_s);
       have_reference = usable;
       r.status = FilterStatus::kReset;
-      r.message = reason;
+      std::snprintf(msg, sizeof(msg), "%s", reason.c_str());
     } else if (!restart_reason.empty()) {
       r.status = FilterStatus::kReset;
-      r.message = restart_reason;
+      std::snprintf(msg, sizeof(msg), "%s", restart_reason.c_str());
     } else if (!pending_reset_reason.empty()) {
       // The first frame after a restart triggered by the input (time jump, IMU gap, internal error).
       r.status = FilterStatus::kReset;
-      r.message = pending_reset_reason;
+      std::snprintf(msg, sizeof(msg), "%s", pending_reset_reason.c_str());
     } else if (!converged) {
       const double relative_sigma_d = std::sqrt(std::max(0.0, P(0, 0))) / x.alpha;  // sigma_d / d
       converged = updates_since_reset > 0 && relative_sigma_d < params.init.tracking_max_relative_sigma_d;
       r.status = converged ? FilterStatus::kTracking : FilterStatus::kInitializing;
       if (!usable) {
-        r.message = usable_why;
+        std::snprintf(msg, sizeof(msg), "%s", usable_why.c_str());
       } else if (!had_reference) {
-        r.message = "first image: reference set";
+        std::snprintf(msg, sizeof(msg), "first image: reference set");
       } else if (updates_since_reset == 0) {
-        r.message = skip_reason.empty() ? "waiting for a valid image update" : skip_reason;
+        std::snprintf(msg, sizeof(msg), "%s",
+                      skip_reason.empty() ? "waiting for a valid image update" : skip_reason.c_str());
       } else if (!converged) {
-        std::ostringstream os;
-        os << "converging: sigma_d/d = " << relative_sigma_d << " (tracking below "
-           << params.init.tracking_max_relative_sigma_d << ")";
-        r.message = os.str();
+        std::snprintf(msg, sizeof(msg), "converging: sigma_d/d = %g (tracking below %g)", relative_sigma_d,
+                      params.init.tracking_max_relative_sigma_d);
       }
       if (!converged && !last_reset_reason.empty()) {
-        r.message += std::string(" (last reset: ") + last_reset_reason + (warm_started ? "; restarted from the last good distance)" : ")");
+        const size_t used = std::strlen(msg);
+        std::snprintf(msg + used, sizeof(msg) - used, " (last reset: %s%s", last_reset_reason.c_str(),
+                      warm_started ? "; restarted from the last good distance)" : ")");
       }
     } else {
       r.status = FilterStatus::kTracking;
-      r.message = skip_reason;
+      std::snprintf(msg, sizeof(msg), "%s", skip_reason.c_str());
     }
     pending_reset_reason.clear();
     if (r.status == FilterStatus::kTracking && stats.applied && bad_frames == 0) rememberGood(img.t_s);
@@ -499,9 +513,13 @@ struct Estimator::Impl {
     r.state = x;
     r.covariance = P;
     r.resets = resets;
-    r.last_reset_reason = last_reset_reason;
-    results.push_back(std::move(r));
-    if (results.size() > 64) results.pop_front();  // nobody reads: keep memory bounded
+    // Into a ring slot (the oldest unread result is dropped when full), reusing the slot's string buffers.
+    FrameResult& slot = results.emplaceSlot();
+    r.message.swap(slot.message);
+    r.message.assign(msg);
+    r.last_reset_reason.swap(slot.last_reset_reason);
+    r.last_reset_reason.assign(last_reset_reason);
+    slot = std::move(r);
   }
 
   /// Processes every pending image whose stamp is covered by filtered IMU data. Before the filter has started,
@@ -551,7 +569,7 @@ struct Estimator::Impl {
 
   Ring<ImuSample> imu_buffer;   // filtered samples in C, delay-compensated stamps
   Ring<PendingImage> images;    // images waiting for IMU coverage
-  std::deque<FrameResult> results;
+  Ring<FrameResult> results;    // unread results
   PreprocessedFrame frames[2];
   int ref_index = 0;
 
@@ -705,8 +723,8 @@ bool Estimator::addImage(double t_cam_s, const cv::Mat& image) {
 bool Estimator::popResult(FrameResult* out) {
   Impl& m = *impl_;
   if (m.results.empty()) return false;
-  *out = std::move(m.results.front());
-  m.results.pop_front();
+  *out = m.results[0];  // copy: the slot keeps its message buffer, `out` reuses its own
+  m.results.pop();
   return true;
 }
 

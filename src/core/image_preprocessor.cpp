@@ -3,17 +3,24 @@
 // Resampling (precomputed once): every working pixel p' maps to a raw pixel c = distortedPixel(K'^-1 p').
 // Its footprint in the raw image is the image of a 1x1 working pixel under that map, with extents
 // F_x = |d c / d p'_row 0| and F_y = |row 1| (raw px per working px, from central differences). The pixel's
-// value is a separable box average over the footprint, sampled by a grid of integer raw taps:
-//   n = clamp(ceil(F / 2.5), 2, 8) taps per axis, spaced step = max(1, round(F / n)) raw px
-//   (752 -> 90 px: F ~ 8.4 at the centre, 4x4 taps 2 px apart),
-//   weights w_i = 1/n + d (x_i - m) / sum_k (x_k - m)^2   (m = mean tap position, d = c - m),
-// so the weights sum to one and the weighted tap centroid is exactly c (up to the 1/16 px quantisation of d
-// that lets pixels share tap sets). With n = 2, step = 1 this is bilinear interpolation. Per frame the
-// resampling is one pass over a table of (output index, base offset, x tap set, y tap set), 12 bytes per
-// working pixel, grouped by tap counts so each group runs an unrolled kernel.
+// value is a separable average over the footprint with a linear weight tilt that puts the weighted tap centroid
+// exactly on c (up to a 1/16 raw px quantisation of the tilt that lets pixels share weight sets):
+//   weights w_i = 1/n + d (x_i - m) / sum_k (x_k - m)^2   (m = mean tap position, d = c - m, sum w_i = 1).
+//   Along x: n = clamp(round(F_x), 2, 16) CONTIGUOUS raw columns (a box of the footprint's width; 752 -> 90 px:
+//     F_x ~ 8.4 at the centre, 8 columns), read as one window of 8 or 16 bytes.
+//   Along y: n = clamp(ceil(F_y / 2.5), 2, 8) rows spaced max(1, round(F_y / n)) raw px (4 rows 2 px apart at
+//     the centre), padded to an even count with a zero-weight row; weights in Q14 fixed point.
+// With n = 2 taps 1 px apart this is bilinear interpolation. Per frame the resampling is one pass over a table
+// of (destination, base offset, column-weight set, row set), 16 bytes per working pixel. Per pixel and pair of
+// rows: two 8-byte loads widened to 16 bit, interleaved, and one 16-bit dot product per 4 columns against the
+// two rows' Q14 weights (OpenCV universal intrinsics: SSE2 / NEON / scalar emulation); the column weights are
+// applied in float at the end. Footprints wider than 16 raw px (working images narrower than ~47 px at
+// 752 raw px) or raw images narrower than 16 px use a scalar path with up to 8 x 8 sparse taps.
 //
-// Then, at working resolution: separable Gaussian blur (radius ceil(3 sigma), replicated border), brightness
-// normalisation (zero mean, unit variance; a uniform image gives zeros), central-difference gradients.
+// Then, at working resolution: separable Gaussian blur (radius ceil(3 sigma), replicated border; the
+// resampler writes into a buffer with the border columns pre-allocated), brightness normalisation (zero mean,
+// unit variance; a uniform image gives zeros; sums accumulated in the vertical blur pass), and central-difference
+// gradients fused with the normalisation in one pass over the rows.
 #include "diekf/image_preprocessor.h"
 
 #include <algorithm>
@@ -22,6 +29,8 @@
 #include <sstream>
 #include <stdexcept>
 #include <tuple>
+
+#include <opencv2/core/hal/intrin.hpp>
 
 namespace diekf {
 namespace {
@@ -37,61 +46,152 @@ void ensure(cv::Mat& m, int rows, int cols, int type) {
   if (m.rows != rows || m.cols != cols || m.type() != type || !m.isContinuous()) m.create(rows, cols, type);
 }
 
-// Resampling kernel with compile-time tap counts (unrolled, independent partial sums).
-template <int NX, int NY, typename Pix, typename Set>
-void resampleKernel(const Pix* pix, std::size_t count, const Set* sets, const uint8_t* src, float* dst,
-                    uint8_t* g8) {
-  for (std::size_t k = 0; k < count; ++k) {
-    const Pix& p = pix[k];
-    const Set& tx = sets[p.tx];
-    const Set& ty = sets[p.ty];
-    const uint8_t* b = src + p.base;
-    float acc = 0.f;
-    for (int j = 0; j < NY; ++j) {
-      const uint8_t* row = b + ty.off[j];
-      float s = 0.f;
-      for (int i = 0; i < NX; ++i) s += tx.w[i] * static_cast<float>(row[tx.off[i]]);
-      acc += ty.w[j] * s;
+inline uint8_t toGray8(float v) {
+  const float r = v + 0.5f;
+  return static_cast<uint8_t>(r <= 0.f ? 0 : (r >= 255.f ? 255 : static_cast<int>(r)));
+}
+
+constexpr int kQ14 = 1 << 14;
+
+// Fast resampling: the 4 partial sums (float lanes) of one pixel, WIN contiguous columns (8 or 16), NY rows
+// (even), see the file comment.
+template <int WIN, int NY, typename Pix, typename Cols, typename Rows>
+inline cv::v_float32x4 fastPixel(const Pix& p, const Cols* cols, const Rows* rows, const uint8_t* src) {
+  using namespace cv;
+  const float* cw = cols[p.cols].w;
+  const Rows& rt = rows[p.rows];
+  const uint8_t* b = src + p.base;
+  if constexpr (WIN == 8) {
+    v_int32x4 s0 = v_setzero_s32(), s1 = v_setzero_s32();
+    for (int j = 0; j < NY; j += 2) {
+      const v_uint16x8 r0 = v_load_expand(b + rt.off[j]);
+      const v_uint16x8 r1 = v_load_expand(b + rt.off[j + 1]);
+      v_uint16x8 z0, z1;
+      v_zip(r0, r1, z0, z1);  // (r0[c], r1[c]) pairs: columns 0-3 in z0, 4-7 in z1
+      const v_int16x8 w = v_load(rt.wpair[j / 2]);
+      s0 = v_dotprod(v_reinterpret_as_s16(z0), w, s0);
+      s1 = v_dotprod(v_reinterpret_as_s16(z1), w, s1);
     }
-    dst[p.out] = acc;
-    const float r = acc + 0.5f;
-    g8[p.out] = static_cast<uint8_t>(r <= 0.f ? 0 : (r >= 255.f ? 255 : static_cast<int>(r)));
+    return v_muladd(v_cvt_f32(s1), v_load(cw + 4), v_cvt_f32(s0) * v_load(cw));
+  } else {
+    v_int32x4 s0 = v_setzero_s32(), s1 = v_setzero_s32(), s2 = v_setzero_s32(), s3 = v_setzero_s32();
+    for (int j = 0; j < NY; j += 2) {
+      v_uint16x8 a0, a1, c0, c1;
+      v_expand(v_load(b + rt.off[j]), a0, a1);
+      v_expand(v_load(b + rt.off[j + 1]), c0, c1);
+      v_uint16x8 z0, z1, z2, z3;
+      v_zip(a0, c0, z0, z1);
+      v_zip(a1, c1, z2, z3);
+      const v_int16x8 w = v_load(rt.wpair[j / 2]);
+      s0 = v_dotprod(v_reinterpret_as_s16(z0), w, s0);
+      s1 = v_dotprod(v_reinterpret_as_s16(z1), w, s1);
+      s2 = v_dotprod(v_reinterpret_as_s16(z2), w, s2);
+      s3 = v_dotprod(v_reinterpret_as_s16(z3), w, s3);
+    }
+    return v_muladd(v_cvt_f32(s3), v_load(cw + 12),
+                    v_muladd(v_cvt_f32(s2), v_load(cw + 8),
+                             v_muladd(v_cvt_f32(s1), v_load(cw + 4), v_cvt_f32(s0) * v_load(cw))));
   }
 }
 
-template <int NX, int NY, typename Pix, typename Set>
-bool tryKernel(int nx, int ny, const Pix* pix, std::size_t count, const Set* sets, const uint8_t* src,
-               float* dst, uint8_t* g8) {
-  if (nx != NX || ny != NY) return false;
-  resampleKernel<NX, NY>(pix, count, sets, src, dst, g8);
+// Fast resampling kernel: pixels in batches of 4 (one horizontal reduction and one rounding for 4 pixels).
+template <int WIN, int NY, typename Pix, typename Cols, typename Rows>
+void fastKernel(const Pix* pix, std::size_t count, const Cols* cols, const Rows* rows, const uint8_t* src,
+                float* dst, uint8_t* g8) {
+  using namespace cv;
+  std::size_t k = 0;
+  alignas(16) float v[4];
+  alignas(16) int g[4];
+  const v_int32x4 lo = v_setzero_s32(), hi = v_setall_s32(255);
+  for (; k + 4 <= count; k += 4) {
+    const v_float32x4 sums = v_reduce_sum4(
+        fastPixel<WIN, NY>(pix[k], cols, rows, src), fastPixel<WIN, NY>(pix[k + 1], cols, rows, src),
+        fastPixel<WIN, NY>(pix[k + 2], cols, rows, src), fastPixel<WIN, NY>(pix[k + 3], cols, rows, src));
+    v_store_aligned(v, sums);
+    v_store_aligned(g, v_min(v_max(v_round(sums), lo), hi));
+    for (int i = 0; i < 4; ++i) {
+      dst[pix[k + i].dst] = v[i];
+      g8[pix[k + i].out8] = static_cast<uint8_t>(g[i]);
+    }
+  }
+  for (; k < count; ++k) {
+    const float s = v_reduce_sum(fastPixel<WIN, NY>(pix[k], cols, rows, src));
+    dst[pix[k].dst] = s;
+    g8[pix[k].out8] = toGray8(s);
+  }
+}
+
+template <int WIN, int NY, typename Pix, typename Cols, typename Rows>
+bool tryFast(int win, int ny, const Pix* pix, std::size_t count, const Cols* cols, const Rows* rows,
+             const uint8_t* src, float* dst, uint8_t* g8) {
+  if (win != WIN || ny != NY) return false;
+  fastKernel<WIN, NY>(pix, count, cols, rows, src, dst, g8);
   return true;
 }
 
-template <int NY, typename Pix, typename Set>
-bool dispatchX(int nx, int ny, const Pix* pix, std::size_t count, const Set* sets, const uint8_t* src,
-               float* dst, uint8_t* g8) {
-  return tryKernel<2, NY>(nx, ny, pix, count, sets, src, dst, g8) ||
-         tryKernel<3, NY>(nx, ny, pix, count, sets, src, dst, g8) ||
-         tryKernel<4, NY>(nx, ny, pix, count, sets, src, dst, g8) ||
-         tryKernel<5, NY>(nx, ny, pix, count, sets, src, dst, g8) ||
-         tryKernel<6, NY>(nx, ny, pix, count, sets, src, dst, g8) ||
-         tryKernel<7, NY>(nx, ny, pix, count, sets, src, dst, g8) ||
-         tryKernel<8, NY>(nx, ny, pix, count, sets, src, dst, g8);
+// Horizontal blur of one row with a symmetric kernel of radius R (compile time): in[-R .. W-1+R] readable.
+template <int R>
+void blurRowH(const float* in, const float* kern, int W, float* out) {
+  float k[R + 1];
+  for (int i = 0; i <= R; ++i) k[i] = kern[i];
+  for (int x = 0; x < W; ++x) {
+    float s = k[0] * in[x];
+    for (int i = 1; i <= R; ++i) s += k[i] * (in[x - i] + in[x + i]);
+    out[x] = s;
+  }
+}
+void blurRowHGeneric(const float* in, const float* kern, int R, int W, float* out) {
+  for (int x = 0; x < W; ++x) out[x] = kern[0] * in[x];
+  for (int i = 1; i <= R; ++i) {
+    const float ki = kern[i];
+    for (int x = 0; x < W; ++x) out[x] += ki * (in[x - i] + in[x + i]);
+  }
+}
+
+// Vertical blur of row y (rows[i] = input row y + i - R, clamped), symmetric kernel of radius R.
+template <int R>
+void blurRowV(const float* const* rows, const float* kern, int W, float* out) {
+  float k[R + 1];
+  for (int i = 0; i <= R; ++i) k[i] = kern[i];
+  const float* c = rows[R];
+  for (int x = 0; x < W; ++x) {
+    float s = k[0] * c[x];
+    for (int i = 1; i <= R; ++i) s += k[i] * (rows[R - i][x] + rows[R + i][x]);
+    out[x] = s;
+  }
+}
+void blurRowVGeneric(const float* const* rows, const float* kern, int R, int W, float* out) {
+  for (int x = 0; x < W; ++x) out[x] = kern[0] * rows[R][x];
+  for (int i = 1; i <= R; ++i) {
+    const float ki = kern[i];
+    const float* a = rows[R - i];
+    const float* b = rows[R + i];
+    for (int x = 0; x < W; ++x) out[x] += ki * (a[x] + b[x]);
+  }
+}
+
+// Sum and sum of squares of (r[x] - pivot) over one row, in float lanes (a row is <= a few hundred values).
+void rowMoments(const float* r, int W, float pivot, double* sum, double* sum_sq) {
+  using namespace cv;
+  const v_float32x4 vp = v_setall_f32(pivot);
+  v_float32x4 s1 = v_setzero_f32(), s2 = v_setzero_f32();
+  int x = 0;
+  for (; x + 4 <= W; x += 4) {
+    const v_float32x4 v = v_load(r + x) - vp;
+    s1 += v;
+    s2 = v_muladd(v, v, s2);
+  }
+  float t1 = v_reduce_sum(s1), t2 = v_reduce_sum(s2);
+  for (; x < W; ++x) {
+    const float v = r[x] - pivot;
+    t1 += v;
+    t2 += v * v;
+  }
+  *sum += t1;
+  *sum_sq += t2;
 }
 
 }  // namespace
-
-void ImagePreprocessor::resampleGroup(int nx, int ny, const PixelTaps* pix, std::size_t count,
-                                      const TapSet* sets, const uint8_t* src, float* dst, uint8_t* g8) {
-  const bool done = dispatchX<2>(nx, ny, pix, count, sets, src, dst, g8) ||
-                    dispatchX<3>(nx, ny, pix, count, sets, src, dst, g8) ||
-                    dispatchX<4>(nx, ny, pix, count, sets, src, dst, g8) ||
-                    dispatchX<5>(nx, ny, pix, count, sets, src, dst, g8) ||
-                    dispatchX<6>(nx, ny, pix, count, sets, src, dst, g8) ||
-                    dispatchX<7>(nx, ny, pix, count, sets, src, dst, g8) ||
-                    dispatchX<8>(nx, ny, pix, count, sets, src, dst, g8);
-  if (!done) throw std::logic_error("ImagePreprocessor: tap count outside [2, 8]");
-}
 
 ImagePreprocessor::ImagePreprocessor(const CameraModel& camera, const PreprocessParams& params)
     : params_(params), raw_K_(camera.K) {
@@ -134,6 +234,18 @@ ImagePreprocessor::ImagePreprocessor(const CameraModel& camera, const Preprocess
   working_K_.cx = (raw_K_.cx + 0.5) * sx - 0.5;
   working_K_.cy = (raw_K_.cy + 0.5) * sy - 0.5;
 
+  // ---- blur kernel (symmetric: stored as kern[0..r]) ----
+  if (params.blur_sigma_px > 0.0) {
+    const double s = params.blur_sigma_px;
+    const int r = std::max(1, static_cast<int>(std::ceil(3.0 * s)));
+    blur_kernel_.resize(r + 1);
+    double sum = 0.0;
+    for (int i = -r; i <= r; ++i) sum += std::exp(-0.5 * i * i / (s * s));
+    for (int i = 0; i <= r; ++i) blur_kernel_[i] = static_cast<float>(std::exp(-0.5 * i * i / (s * s)) / sum);
+    pad_ = r;
+  }
+  const int padded_W = W + 2 * pad_;
+
   // ---- resampling table ----
   const PinholeK& Kw = working_K_;
   auto toRaw = [&](double u, double v) {
@@ -142,12 +254,9 @@ ImagePreprocessor::ImagePreprocessor(const CameraModel& camera, const Preprocess
   };
   const int raw_stride = w;  // process() hands a continuous CV_8UC1 image to the resampler
 
-  std::map<std::tuple<int, int, int, int>, uint16_t> index;  // (axis, n, step, d*16) -> tap set
-  // Builds the 1-D taps for centre c (raw px), footprint F (raw px), image size `size`; returns the first
-  // tap's coordinate and the tap set index.
-  auto taps1d = [&](int axis, double c, double F, int size) -> std::pair<int, uint16_t> {
-    int n = std::clamp(static_cast<int>(std::ceil(F / 2.5 - 1e-9)), 2, kMaxTaps);
-    int step = std::max(1, static_cast<int>(std::lround(F / n)));
+  // 1-D taps: n taps `step` raw px apart around centre c in an axis of `size` px. Returns the first tap's
+  // coordinate, the quantised tilt dq (1/16 px) and fills the weights (sum 1, centroid first + span/2 + dq/16).
+  auto taps1d = [](double c, int n, int step, int size, double* wts, int* dq_out) {
     while ((n - 1) * step > size - 1 && step > 1) --step;
     while ((n - 1) * step > size - 1 && n > 2) --n;
     const int span = (n - 1) * step;
@@ -157,65 +266,175 @@ ImagePreprocessor::ImagePreprocessor(const CameraModel& camera, const Preprocess
     double sum_sq = 0.0;
     for (int i = 0; i < n; ++i) sum_sq += (i * step - 0.5 * span) * (i * step - 0.5 * span);
     int dq = 0;
-    if (n > 1) {
+    if (n > 1 && span > 0) {
       // Largest |d| keeping every weight >= 0 (only reached for pixels mapping outside the raw image).
       const double d_max = sum_sq / (n * 0.5 * span);
       const int dq_max = static_cast<int>(std::floor(d_max * 16.0));
       dq = std::clamp(static_cast<int>(std::lround((c - m) * 16.0)), -dq_max, dq_max);
     }
+    const double d = dq / 16.0;
+    for (int i = 0; i < n; ++i) {
+      const double xi = i * step - 0.5 * span;
+      wts[i] = 1.0 / n + (span > 0 ? d * xi / sum_sq : 0.0);
+    }
+    *dq_out = dq;
+    return std::make_tuple(first, n, step);
+  };
+  auto rowsFor = [&](double F) {
+    return std::clamp(static_cast<int>(std::ceil(F / 2.5 - 1e-9)), 2, kMaxTaps);
+  };
+  auto stepFor = [](double F, int n) { return std::max(1, static_cast<int>(std::lround(F / n))); };
+
+  std::map<std::tuple<int, int, int, int>, uint16_t> col_index, row_index, set_index;
+  std::map<std::pair<int, int>, std::size_t> group_of;
+  auto checkCount = [](std::size_t n) {
+    if (n >= 65535) throw std::logic_error("ImagePreprocessor: too many resampling weight sets");
+  };
+  // Sparse tap set of the generic path (x: byte offsets i*step, y: j*step*raw_stride).
+  auto sparseSet = [&](int axis, double c, double F, int size) -> std::pair<int, uint16_t> {
+    const int n0 = rowsFor(F);
+    double wts[kMaxTaps];
+    int dq = 0;
+    const auto [first, n, step] = taps1d(c, n0, stepFor(F, n0), size, wts, &dq);
     const auto key = std::make_tuple(axis, n, step, dq);
-    auto it = index.find(key);
-    if (it == index.end()) {
-      if (tapsets_.size() >= 65535) throw std::logic_error("ImagePreprocessor: too many tap sets");
+    auto it = set_index.find(key);
+    if (it == set_index.end()) {
+      checkCount(tapsets_.size());
       TapSet ts;
       ts.n = n;
-      const double d = dq / 16.0;
       for (int i = 0; i < n; ++i) {
-        const double xi = i * step - 0.5 * span;
-        ts.w[i] = static_cast<float>(1.0 / n + (n > 1 ? d * xi / sum_sq : 0.0));
+        ts.w[i] = static_cast<float>(wts[i]);
         ts.off[i] = axis == 0 ? i * step : i * step * raw_stride;
       }
-      it = index.emplace(key, static_cast<uint16_t>(tapsets_.size())).first;
+      it = set_index.emplace(key, static_cast<uint16_t>(tapsets_.size())).first;
       tapsets_.push_back(ts);
     }
     return {first, it->second};
   };
 
-  std::map<std::pair<int, int>, std::size_t> group_of;
   for (int v = 0; v < H; ++v) {
     for (int u = 0; u < W; ++u) {
       const Vec2 c = toRaw(u, v);
       const Vec2 du = toRaw(u + 0.5, v) - toRaw(u - 0.5, v);  // raw displacement per working px along x
       const Vec2 dv = toRaw(u, v + 0.5) - toRaw(u, v - 0.5);
-      const double Fx = std::hypot(du.x(), dv.x());
-      const double Fy = std::hypot(du.y(), dv.y());
-      const double cxr = std::isfinite(c.x()) ? c.x() : 0.0;
-      const double cyr = std::isfinite(c.y()) ? c.y() : 0.0;
-      const auto tx = taps1d(0, std::clamp(cxr, -1e6, 1e6), std::isfinite(Fx) ? Fx : 1.0, w);
-      const auto ty = taps1d(1, std::clamp(cyr, -1e6, 1e6), std::isfinite(Fy) ? Fy : 1.0, h);
-      PixelTaps p;
-      p.out = v * W + u;
-      p.base = ty.first * raw_stride + tx.first;
-      p.tx = tx.second;
-      p.ty = ty.second;
-      const std::pair<int, int> key(tapsets_[p.tx].n, tapsets_[p.ty].n);
-      auto it = group_of.find(key);
-      if (it == group_of.end()) {
-        it = group_of.emplace(key, groups_.size()).first;
-        groups_.push_back(TapGroup{key.first, key.second, {}});
+      double Fx = std::hypot(du.x(), dv.x());
+      double Fy = std::hypot(du.y(), dv.y());
+      if (!std::isfinite(Fx)) Fx = 1.0;
+      if (!std::isfinite(Fy)) Fy = 1.0;
+      const double cxr = std::clamp(std::isfinite(c.x()) ? c.x() : 0.0, -1e6, 1e6);
+      const double cyr = std::clamp(std::isfinite(c.y()) ? c.y() : 0.0, -1e6, 1e6);
+      const int dst = v * padded_W + pad_ + u;
+      const int out8 = v * W + u;
+
+      if (w < kMaxWindow || Fx > kMaxWindow) {
+        const auto tx = sparseSet(0, cxr, Fx, w);
+        const auto ty = sparseSet(1, cyr, Fy, h);
+        SlowPixel p;
+        p.dst = dst;
+        p.out8 = out8;
+        p.base = ty.first * raw_stride + tx.first;
+        p.tx = tx.second;
+        p.ty = ty.second;
+        slow_pixels_.push_back(p);
+        continue;
       }
-      groups_[it->second].pixels.push_back(p);
+
+      // Columns: contiguous box of about the footprint's width inside an 8- or 16-byte window.
+      double wx[kMaxWindow];
+      int dqx = 0;
+      const int nx_wanted = std::clamp(static_cast<int>(std::lround(Fx)), 2, kMaxWindow);
+      const auto [first_x, nx, step_x] = taps1d(cxr, nx_wanted, 1, w, wx, &dqx);
+      (void)step_x;
+      const int window = nx <= 8 ? 8 : 16;
+      const int win_start = std::min(first_x, w - window);
+      const int lane = first_x - win_start;
+      const auto ckey = std::make_tuple(window, nx, lane, dqx);
+      auto cit = col_index.find(ckey);
+      if (cit == col_index.end()) {
+        checkCount(columns_.size());
+        ColumnWeights cw;
+        for (int i = 0; i < nx; ++i) cw.w[lane + i] = static_cast<float>(wx[i] / kQ14);
+        cit = col_index.emplace(ckey, static_cast<uint16_t>(columns_.size())).first;
+        columns_.push_back(cw);
+      }
+
+      // Rows: sparse taps, even count, Q14 weights summing exactly to 2^14.
+      double wy[kMaxRows];
+      int dqy = 0;
+      const int ny0 = rowsFor(Fy);
+      const auto [first_y, ny, step_y] = taps1d(cyr, ny0, stepFor(Fy, ny0), h, wy, &dqy);
+      const int ny_even = (ny + 1) / 2 * 2;
+      const auto rkey = std::make_tuple(ny, step_y, dqy, 0);
+      auto rit = row_index.find(rkey);
+      if (rit == row_index.end()) {
+        checkCount(rows_.size());
+        RowTaps rt;
+        rt.n = ny_even;
+        int q[kMaxRows] = {};
+        int q_sum = 0, largest = 0;
+        for (int j = 0; j < ny; ++j) {
+          q[j] = static_cast<int>(std::lround(wy[j] * kQ14));
+          q_sum += q[j];
+          if (q[j] > q[largest]) largest = j;
+        }
+        q[largest] += kQ14 - q_sum;
+        for (int j = 0; j < ny_even; ++j) rt.off[j] = std::min(j, ny - 1) * step_y * raw_stride;
+        for (int k = 0; k < ny_even / 2; ++k) {
+          for (int l = 0; l < 4; ++l) {
+            rt.wpair[k][2 * l] = static_cast<int16_t>(q[2 * k]);
+            rt.wpair[k][2 * l + 1] = static_cast<int16_t>(q[2 * k + 1]);
+          }
+        }
+        rit = row_index.emplace(rkey, static_cast<uint16_t>(rows_.size())).first;
+        rows_.push_back(rt);
+      }
+
+      FastPixel p;
+      p.dst = dst;
+      p.out8 = out8;
+      p.base = first_y * raw_stride + win_start;
+      p.cols = cit->second;
+      p.rows = rit->second;
+      const std::pair<int, int> gkey(window, ny_even);
+      auto git = group_of.find(gkey);
+      if (git == group_of.end()) {
+        git = group_of.emplace(gkey, fast_groups_.size()).first;
+        fast_groups_.push_back(FastGroup{window, ny_even, {}});
+      }
+      fast_groups_[git->second].pixels.push_back(p);
     }
   }
+}
 
-  // ---- blur kernel ----
-  if (params.blur_sigma_px > 0.0) {
-    const double s = params.blur_sigma_px;
-    const int r = std::max(1, static_cast<int>(std::ceil(3.0 * s)));
-    blur_kernel_.resize(2 * r + 1);
-    double sum = 0.0;
-    for (int i = -r; i <= r; ++i) sum += std::exp(-0.5 * i * i / (s * s));
-    for (int i = -r; i <= r; ++i) blur_kernel_[i + r] = static_cast<float>(std::exp(-0.5 * i * i / (s * s)) / sum);
+void ImagePreprocessor::resample(const uint8_t* src, float* dst, uint8_t* g8) const {
+  for (const FastGroup& g : fast_groups_) {
+    const FastPixel* pix = g.pixels.data();
+    const std::size_t n = g.pixels.size();
+    const ColumnWeights* cols = columns_.data();
+    const RowTaps* rows = rows_.data();
+    const bool done = tryFast<8, 2>(g.window, g.rows, pix, n, cols, rows, src, dst, g8) ||
+                      tryFast<8, 4>(g.window, g.rows, pix, n, cols, rows, src, dst, g8) ||
+                      tryFast<8, 6>(g.window, g.rows, pix, n, cols, rows, src, dst, g8) ||
+                      tryFast<8, 8>(g.window, g.rows, pix, n, cols, rows, src, dst, g8) ||
+                      tryFast<16, 2>(g.window, g.rows, pix, n, cols, rows, src, dst, g8) ||
+                      tryFast<16, 4>(g.window, g.rows, pix, n, cols, rows, src, dst, g8) ||
+                      tryFast<16, 6>(g.window, g.rows, pix, n, cols, rows, src, dst, g8) ||
+                      tryFast<16, 8>(g.window, g.rows, pix, n, cols, rows, src, dst, g8);
+    if (!done) throw std::logic_error("ImagePreprocessor: resampling group outside the fast kernels");
+  }
+  for (const SlowPixel& p : slow_pixels_) {
+    const TapSet& tx = tapsets_[p.tx];
+    const TapSet& ty = tapsets_[p.ty];
+    const uint8_t* b = src + p.base;
+    float acc = 0.f;
+    for (int j = 0; j < ty.n; ++j) {
+      const uint8_t* row = b + ty.off[j];
+      float s = 0.f;
+      for (int i = 0; i < tx.n; ++i) s += tx.w[i] * static_cast<float>(row[tx.off[i]]);
+      acc += ty.w[j] * s;
+    }
+    dst[p.dst] = acc;
+    g8[p.out8] = toGray8(acc);
   }
 }
 
@@ -233,116 +452,94 @@ void ImagePreprocessor::process(const cv::Mat& raw, double t_s, PreprocessedFram
     src = raw_copy_.data;
   }
   const int W = working_K_.width, H = working_K_.height;
-  ensure(resampled_, H, W, CV_32FC1);
+  const int PW = W + 2 * pad_;
+  ensure(resampled_, H, PW, CV_32FC1);
   ensure(out->gray8, H, W, CV_8UC1);
   ensure(out->intensity, H, W, CV_32FC1);
   ensure(out->grad_x, H, W, CV_32FC1);
   ensure(out->grad_y, H, W, CV_32FC1);
 
-  // 1. Anti-aliased resampling through the lookup table, one kernel per (nx, ny) group.
-  {
-    float* dst = resampled_.ptr<float>();
-    uint8_t* g8 = out->gray8.ptr<uint8_t>();
-    for (const TapGroup& g : groups_) {
-      resampleGroup(g.nx, g.ny, g.pixels.data(), g.pixels.size(), tapsets_.data(), src, dst, g8);
+  // 1. Anti-aliased resampling through the lookup table into the padded buffer; replicate the border columns.
+  float* res = resampled_.ptr<float>();
+  resample(src, res, out->gray8.ptr<uint8_t>());
+  if (pad_ > 0) {
+    for (int y = 0; y < H; ++y) {
+      float* r = res + y * PW;
+      std::fill(r, r + pad_, r[pad_]);
+      std::fill(r + pad_ + W, r + PW, r[pad_ + W - 1]);
     }
   }
 
-  // 2. Separable Gaussian blur with a replicated border: resampled_ -> intensity.
+  // 2. Separable Gaussian blur -> intensity (grey levels), with the moments for the normalisation.
   float* I = out->intensity.ptr<float>();
+  // Moments of I - pivot, the pivot a value of the first row (limits cancellation in the float variance;
+  // a uniform image gives exactly zero).
+  float pivot = 0.f;
+  double sum = 0.0, sum_sq = 0.0;
   if (blur_kernel_.empty()) {
-    std::copy(resampled_.ptr<float>(), resampled_.ptr<float>() + W * H, I);
+    for (int y = 0; y < H; ++y) {
+      std::copy(res + y * PW + pad_, res + y * PW + pad_ + W, I + y * W);
+      if (y == 0) pivot = I[W / 2];
+      rowMoments(I + y * W, W, pivot, &sum, &sum_sq);
+    }
   } else {
     ensure(blur_tmp_, H, W, CV_32FC1);
-    const int r = static_cast<int>(blur_kernel_.size() / 2);
-    const float* kern = blur_kernel_.data() + r;  // kern[-r..r]
-    const float* in = resampled_.ptr<float>();
+    const int r = pad_;
+    const float* kern = blur_kernel_.data();
     float* tmp = blur_tmp_.ptr<float>();
-    // Horizontal pass: interior vectorised along x, the r border columns with clamped indices.
-    const int x_lo = std::min(r, W), x_hi = std::max(x_lo, W - r);
     for (int y = 0; y < H; ++y) {
-      const float* rin = in + y * W;
-      float* rout = tmp + y * W;
-      for (int x = x_lo; x < x_hi; ++x) rout[x] = kern[-r] * rin[x - r];
-      for (int i = -r + 1; i <= r; ++i) {
-        const float ki = kern[i];
-        const float* src_i = rin + i;
-        for (int x = x_lo; x < x_hi; ++x) rout[x] += ki * src_i[x];
-      }
-      for (int x = 0; x < W; ++x) {
-        if (x == x_lo) x = x_hi;
-        if (x >= W) break;
-        float s = 0.f;
-        for (int i = -r; i <= r; ++i) s += kern[i] * rin[std::clamp(x + i, 0, W - 1)];
-        rout[x] = s;
+      const float* in = res + y * PW + r;
+      float* o = tmp + y * W;
+      switch (r) {
+        case 1: blurRowH<1>(in, kern, W, o); break;
+        case 2: blurRowH<2>(in, kern, W, o); break;
+        case 3: blurRowH<3>(in, kern, W, o); break;
+        case 4: blurRowH<4>(in, kern, W, o); break;
+        default: blurRowHGeneric(in, kern, r, W, o); break;
       }
     }
-    // Vertical pass, row by row (vectorisable along x).
+    constexpr int kMaxRadius = 60;  // blur_sigma_px <= 20
+    const float* rows[2 * kMaxRadius + 1];
     for (int y = 0; y < H; ++y) {
-      float* rout = I + y * W;
-      const float k0 = kern[-r];
-      const float* r0 = tmp + std::clamp(y - r, 0, H - 1) * W;
-      for (int x = 0; x < W; ++x) rout[x] = k0 * r0[x];
-      for (int i = -r + 1; i <= r; ++i) {
-        const float ki = kern[i];
-        const float* ri = tmp + std::clamp(y + i, 0, H - 1) * W;
-        for (int x = 0; x < W; ++x) rout[x] += ki * ri[x];
+      for (int i = -r; i <= r; ++i) rows[i + r] = tmp + std::clamp(y + i, 0, H - 1) * W;
+      float* o = I + y * W;
+      switch (r) {
+        case 1: blurRowV<1>(rows, kern, W, o); break;
+        case 2: blurRowV<2>(rows, kern, W, o); break;
+        case 3: blurRowV<3>(rows, kern, W, o); break;
+        case 4: blurRowV<4>(rows, kern, W, o); break;
+        default: blurRowVGeneric(rows, kern, r, W, o); break;
       }
+      if (y == 0) pivot = o[W / 2];
+      rowMoments(o, W, pivot, &sum, &sum_sq);
     }
   }
 
-  // 3. Brightness normalisation.
-  const int N = W * H;
+  // 3. Brightness normalisation, fused with 4. the central-difference gradients (0 on the 1-pixel border):
+  //    row y+1 is normalised just before the gradients of row y read it.
+  float scale = 1.f / 255.f, offset = 0.f;
   if (params_.normalize_brightness) {
-    // Sums of (I - 128) in 8 float lanes per row (vectorisable; the pivot limits cancellation in the
-    // variance), accumulated in double across rows.
-    constexpr float kPivot = 128.f;
-    double sum = 0.0, sum_sq = 0.0;
-    for (int y = 0; y < H; ++y) {
-      const float* r = I + y * W;
-      float a1[8] = {}, a2[8] = {};
-      int x = 0;
-      for (; x + 8 <= W; x += 8) {
-        for (int l = 0; l < 8; ++l) {
-          const float v = r[x + l] - kPivot;
-          a1[l] += v;
-          a2[l] += v * v;
-        }
-      }
-      for (; x < W; ++x) {
-        const float v = r[x] - kPivot;
-        a1[0] += v;
-        a2[0] += v * v;
-      }
-      double s1 = 0.0, s2 = 0.0;
-      for (int l = 0; l < 8; ++l) {
-        s1 += a1[l];
-        s2 += a2[l];
-      }
-      sum += s1;
-      sum_sq += s2;
-    }
-    const double mean_c = sum / N;  // mean of I - kPivot
+    const int N = W * H;
+    const double mean_c = sum / N;  // mean of I - pivot
     const double var = std::max(0.0, sum_sq / N - mean_c * mean_c);
-    const double mean = mean_c + kPivot;
+    const double mean = mean_c + pivot;
     // Below 1e-3 grey levels of standard deviation the image is uniform: output zeros (no division by ~0).
     const double sd = std::sqrt(var);
-    const float scale = sd > 1e-3 ? static_cast<float>(1.0 / sd) : 0.f;
-    const float offset = static_cast<float>(-mean) * scale;
-    for (int k = 0; k < N; ++k) I[k] = I[k] * scale + offset;
-  } else {
-    constexpr float kInv255 = 1.f / 255.f;
-    for (int k = 0; k < N; ++k) I[k] *= kInv255;
+    scale = sd > 1e-3 ? static_cast<float>(1.0 / sd) : 0.f;
+    offset = static_cast<float>(-mean) * scale;
   }
-
-  // 4. Central-difference gradients, 0 on the 1-pixel border.
+  auto normalizeRow = [&](int y) {
+    float* r = I + y * W;
+    for (int x = 0; x < W; ++x) r[x] = r[x] * scale + offset;
+  };
   float* gx = out->grad_x.ptr<float>();
   float* gy = out->grad_y.ptr<float>();
+  normalizeRow(0);
+  normalizeRow(1);
   std::fill(gx, gx + W, 0.f);
   std::fill(gy, gy + W, 0.f);
-  std::fill(gx + (H - 1) * W, gx + N, 0.f);
-  std::fill(gy + (H - 1) * W, gy + N, 0.f);
   for (int y = 1; y < H - 1; ++y) {
+    normalizeRow(y + 1);
     const float* r = I + y * W;
     const float* up = r - W;
     const float* dn = r + W;
@@ -354,6 +551,8 @@ void ImagePreprocessor::process(const cv::Mat& raw, double t_s, PreprocessedFram
       oy[x] = 0.5f * (dn[x] - up[x]);
     }
   }
+  std::fill(gx + (H - 1) * W, gx + H * W, 0.f);
+  std::fill(gy + (H - 1) * W, gy + H * W, 0.f);
   out->t_s = t_s;
   out->valid = true;
 }

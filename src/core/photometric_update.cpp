@@ -3,6 +3,8 @@
 #include <algorithm>
 #include <cmath>
 
+#include <opencv2/core/hal/intrin.hpp>
+
 #include "gauss_newton.h"
 
 namespace diekf {
@@ -72,166 +74,199 @@ struct SweepConfig {
   bool gradient_weighting = false;
 };
 
-using Vec4f = Eigen::Matrix<float, 4, 1>;
-using Mat4f = Eigen::Matrix<float, 4, 4>;
-using Mat4d = Eigen::Matrix<double, 4, 4>;
-using Vec4d = Eigen::Matrix<double, 4, 1>;
-
-/// Sums of one sweep. A (8x8, symmetric) is kept as its upper block triangle of 4x4 blocks,
-/// A = [[A00, A01], [A01^T, A11]]: the lower off-diagonal block is never accumulated. 4x4 blocks map onto
-/// 4-float SIMD registers, so this costs 48 multiply-adds per pixel in 12 vector operations, fewer
-/// instructions than the 36 scalar multiply-adds of the exact upper triangle.
+/// Sums of one sweep in double: G = [A | b] (A upper triangle, i <= j < 8; b in column 8).
 struct SweepSums {
   int candidates = 0;
   int valid = 0;
   double sum_r2 = 0.0;
   double grad_sum = 0.0;  // sum of |grad I_c| over valid pixels (gradient weighting normalisation)
-  Mat4d A00 = Mat4d::Zero(), A01 = Mat4d::Zero(), A11 = Mat4d::Zero();
-  Vec4d b0 = Vec4d::Zero(), b1 = Vec4d::Zero();
+  double G[8][9] = {};
 };
 
-enum class SweepMode { kAccumulate, kResidual };
-
-/// The reference image as the sweeps read it. Strides in floats per row.
-struct RefView {
-  const float* packed = nullptr;  // (I, dI/dx, dI/dy, 0) interleaved: one 4-float load per bilinear corner
-  std::ptrdiff_t packed_stride = 0;
-  const float* intensity = nullptr;  // plain intensity, for the residual-only sweep (scalar bilinear)
-  std::ptrdiff_t intensity_stride = 0;
+/// Row buffers of one sweep (structure of arrays, length padded to a multiple of 4):
+/// T_k = sqrt(w) S_k (k = 0..7) and t = sqrt(w) r, zero for invalid pixels, and the current image's samples.
+struct RowBuffers {
+  float* T[9];
+  float* cur[3];  // I_c, dI_c/dx, dI_c/dy at the row's candidates (strided rows only)
 };
 
-RefView makeRefView(const cv::Mat& packed, const cv::Mat* intensity) {
-  RefView v;
-  v.packed = packed.ptr<float>(0);
-  v.packed_stride = static_cast<std::ptrdiff_t>(packed.step1());
-  if (intensity != nullptr) {
-    v.intensity = intensity->ptr<float>(0);
-    v.intensity_stride = static_cast<std::ptrdiff_t>(intensity->step1());
+/// Gram sums of one block of pairs over a row: G[i][j] += sum_k T_i[k] T_j[k] for i in [I0, I0 + NI), j in
+/// [J0, J0 + NJ) (j >= i when kUpper). Compile-time bounds: the accumulators stay in registers.
+template <int I0, int NI, int J0, int NJ, bool kUpper>
+void gramBlock(float* const* T, int n_pad, double (*G)[9]) {
+  using namespace cv;
+  v_float32x4 acc[NI][NJ];
+  for (int i = 0; i < NI; ++i)
+    for (int j = 0; j < NJ; ++j) acc[i][j] = v_setzero_f32();
+  for (int k = 0; k < n_pad; k += 4) {
+    v_float32x4 a[NI], b[NJ];
+    for (int i = 0; i < NI; ++i) a[i] = v_load(T[I0 + i] + k);
+    for (int j = 0; j < NJ; ++j) b[j] = v_load(T[J0 + j] + k);
+    for (int i = 0; i < NI; ++i)
+      for (int j = 0; j < NJ; ++j)
+        if (!kUpper || J0 + j >= I0 + i) acc[i][j] = v_muladd(a[i], b[j], acc[i][j]);
   }
-  return v;
+  for (int i = 0; i < NI; ++i)
+    for (int j = 0; j < NJ; ++j)
+      if (!kUpper || J0 + j >= I0 + i) G[I0 + i][J0 + j] += v_reduce_sum(acc[i][j]);
 }
 
-/// One sweep over the current image. kAccumulate: A, b with the Jacobian scaled by 1/dt (the caller rescales).
-/// kResidual: writes the residual image (0 where invalid) and sum of squares only. The weighting options are
-/// template parameters so that the common case compiles without their branches.
-template <SweepMode kMode, bool kHuber = false, bool kGradientWeighting = false>
-void sweep(const RefView& ref, const PreprocessedFrame& cur, const PixelWarp& wp, const SweepConfig& cfg,
-           SweepSums* sums, cv::Mat* residual) {
+/// Gram sums of one row over [T_0..T_7 | t]: A_ij += sum T_i T_j (i <= j < 8), b_i += sum T_i t, in blocks of
+/// at most 10 accumulators (4 lanes each) so that nothing spills.
+void accumulateRow(float* const* T, int n_pad, double (*G)[9]) {
+  gramBlock<0, 4, 0, 4, true>(T, n_pad, G);
+  gramBlock<4, 4, 4, 4, true>(T, n_pad, G);
+  gramBlock<0, 4, 4, 2, false>(T, n_pad, G);
+  gramBlock<0, 4, 6, 2, false>(T, n_pad, G);
+  gramBlock<0, 8, 8, 1, false>(T, n_pad, G);
+}
+
+/// One linearisation sweep over the current image against the packed reference (I, dI/dx, dI/dy, 0 per
+/// pixel). Per row: (1) 4 pixels at a time, warp, bilinear reference sample (4 corner loads + transpose per
+/// lane group), residual, Jacobian row S (2/dt times the true row: gradient sum instead of mean, Jacobian
+/// without dt; the caller rescales), weight; the results go to the row buffers; (2) the row's Gram sums.
+/// The residual r (0 where invalid) is written to `residual`. The weighting options are template parameters.
+template <bool kHuber, bool kGradientWeighting>
+void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelWarp& wp, const SweepConfig& cfg,
+           RowBuffers buf, SweepSums* sums, cv::Mat* residual) {
+  using namespace cv;
   const int W = cur.intensity.cols;
   const int H = cur.intensity.rows;
+  const float* R = ref_packed.ptr<float>(0);
+  const int sR = static_cast<int>(ref_packed.step1());  // floats per packed row
   // The reference sample needs its 2x2 neighbourhood inside the 1-px border where gradients are defined:
   // x0 = floor(rx) in [1, W-3]  <=>  rx in [1, W-2).
-  const float rx_lo = 1.0f, rx_hi = static_cast<float>(W - 2);
-  const float ry_lo = 1.0f, ry_hi = static_cast<float>(H - 2);
-  const float dt = cfg.dt;
-
-  const float* R = ref.packed;
-  const std::ptrdiff_t sR = ref.packed_stride;
-  const float* Ir = ref.intensity;
-  const std::ptrdiff_t sI = ref.intensity_stride;
+  const v_float32x4 rx_lo = v_setall_f32(1.0f), rx_hi = v_setall_f32(static_cast<float>(W - 2));
+  const v_float32x4 ry_lo = v_setall_f32(1.0f), ry_hi = v_setall_f32(static_cast<float>(H - 2));
+  const v_float32x4 one = v_setall_f32(1.0f), zero = v_setzero_f32();
+  const v_float32x4 dt = v_setall_f32(cfg.dt);
+  const v_float32x4 fx = v_setall_f32(wp.fx), fy = v_setall_f32(wp.fy), cx = v_setall_f32(wp.cx);
+  const v_float32x4 ifx = v_setall_f32(wp.ifx);
+  const v_float32x4 huber = v_setall_f32(cfg.huber_abs);
+  const int n = (W - 2 * cfg.border + cfg.stride - 1) / cfg.stride;  // candidates per row
+  if (n <= 0) return;
+  const int n_pad = (n + 3) & ~3;
+  alignas(16) int32_t idx[4];
+  alignas(16) float xs_init[4];
+  for (int l = 0; l < 4; ++l) xs_init[l] = static_cast<float>(cfg.border + l * cfg.stride);
+  const v_float32x4 x_step = v_setall_f32(static_cast<float>(4 * cfg.stride));
 
   for (int y = cfg.border; y < H - cfg.border; y += cfg.stride) {
-    const float* Ic_row = cur.intensity.ptr<float>(y);
-    const float* Gxc_row = cur.grad_x.ptr<float>(y);
-    const float* Gyc_row = cur.grad_y.ptr<float>(y);
-    float* res_row = nullptr;
-    if constexpr (kMode == SweepMode::kResidual) res_row = residual->ptr<float>(y);
+    const float* Ic;
+    const float* Gxc;
+    const float* Gyc;
+    if (cfg.stride == 1) {
+      // Reading up to 3 values past the last candidate stays inside the image (row y + 1 exists).
+      Ic = cur.intensity.ptr<float>(y) + cfg.border;
+      Gxc = cur.grad_x.ptr<float>(y) + cfg.border;
+      Gyc = cur.grad_y.ptr<float>(y) + cfg.border;
+    } else {
+      const float* src[3] = {cur.intensity.ptr<float>(y), cur.grad_x.ptr<float>(y), cur.grad_y.ptr<float>(y)};
+      for (int c = 0; c < 3; ++c) {
+        for (int k = 0; k < n_pad; ++k) buf.cur[c][k] = src[c][cfg.border + std::min(k, n - 1) * cfg.stride];
+      }
+      Ic = buf.cur[0];
+      Gxc = buf.cur[1];
+      Gyc = buf.cur[2];
+    }
+    float* res_row = residual->ptr<float>(y);
 
     // Terms constant along the row: q = (qx, qy, 1), m = G q = qx G_col0 + m_row, etc.
     const float yf = static_cast<float>(y);
-    const float qy = (yf - wp.cy) * wp.ify;
-    const float ey = wp.cy - yf;  // D(1, 2)
-    const float m_row[3] = {wp.G[0][1] * qy + wp.G[0][2], wp.G[1][1] * qy + wp.G[1][2],
-                            wp.G[2][1] * qy + wp.G[2][2]};
-    const float s_row = wp.mu[1] * qy + wp.mu[2];
-    const float qM_row[2] = {wp.M[1][0] * qy + wp.M[2][0], wp.M[1][1] * qy + wp.M[2][1]};
+    const float qy_s = (yf - wp.cy) * wp.ify;
+    const v_float32x4 yv = v_setall_f32(yf);
+    const v_float32x4 qy = v_setall_f32(qy_s);
+    const v_float32x4 ey = v_setall_f32(wp.cy - yf);  // D(1, 2)
+    const v_float32x4 m0 = v_setall_f32(wp.G[0][1] * qy_s + wp.G[0][2]);
+    const v_float32x4 m1 = v_setall_f32(wp.G[1][1] * qy_s + wp.G[1][2]);
+    const v_float32x4 m2 = v_setall_f32(wp.G[2][1] * qy_s + wp.G[2][2]);
+    const v_float32x4 s_row = v_setall_f32(wp.mu[1] * qy_s + wp.mu[2]);
+    const v_float32x4 qM0 = v_setall_f32(wp.M[1][0] * qy_s + wp.M[2][0]);
+    const v_float32x4 qM1 = v_setall_f32(wp.M[1][1] * qy_s + wp.M[2][1]);
 
-    // Single-precision row accumulators (<= a few hundred terms), added to double at the row's end.
-    Mat4f A00 = Mat4f::Zero(), A01 = Mat4f::Zero(), A11 = Mat4f::Zero();
-    Vec4f b0 = Vec4f::Zero(), b1 = Vec4f::Zero();
-    float r2_row = 0.0f, grad_row = 0.0f;
-    int valid_row = 0, cand_row = 0;
-
-    const float stride_f = static_cast<float>(cfg.stride);
-    float xf = static_cast<float>(cfg.border) - stride_f;  // exact: small integers
-    for (int x = cfg.border; x < W - cfg.border; x += cfg.stride) {
-      ++cand_row;
-      xf += stride_f;
-      const float qx = (xf - wp.cx) * wp.ifx;
-      const float ex = wp.cx - xf;  // D(0, 2)
-      const float mx = wp.G[0][0] * qx + m_row[0];
-      const float my = wp.G[1][0] * qx + m_row[1];
-      const float mz = wp.G[2][0] * qx + m_row[2];
-      const float rx = xf + dt * (wp.fx * mx + ex * mz);
-      const float ry = yf + dt * (wp.fy * my + ey * mz);
-      // Written so that NaN fails the test.
-      if (!(rx >= rx_lo && rx < rx_hi && ry >= ry_lo && ry < ry_hi)) continue;
-
-      // Bilinear weights of the 2x2 neighbourhood.
-      const int x0 = static_cast<int>(rx);
-      const int y0 = static_cast<int>(ry);
-      const float ax = rx - static_cast<float>(x0);
-      const float ay = ry - static_cast<float>(y0);
-      const float w00 = (1.0f - ax) * (1.0f - ay), w01 = ax * (1.0f - ay);
-      const float w10 = (1.0f - ax) * ay, w11 = ax * ay;
-      ++valid_row;
-
-      if constexpr (kMode == SweepMode::kResidual) {
-        const float* i00 = Ir + y0 * sI + x0;
-        const float r = Ic_row[x] - (w00 * i00[0] + w01 * i00[1] + w10 * i00[sI] + w11 * i00[sI + 1]);
-        res_row[x] = r;
-        r2_row += r * r;
-        continue;
+    v_float32x4 r2 = v_setzero_f32(), gsum = v_setzero_f32(), vcount = v_setzero_f32();
+    v_float32x4 xv = v_load(xs_init);
+    for (int k = 0; k < n_pad; k += 4, xv += x_step) {
+      const v_float32x4 qx = (xv - cx) * ifx;
+      const v_float32x4 ex = cx - xv;  // D(0, 2)
+      const v_float32x4 mx = v_muladd(v_setall_f32(wp.G[0][0]), qx, m0);
+      const v_float32x4 my = v_muladd(v_setall_f32(wp.G[1][0]), qx, m1);
+      const v_float32x4 mz = v_muladd(v_setall_f32(wp.G[2][0]), qx, m2);
+      const v_float32x4 rx = v_muladd(dt, v_muladd(fx, mx, ex * mz), xv);
+      const v_float32x4 ry = v_muladd(dt, v_muladd(fy, my, ey * mz), yv);
+      // Comparisons are false for NaN: such pixels are invalid.
+      v_float32x4 valid = (rx >= rx_lo) & (rx < rx_hi) & (ry >= ry_lo) & (ry < ry_hi);
+      if (k + 4 > n) {
+        alignas(16) float lane_ok[4];
+        for (int l = 0; l < 4; ++l) lane_ok[l] = k + l < n ? 1.0f : 0.0f;
+        valid = valid & (v_load(lane_ok) == one);
       }
-
-      const float* c00 = R + y0 * sR + 4 * x0;
-      const Vec4f ref_s = w00 * Eigen::Map<const Vec4f>(c00) + w01 * Eigen::Map<const Vec4f>(c00 + 4) +
-                          w10 * Eigen::Map<const Vec4f>(c00 + sR) + w11 * Eigen::Map<const Vec4f>(c00 + sR + 4);
-      const float r = Ic_row[x] - ref_s[0];
-
-      // Efficient second-order gradient: mean of current and warped reference gradients; the factor 1/2 is
-      // applied to A and b by the caller (here g = sum, S = 2 x the true row / dt).
-      const float gx = Gxc_row[x] + ref_s[1];
-      const float gy = Gyc_row[x] + ref_s[2];
-
-      // gD = grad^T D (1x3); S = grad^T dp_r/dx / dt.
-      const float gD0 = gx * wp.fx, gD1 = gy * wp.fy, gD2 = gx * ex + gy * ey;
-      const float s_q = wp.mu[0] * qx + s_row;
-      const float u = gD0 * wp.th[0] + gD1 * wp.th[1] + gD2 * wp.th[2];
-      // S = [vartheta (3), mu (2), b_w (3)]; the b_w part is gD [q]x = (gD x q)^T.
-      const Vec4f S0(s_q * gD0, s_q * gD1, s_q * gD2, u * (wp.M[0][0] * qx + qM_row[0]));
-      const Vec4f S1(u * (wp.M[0][1] * qx + qM_row[1]), gD1 - gD2 * qy, gD2 * qx - gD0, gD0 * qy - gD1 * qx);
-
-      float w = 1.0f;
+      // Invalid lanes sample the safe position (1, 1); their terms are zeroed below.
+      const v_float32x4 rxs = v_select(valid, rx, rx_lo), rys = v_select(valid, ry, ry_lo);
+      const v_int32x4 x0 = v_floor(rxs), y0 = v_floor(rys);
+      const v_float32x4 ax = rxs - v_cvt_f32(x0), ay = rys - v_cvt_f32(y0);
+      v_store_aligned(idx, y0 * v_setall_s32(sR) + (x0 << 2));
+      // Corners (I, gx, gy, 0) of the 4 lanes, transposed to planes.
+      v_float32x4 c[4][4];  // [corner][plane]
+      const int corner_off[4] = {0, 4, sR, sR + 4};
+      for (int q = 0; q < 4; ++q) {
+        v_float32x4 p0 = v_load(R + idx[0] + corner_off[q]), p1 = v_load(R + idx[1] + corner_off[q]);
+        v_float32x4 p2 = v_load(R + idx[2] + corner_off[q]), p3 = v_load(R + idx[3] + corner_off[q]);
+        v_transpose4x4(p0, p1, p2, p3, c[q][0], c[q][1], c[q][2], c[q][3]);
+      }
+      const v_float32x4 bx = one - ax, by = one - ay;
+      const v_float32x4 w00 = bx * by, w01 = ax * by, w10 = bx * ay, w11 = ax * ay;
+      v_float32x4 ref[3];
+      for (int pl = 0; pl < 3; ++pl) {
+        ref[pl] = v_muladd(w11, c[3][pl], v_muladd(w10, c[2][pl], v_muladd(w01, c[1][pl], w00 * c[0][pl])));
+      }
+      const v_float32x4 gxc = v_load(Gxc + k), gyc = v_load(Gyc + k);
+      const v_float32x4 r = v_select(valid, v_load(Ic + k) - ref[0], zero);
+      // Efficient second-order gradient: sum of current and warped reference gradients (1/2 applied later).
+      const v_float32x4 gx = gxc + ref[1], gy = gyc + ref[2];
+      const v_float32x4 gD0 = gx * fx, gD1 = gy * fy, gD2 = v_muladd(gx, ex, gy * ey);
+      const v_float32x4 s_q = v_muladd(v_setall_f32(wp.mu[0]), qx, s_row);
+      const v_float32x4 u = v_muladd(gD2, v_setall_f32(wp.th[2]),
+                                     v_muladd(gD1, v_setall_f32(wp.th[1]), gD0 * v_setall_f32(wp.th[0])));
+      // Weight (0 for invalid pixels); the rows are scaled by sqrt(w).
+      v_float32x4 w = v_select(valid, one, zero);
       if constexpr (kGradientWeighting) {
-        const float gmag = std::sqrt(Gxc_row[x] * Gxc_row[x] + Gyc_row[x] * Gyc_row[x]);
-        grad_row += gmag;
-        w = gmag;
+        const v_float32x4 gmag = v_sqrt(v_muladd(gxc, gxc, gyc * gyc));
+        gsum = v_muladd(w, gmag, gsum);
+        w = w * gmag;
       }
       if constexpr (kHuber) {
-        const float ar = std::fabs(r);
-        if (ar > cfg.huber_abs) w *= cfg.huber_abs / ar;
+        const v_float32x4 ar = v_abs(r);
+        w = w * v_select(ar > huber, huber / v_select(ar > huber, ar, one), one);
       }
-
-      const Vec4f wS0 = w * S0, wS1 = w * S1;
-      A00.noalias() += S0 * wS0.transpose();
-      A01.noalias() += S0 * wS1.transpose();
-      A11.noalias() += S1 * wS1.transpose();
-      b0 += r * wS0;
-      b1 += r * wS1;
+      const v_float32x4 sw = (kHuber || kGradientWeighting) ? v_sqrt(w) : w;
+      const v_float32x4 ssq = sw * s_q, su = sw * u;
+      // S = [vartheta (3), mu (2), b_w (3)]; the b_w part is gD [q]x = (gD x q)^T.
+      v_store_aligned(buf.T[0] + k, ssq * gD0);
+      v_store_aligned(buf.T[1] + k, ssq * gD1);
+      v_store_aligned(buf.T[2] + k, ssq * gD2);
+      v_store_aligned(buf.T[3] + k, su * v_muladd(v_setall_f32(wp.M[0][0]), qx, qM0));
+      v_store_aligned(buf.T[4] + k, su * v_muladd(v_setall_f32(wp.M[0][1]), qx, qM1));
+      v_store_aligned(buf.T[5] + k, sw * (gD1 - gD2 * qy));
+      v_store_aligned(buf.T[6] + k, sw * (gD2 * qx - gD0));
+      v_store_aligned(buf.T[7] + k, sw * (gD0 * qy - gD1 * qx));
+      v_store_aligned(buf.T[8] + k, sw * r);
+      r2 = v_muladd(r, r, r2);
+      vcount += v_select(valid, one, zero);
+      if (cfg.stride == 1) {
+        // Up to 3 lanes past the last candidate land in the border (or the next row, written later): zeros.
+        v_store(res_row + cfg.border + k, r);
+      } else {
+        alignas(16) float rr[4];
+        v_store_aligned(rr, r);
+        for (int l = 0; l < 4 && k + l < n; ++l) res_row[cfg.border + (k + l) * cfg.stride] = rr[l];
+      }
     }
-
-    sums->candidates += cand_row;
-    sums->valid += valid_row;
-    sums->sum_r2 += r2_row;
-    if constexpr (kMode == SweepMode::kAccumulate) {
-      sums->grad_sum += grad_row;
-      sums->A00 += A00.cast<double>();
-      sums->A01 += A01.cast<double>();
-      sums->A11 += A11.cast<double>();
-      sums->b0 += b0.cast<double>();
-      sums->b1 += b1.cast<double>();
-    }
+    accumulateRow(buf.T, n_pad, sums->G);
+    sums->candidates += n;
+    sums->valid += static_cast<int>(v_reduce_sum(vcount));
+    sums->sum_r2 += v_reduce_sum(r2);
+    sums->grad_sum += v_reduce_sum(gsum);
   }
 }
 
@@ -250,13 +285,19 @@ SweepConfig makeConfig(const PhotometricParams& params, const PreprocessParams& 
 /// (I, dI/dx, dI/dy, 0) of the reference frame interleaved into a CV_32FC4 buffer (reallocated only when the
 /// size changes).
 void packReference(const PreprocessedFrame& ref, cv::Mat* packed) {
+  using namespace cv;
   packed->create(ref.intensity.size(), CV_32FC4);
+  const v_float32x4 z = v_setzero_f32();
   for (int y = 0; y < ref.intensity.rows; ++y) {
     const float* I = ref.intensity.ptr<float>(y);
     const float* gx = ref.grad_x.ptr<float>(y);
     const float* gy = ref.grad_y.ptr<float>(y);
     float* out = packed->ptr<float>(y);
-    for (int x = 0; x < ref.intensity.cols; ++x) {
+    int x = 0;
+    for (; x + 4 <= ref.intensity.cols; x += 4) {
+      v_store_interleave(out + 4 * x, v_load(I + x), v_load(gx + x), v_load(gy + x), z);
+    }
+    for (; x < ref.intensity.cols; ++x) {
       out[4 * x + 0] = I[x];
       out[4 * x + 1] = gx[x];
       out[4 * x + 2] = gy[x];
@@ -283,26 +324,37 @@ int PhotometricUpdate::linearize(const PreprocessedFrame& ref, const Preprocesse
                                  const Vec3& gyro_mean_C, double dt_s, const State& x, ObservedInfo* A,
                                  ObservedVec* b, int* candidates) {
   packReference(ref, &ref_packed_);
-  return accumulate(cur, K, gyro_mean_C, dt_s, x, A, b, candidates);
+  prepareBuffers(cur.intensity.size());
+  return accumulate(cur, K, gyro_mean_C, dt_s, x, A, b, candidates, nullptr);
+}
+
+void PhotometricUpdate::prepareBuffers(const cv::Size& size) {
+  if (residual_.size() != size || residual_.type() != CV_32FC1) {
+    residual_.create(size, CV_32FC1);
+    residual_.setTo(0.0f);  // pixels the sweeps never visit (border, pixel_stride gaps) stay 0
+  }
+  const int n_pad = (size.width + 3) & ~3;
+  if (scratch_.rows != 12 || scratch_.cols < n_pad) scratch_.create(12, n_pad, CV_32FC1);
 }
 
 int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& K, const Vec3& gyro_mean_C,
                                   double dt_s, const State& x, ObservedInfo* A, ObservedVec* b,
-                                  int* candidates) const {
+                                  int* candidates, double* sum_r2) {
   const SweepConfig cfg = makeConfig(params_, preprocess_, dt_s);
   const PixelWarp wp(x, K, gyro_mean_C);
   SweepSums sums;
-  constexpr SweepMode kAcc = SweepMode::kAccumulate;
-  const RefView ref = makeRefView(ref_packed_, nullptr);
+  RowBuffers buf;
+  for (int i = 0; i < 9; ++i) buf.T[i] = scratch_.ptr<float>(i);
+  for (int i = 0; i < 3; ++i) buf.cur[i] = scratch_.ptr<float>(9 + i);
   const bool huber = cfg.huber_abs > 0.0f;
   if (huber && cfg.gradient_weighting) {
-    sweep<kAcc, true, true>(ref, cur, wp, cfg, &sums, nullptr);
+    sweep<true, true>(ref_packed_, cur, wp, cfg, buf, &sums, &residual_);
   } else if (huber) {
-    sweep<kAcc, true, false>(ref, cur, wp, cfg, &sums, nullptr);
+    sweep<true, false>(ref_packed_, cur, wp, cfg, buf, &sums, &residual_);
   } else if (cfg.gradient_weighting) {
-    sweep<kAcc, false, true>(ref, cur, wp, cfg, &sums, nullptr);
+    sweep<false, true>(ref_packed_, cur, wp, cfg, buf, &sums, &residual_);
   } else {
-    sweep<kAcc, false, false>(ref, cur, wp, cfg, &sums, nullptr);
+    sweep<false, false>(ref_packed_, cur, wp, cfg, buf, &sums, &residual_);
   }
 
   // Scale: the sweep's rows are 2/dt times the true S (gradient sum instead of mean, Jacobian without dt);
@@ -313,14 +365,12 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
   const double half_dt = 0.5 * dt_s;
   const double sA = scale * half_dt * half_dt;
   const double sb = scale * half_dt;
-  // Upper triangle from the blocks, mirrored (the float diagonal blocks are symmetric only to rounding).
-  A->topLeftCorner<4, 4>() = sA * sums.A00;
-  A->topRightCorner<4, 4>() = sA * sums.A01;
-  A->bottomRightCorner<4, 4>() = sA * sums.A11;
-  A->triangularView<Eigen::StrictlyLower>() = A->transpose();
-  b->head<4>() = sb * sums.b0;
-  b->tail<4>() = sb * sums.b1;
+  for (int i = 0; i < 8; ++i) {
+    for (int j = i; j < 8; ++j) (*A)(i, j) = (*A)(j, i) = sA * sums.G[i][j];
+    (*b)(i) = sb * sums.G[i][8];
+  }
   if (candidates != nullptr) *candidates = sums.candidates;
+  if (sum_r2 != nullptr) *sum_r2 = sums.sum_r2;
   return sums.valid;
 }
 
@@ -334,13 +384,16 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
       !(params_.intensity_noise_sigma > 0.0)) {
     return stats;
   }
-  residual_.create(cur.intensity.size(), CV_32FC1);  // no-op after the first call at this size
-  packReference(ref, &ref_packed_);                   // once per update, shared by every pass
+  prepareBuffers(cur.intensity.size());  // no-op after the first call at this size
+  packReference(ref, &ref_packed_);      // once per update, shared by every pass
 
+  // Every pass writes the residual image; the RMS and the valid ratio are those of the last linearisation.
   auto linearize_at = [&](const State& x_j, internal::ObsMat* A, internal::ObsVec* b) {
     int candidates = 0;
-    const int valid = accumulate(cur, K, gyro_mean_C, dt_s, x_j, A, b, &candidates);
+    double sum_r2 = 0.0;
+    const int valid = accumulate(cur, K, gyro_mean_C, dt_s, x_j, A, b, &candidates, &sum_r2);
     stats.valid_ratio = candidates > 0 ? static_cast<double>(valid) / candidates : 0.0;
+    stats.rms_residual = valid > 0 ? std::sqrt(sum_r2 / valid) : 0.0;
     return valid > 0 && stats.valid_ratio >= params_.min_valid_ratio;
   };
   const internal::IterationResult it = internal::iterateInformationForm(
@@ -348,16 +401,6 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   stats.applied = it.ok;
   stats.passes = it.passes;
   stats.last_step_norm = it.last_step_norm;
-
-  // Residual image and RMS at the final estimate (the prior when skipped): warp + one bilinear sample.
-  residual_.setTo(0.0f);
-  SweepSums sums;
-  sweep<SweepMode::kResidual>(makeRefView(ref_packed_, &ref.intensity), cur, PixelWarp(*x, K, gyro_mean_C), cfg,
-                              &sums, &residual_);
-  if (sums.valid > 0) stats.rms_residual = std::sqrt(sums.sum_r2 / sums.valid);
-  if (stats.applied && sums.candidates > 0) {
-    stats.valid_ratio = static_cast<double>(sums.valid) / sums.candidates;
-  }
   return stats;
 }
 
