@@ -23,11 +23,7 @@ APT_PACKAGES := build-essential cmake catkin ros-base-dev libnodeletlib-dev libc
   libtf2-geometry-msgs-dev python3-rosbag python3-rostest python3-roslaunch libnodeletlib-tools ros-base-python-dev rosbash valgrind \
   python3-tf2-msgs image-transport-tools clang libclang-rt-14-dev
 
-<<<<<<< HEAD
-.PHONY: all deps workspace build test demo benchmark benchmark-core fuzz sanitize soak clean
-=======
-.PHONY: all deps workspace build test demo benchmark benchmark-core benchmark-callgrind clean
->>>>>>> perf
+.PHONY: all deps workspace build test demo benchmark benchmark-core benchmark-callgrind fuzz sanitize soak clean
 
 all: build
 
