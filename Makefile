@@ -62,7 +62,6 @@ benchmark: build
 benchmark-core: build
 	cd $(WS) && catkin_make -j$(JOBS) diekf_benchmark && ./devel/lib/diekf/diekf_benchmark
 
-<<<<<<< HEAD
 # libFuzzer target of the core's input handling (test/fuzz/fuzz_ingest.cpp), built with clang outside the catkin
 # tree into $(FUZZ_DIR), then run for FUZZ_SECONDS (docs/robustness.md).
 FUZZ_DIR ?= $(CURDIR)/.fuzz
@@ -84,12 +83,11 @@ sanitize:
 # 30 minutes of simulated flight through diekf_bag_runner: peak RSS and growth (scripts/soak.sh).
 soak: build
 	cd $(WS) && source devel/setup.bash && DIEKF_WS=$(WS) bash $(CURDIR)/scripts/soak.sh
-=======
+
 # Instruction counts per call of the same cases under valgrind's callgrind (repeatable; docs/performance.md).
 benchmark-callgrind: build
 	cd $(WS) && catkin_make -j$(JOBS) diekf_benchmark && \
 	  bash $(CURDIR)/scripts/callgrind_core.sh devel/lib/diekf/diekf_benchmark
->>>>>>> perf
 
 clean:
 	rm -rf $(WS)
