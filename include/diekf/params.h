@@ -35,7 +35,7 @@ struct ImuParams {
   double gyro_random_walk = 2.0e-5;             ///< rad/s^2/sqrt(Hz) (Kalibr gyroscope_random_walk)
   double input_rate_hz = 500.0;                 ///< nominal raw IMU rate, Hz
   double lowpass_cutoff_hz = 20.0;              ///< Butterworth cutoff, Hz
-  int lowpass_order = 4;                        ///< Butterworth order (even, 2..8; 0 disables filtering)
+  int lowpass_order = 2;                        ///< Butterworth order (even, 2..8; 0 disables filtering)
   int decimation_factor = 5;                    ///< keep every n-th filtered sample (500 Hz -> 100 Hz)
   bool compensate_filter_delay = true;          ///< shift output stamps back by the filter's group delay
   bool lever_arm_compensation = true;           ///< add w x (w x r) for the IMU-camera translation
