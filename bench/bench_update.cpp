@@ -40,10 +40,11 @@ diekf::ErrorCov priorCov() {
   return sd.array().square().matrix().asDiagonal();
 }
 
-void BM_PhotometricUpdateOnePass(benchmark::State& bs) {
+// One update with exactly `passes` Gauss-Newton passes (stop_threshold = 0: all of them run).
+void runPhotometricUpdate(benchmark::State& bs, int passes) {
   const TwoViewScene& s = sceneForWidth(static_cast<int>(bs.range(0)));
   diekf::PhotometricParams params;
-  params.max_passes = 1;
+  params.max_passes = passes;
   params.stop_threshold = 0.0;
   diekf::PhotometricUpdate update(params, diekf::PreprocessParams{});
   const diekf::State x0 = startState(s);
@@ -54,31 +55,16 @@ void BM_PhotometricUpdateOnePass(benchmark::State& bs) {
     const diekf::UpdateStats st = update.update(s.ref, s.cur, s.K, s.w_C, s.dt_s, &x, &P);
     benchmark::DoNotOptimize(st);
     benchmark::DoNotOptimize(x);
-    if (!st.applied) bs.SkipWithError("update not applied");
+    if (!st.applied || st.passes != passes) bs.SkipWithError("update not applied with the requested passes");
   }
   bs.counters["px"] = s.K.width * s.K.height;
 }
+
+void BM_PhotometricUpdateOnePass(benchmark::State& bs) { runPhotometricUpdate(bs, 1); }
 BENCHMARK(BM_PhotometricUpdateOnePass)->Arg(90)->Arg(180)->Arg(376)->Unit(benchmark::kMicrosecond);
 
-// Three passes (stop_threshold = 0: all of them run): the per-pass cost is (this - one pass) / 2.
-void BM_PhotometricUpdateThreePasses(benchmark::State& bs) {
-  const TwoViewScene& s = sceneForWidth(static_cast<int>(bs.range(0)));
-  diekf::PhotometricParams params;
-  params.max_passes = 3;
-  params.stop_threshold = 0.0;
-  diekf::PhotometricUpdate update(params, diekf::PreprocessParams{});
-  const diekf::State x0 = startState(s);
-  const diekf::ErrorCov P0 = priorCov();
-  for (auto _ : bs) {
-    diekf::State x = x0;
-    diekf::ErrorCov P = P0;
-    const diekf::UpdateStats st = update.update(s.ref, s.cur, s.K, s.w_C, s.dt_s, &x, &P);
-    benchmark::DoNotOptimize(st);
-    benchmark::DoNotOptimize(x);
-    if (!st.applied || st.passes != 3) bs.SkipWithError("update not applied with 3 passes");
-  }
-  bs.counters["px"] = s.K.width * s.K.height;
-}
+// The per-pass cost is (this - one pass) / 2.
+void BM_PhotometricUpdateThreePasses(benchmark::State& bs) { runPhotometricUpdate(bs, 3); }
 BENCHMARK(BM_PhotometricUpdateThreePasses)->Arg(90)->Arg(180)->Arg(376)->Unit(benchmark::kMicrosecond);
 
 void BM_PhotometricLinearize(benchmark::State& bs) {

@@ -9,6 +9,8 @@
 
 #include "diekf/camera_model.h"
 
+#include "mynt_camera.h"
+
 namespace diekf {
 namespace {
 
@@ -61,13 +63,6 @@ void expectErrorNaming(const std::string& name, const std::string& text, const s
   std::remove(path.c_str());
 }
 
-CameraModel mynt() {
-  CameraModel m;
-  m.K = PinholeK{364.91, 364.97, 379.91, 245.53, 752, 480};
-  m.distortion = DistortionModel::kRadTan;
-  m.distortion_coeffs = Vec4(-0.3178, 0.0962, -0.00011, 0.00033);
-  return m;
-}
 
 CameraModel fisheye() {
   CameraModel m;
@@ -175,19 +170,19 @@ void roundTripOverImage(const CameraModel& m) {
   }
 }
 
-TEST(CameraModel, RadtanRoundTripOverImage) { roundTripOverImage(mynt()); }
+TEST(CameraModel, RadtanRoundTripOverImage) { roundTripOverImage(myntEyeCamera()); }
 TEST(CameraModel, EquidistantRoundTripOverImage) { roundTripOverImage(fisheye()); }
 
 TEST(CameraModel, DistortionIsNotIdentity) {
   // Guards against a round trip passing because both directions do nothing.
   const Vec2 x(0.8, -0.5);
-  EXPECT_GT((mynt().distort(x) - x).norm(), 0.05);
+  EXPECT_GT((myntEyeCamera().distort(x) - x).norm(), 0.05);
   EXPECT_GT((fisheye().distort(x) - x).norm(), 0.05);
   // Radtan at r^2 = 0.89: radial factor 1 - 0.3178 r^2 + 0.0962 r^4 plus tangential terms.
   const double r2 = 0.89, rad = 1.0 - 0.3178 * r2 + 0.0962 * r2 * r2;
   const Vec2 expected(0.8 * rad + 2 * -0.00011 * 0.8 * -0.5 + 0.00033 * (r2 + 2 * 0.64),
                       -0.5 * rad + -0.00011 * (r2 + 2 * 0.25) + 2 * 0.00033 * 0.8 * -0.5);
-  EXPECT_LT((mynt().distort(x) - expected).norm(), 1e-15);
+  EXPECT_LT((myntEyeCamera().distort(x) - expected).norm(), 1e-15);
   // Equidistant: theta_d = theta (1 + k1 theta^2 + ...), direction kept.
   const double r = x.norm(), th = std::atan(r);
   const Vec4 k = fisheye().distortion_coeffs;
@@ -197,7 +192,7 @@ TEST(CameraModel, DistortionIsNotIdentity) {
 }
 
 TEST(CameraModel, ProjectUnprojectRoundTrip) {
-  for (const CameraModel& m : {mynt(), fisheye()}) {
+  for (const CameraModel& m : {myntEyeCamera(), fisheye()}) {
     const Vec3 P(0.3, -0.2, 1.7);
     Vec2 px, xn;
     ASSERT_TRUE(m.project(P, &px));
@@ -205,7 +200,7 @@ TEST(CameraModel, ProjectUnprojectRoundTrip) {
     EXPECT_LT((xn - P.head<2>() / P.z()).norm(), 1e-12);
     EXPECT_FALSE(m.project(Vec3(0.1, 0.1, -1.0), &px));  // behind the camera
   }
-  CameraModel pin = mynt();
+  CameraModel pin = myntEyeCamera();
   pin.distortion = DistortionModel::kNone;
   Vec2 px;
   ASSERT_TRUE(pin.project(Vec3(1.0, 2.0, 4.0), &px));

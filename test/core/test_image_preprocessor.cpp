@@ -10,16 +10,11 @@
 
 #include "diekf/image_preprocessor.h"
 
+#include "mynt_camera.h"
+
 namespace diekf {
 namespace {
 
-CameraModel mynt() {
-  CameraModel m;
-  m.K = PinholeK{364.91, 364.97, 379.91, 245.53, 752, 480};
-  m.distortion = DistortionModel::kRadTan;
-  m.distortion_coeffs = Vec4(-0.3178, 0.0962, -0.00011, 0.00033);
-  return m;
-}
 
 CameraModel pinhole(int w, int h) {
   CameraModel m;
@@ -46,7 +41,7 @@ double stdDev(const cv::Mat& m, int border) {
 TEST(ImagePreprocessor, WorkingCamera) {
   PreprocessParams p;
   p.working_width_px = 90;  // the paper's working width; height from the aspect ratio
-  ImagePreprocessor pre(mynt(), p);
+  ImagePreprocessor pre(myntEyeCamera(), p);
   const PinholeK& K = pre.workingK();
   EXPECT_EQ(K.width, 90);
   EXPECT_EQ(K.height, 58);  // ceil(90 * 480 / 752) = ceil(57.45)
@@ -58,23 +53,23 @@ TEST(ImagePreprocessor, WorkingCamera) {
   EXPECT_EQ(pre.workingSize(), cv::Size(90, 58));
 
   p.working_height_px = 57;
-  ImagePreprocessor pre2(mynt(), p);
+  ImagePreprocessor pre2(myntEyeCamera(), p);
   EXPECT_EQ(pre2.workingK().height, 57);
   EXPECT_DOUBLE_EQ(pre2.workingK().fy, 364.97 * 57.0 / 480.0);
   EXPECT_DOUBLE_EQ(pre2.workingK().cy, (245.53 + 0.5) * 57.0 / 480.0 - 0.5);
 
   p.working_width_px = 376;
   p.working_height_px = 0;
-  EXPECT_EQ(ImagePreprocessor(mynt(), p).workingK().height, 240);
+  EXPECT_EQ(ImagePreprocessor(myntEyeCamera(), p).workingK().height, 240);
 
   p.working_width_px = 2;
-  EXPECT_THROW(ImagePreprocessor(mynt(), p), std::invalid_argument);
+  EXPECT_THROW(ImagePreprocessor(myntEyeCamera(), p), std::invalid_argument);
 }
 
 // A small bright blob around the projection of a 3-D point in the raw (distorted) image must appear at
 // K' p in the working image.
 void checkBlobGeometry(int working_width, double max_err_px) {
-  const CameraModel cam = mynt();
+  const CameraModel cam = myntEyeCamera();
   PreprocessParams p;
   p.working_width_px = working_width;
   ImagePreprocessor pre(cam, p);
@@ -123,7 +118,7 @@ TEST(ImagePreprocessor, GeometryMatchesWorkingK180) { checkBlobGeometry(180, 0.1
 TEST(ImagePreprocessor, AntiAliasing) {
   // Stripes far above the working Nyquist frequency (0.5 cycle / working px = 1 cycle / 16.7 raw px at 90 px
   // wide) must come out nearly uniform; stripes well below it must survive.
-  const CameraModel cam = mynt();
+  const CameraModel cam = myntEyeCamera();
   PreprocessParams p;
   p.working_width_px = 90;
   p.normalize_brightness = false;  // keep grey-level units (intensity = grey / 255)
@@ -175,7 +170,7 @@ TEST(ImagePreprocessor, AntiAliasing) {
 // wider than 16 raw px) against a plain double evaluation: on a smooth raw image the footprint average equals
 // the image value at the mapped centre (a wrong weight, lane or row would be off by many grey levels).
 TEST(ImagePreprocessor, ResamplingMatchesSmoothImageAtMappedCentre) {
-  const CameraModel cam = mynt();
+  const CameraModel cam = myntEyeCamera();
   auto f = [](double x, double y) { return 128.0 + 90.0 * std::sin(0.011 * x + 0.006 * y) * std::cos(0.008 * y); };
   cv::Mat raw(480, 752, CV_8UC1);
   for (int y = 0; y < raw.rows; ++y)
@@ -204,7 +199,7 @@ TEST(ImagePreprocessor, ResamplingMatchesSmoothImageAtMappedCentre) {
 }
 
 TEST(ImagePreprocessor, NormalisationZeroMeanUnitVariance) {
-  ImagePreprocessor pre(mynt(), PreprocessParams{});
+  ImagePreprocessor pre(myntEyeCamera(), PreprocessParams{});
   PreprocessedFrame f;
   pre.process(texture(752, 480, 3), 1.5, &f);
   ASSERT_TRUE(f.valid);
@@ -222,7 +217,7 @@ TEST(ImagePreprocessor, NormalisationZeroMeanUnitVariance) {
 }
 
 TEST(ImagePreprocessor, UniformImagesGiveFiniteZeros) {
-  ImagePreprocessor pre(mynt(), PreprocessParams{});
+  ImagePreprocessor pre(myntEyeCamera(), PreprocessParams{});
   PreprocessedFrame f;
   for (int value : {0, 1, 128, 255}) {
     pre.process(cv::Mat(480, 752, CV_8UC1, cv::Scalar(value)), 0.0, &f);
@@ -237,7 +232,7 @@ TEST(ImagePreprocessor, UniformImagesGiveFiniteZeros) {
 }
 
 TEST(ImagePreprocessor, GradientsAreCentralDifferences) {
-  ImagePreprocessor pre(mynt(), PreprocessParams{});
+  ImagePreprocessor pre(myntEyeCamera(), PreprocessParams{});
   PreprocessedFrame f;
   pre.process(texture(752, 480, 5), 0.0, &f);
   const cv::Mat& I = f.intensity;
@@ -279,7 +274,7 @@ TEST(ImagePreprocessor, LinearRampGradients) {
 }
 
 TEST(ImagePreprocessor, InvalidInput) {
-  ImagePreprocessor pre(mynt(), PreprocessParams{});
+  ImagePreprocessor pre(myntEyeCamera(), PreprocessParams{});
   PreprocessedFrame f;
   auto expectMessage = [&](const cv::Mat& img, const std::string& got) {
     try {
@@ -299,7 +294,7 @@ TEST(ImagePreprocessor, InvalidInput) {
 }
 
 TEST(ImagePreprocessor, ReusesBuffersAndAcceptsRoi) {
-  ImagePreprocessor pre(mynt(), PreprocessParams{});
+  ImagePreprocessor pre(myntEyeCamera(), PreprocessParams{});
   PreprocessedFrame f;
   const cv::Mat img = texture(752, 480, 9);
   pre.process(img, 0.0, &f);
