@@ -16,7 +16,7 @@ class FeatureUpdate {
   FeatureUpdate(const FeatureParams& feature, const PhotometricParams& iteration);
   /// Same contract as PhotometricUpdate::update; uses the frames' gray8 images.
   UpdateStats update(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PinholeK& K,
-                     const Vec3& gyro_mean_C, double dt_s, State* x, ErrorCov* P);
+                     const Vec3& gyro_mean_C, double dt_s, State* x, ErrorCov* P, double state_lag_s = 0.0);
 
  private:
   FeatureParams feature_;

@@ -27,16 +27,21 @@ using ObservedInfo = Eigen::Matrix<double, 8, 8>;
 using ObservedVec = Eigen::Matrix<double, 8, 1>;
 
 /// Position in the reference image of current-image pixel (x, y) and its Jacobian w.r.t. the observed error
-/// state [d_vartheta, d_mu, d_b_w]. `gyro_mean_C` is the raw mean gyro over the interval (bias subtracted inside).
+/// state [d_vartheta, d_mu, d_b_w]. `gyro_mean_C` is the raw mean gyro over the interval (bias subtracted
+/// inside); the reference image is dt_s before the current one and the state x refers to the time
+/// `state_lag_s` before the current image (0: the current image; dt_s / 2: the interval's midpoint).
+/// Constant rate and velocity over the interval, rotation exact (see photometric_update.cpp).
+/// NaN (and a NaN Jacobian) when the ray does not stay in front of the reference camera.
 Vec2 warpToReference(const State& x, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s, double px,
-                     double py, WarpJacobian* J = nullptr);
+                     double py, WarpJacobian* J = nullptr, double state_lag_s = 0.0);
 
 class PhotometricUpdate {
  public:
   PhotometricUpdate(const PhotometricParams& params, const PreprocessParams& preprocess);
-  /// Updates x and P in place from the pair (ref, cur) separated by dt_s.
+  /// Updates x and P in place from the pair (ref, cur) separated by dt_s; x and P refer to the time
+  /// state_lag_s before the current image (see warpToReference).
   UpdateStats update(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PinholeK& K,
-                     const Vec3& gyro_mean_C, double dt_s, State* x, ErrorCov* P);
+                     const Vec3& gyro_mean_C, double dt_s, State* x, ErrorCov* P, double state_lag_s = 0.0);
   /// Residual I_c(p) - I_r(p_r) of the last linearisation (the point rms_residual refers to; CV_32FC1, 0
   /// outside the mask and on pixels skipped by pixel_stride).
   const cv::Mat& residualImage() const { return residual_; }
@@ -48,12 +53,12 @@ class PhotometricUpdate {
   /// Also writes residualImage().
   int linearize(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PinholeK& K,
                 const Vec3& gyro_mean_C, double dt_s, const State& x, ObservedInfo* A, ObservedVec* b,
-                int* candidates = nullptr);
+                int* candidates = nullptr, double state_lag_s = 0.0);
 
  private:
   /// linearize() against the reference already packed into ref_packed_ (buffers prepared).
   int accumulate(const PreprocessedFrame& cur, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s,
-                 const State& x, ObservedInfo* A, ObservedVec* b, int* candidates, double* sum_r2);
+                 double state_lag_s, const State& x, ObservedInfo* A, ObservedVec* b, int* candidates, double* sum_r2);
   /// Residual image and row scratch for images of `size` (allocates only when the size changes).
   void prepareBuffers(const cv::Size& size);
 

@@ -400,6 +400,7 @@ struct Estimator::Impl {
     } else if (have_reference) {
       const PreprocessedFrame& ref = frames[ref_index];
       const double dt = cur.t_s - ref.t_s;
+      const double state_lag = std::max(0.0, cur.t_s - t_state_s);  // the state's time before the image, s
       // Mean raw gyro over the whole interval: what was integrated so far plus the samples up to the image.
       const double rest_s = img.t_s - t_state_s;
       const double total_s = gyro_time_s + rest_s;
@@ -412,11 +413,11 @@ struct Estimator::Impl {
         skip_reason = os.str();
       } else {
         if (params.mode == UpdateMode::kFeature) {
-          stats = feature.update(ref, cur, img_pre.workingK(), gyro_mean, dt, &x, &P);
+          stats = feature.update(ref, cur, img_pre.workingK(), gyro_mean, dt, &x, &P, state_lag);
         } else {
           const State x_prior = x;
           const ErrorCov P_prior = P;
-          stats = photometric.update(ref, cur, img_pre.workingK(), gyro_mean, dt, &x, &P);
+          stats = photometric.update(ref, cur, img_pre.workingK(), gyro_mean, dt, &x, &P, state_lag);
           if (stats.applied && !(stats.rms_residual <= params.divergence.max_photometric_rms)) {
             // The images do not fit the plane model (occlusion, unrelated or corrupt image): keep the prior.
             x = x_prior;

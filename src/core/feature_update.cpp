@@ -19,7 +19,7 @@ FeatureUpdate::FeatureUpdate(const FeatureParams& feature, const PhotometricPara
     : feature_(feature), iteration_(iteration) {}
 
 UpdateStats FeatureUpdate::update(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PinholeK& K,
-                                  const Vec3& gyro_mean_C, double dt_s, State* x, ErrorCov* P) {
+                                  const Vec3& gyro_mean_C, double dt_s, State* x, ErrorCov* P, double state_lag_s) {
   UpdateStats stats;
   if (x == nullptr || P == nullptr || ref.gray8.empty() || ref.gray8.type() != CV_8UC1 ||
       cur.gray8.size() != ref.gray8.size() || cur.gray8.type() != CV_8UC1 || !(dt_s > 0.0) ||
@@ -58,7 +58,9 @@ UpdateStats FeatureUpdate::update(const PreprocessedFrame& ref, const Preprocess
   auto linearize_at = [&](const State& x_j, internal::ObsMat* A, internal::ObsVec* b) {
     WarpJacobian J;
     for (int i = 0; i < n; ++i) {
-      const Vec2 p_r = warpToReference(x_j, K, gyro_mean_C, dt_s, cur_pts_[i].x, cur_pts_[i].y, &J);
+      const Vec2 p_r = warpToReference(x_j, K, gyro_mean_C, dt_s, cur_pts_[i].x, cur_pts_[i].y, &J,
+                                       state_lag_s);
+      if (!p_r.allFinite()) continue;  // ray behind the reference camera: no measurement
       const Vec2 r(ref_pts_[i].x - p_r.x(), ref_pts_[i].y - p_r.y());
       const double norm = r.norm();
       const double w = (huber_px > 0.0 && norm > huber_px) ? inv_var * huber_px / norm : inv_var;
@@ -75,11 +77,15 @@ UpdateStats FeatureUpdate::update(const PreprocessedFrame& ref, const Preprocess
 
   // RMS innovation (px) at the final estimate.
   double sum2 = 0.0;
+  int finite = 0;
   for (int i = 0; i < n; ++i) {
-    const Vec2 p_r = warpToReference(*x, K, gyro_mean_C, dt_s, cur_pts_[i].x, cur_pts_[i].y);
+    const Vec2 p_r = warpToReference(*x, K, gyro_mean_C, dt_s, cur_pts_[i].x, cur_pts_[i].y, nullptr,
+                                     state_lag_s);
+    if (!p_r.allFinite()) continue;
     sum2 += (Vec2(ref_pts_[i].x, ref_pts_[i].y) - p_r).squaredNorm();
+    ++finite;
   }
-  stats.rms_residual = std::sqrt(sum2 / n);
+  stats.rms_residual = finite > 0 ? std::sqrt(sum2 / finite) : 0.0;
   return stats;
 }
 

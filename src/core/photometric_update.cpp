@@ -2,6 +2,8 @@
 
 #include <algorithm>
 #include <cmath>
+#include <limits>
+#include <cstdlib>
 
 #include <opencv2/core/hal/intrin.hpp>
 
@@ -10,66 +12,148 @@
 namespace diekf {
 
 // -------------------------------------------------------------------------------------------------------------
-// Warp (ALGORITHM.md §3). With q = K^-1 p, G = [w]x + vartheta mu^T, m = G q and
-// D = (I - p e_z^T)_{2x3} K = [[fx, 0, cx - x], [0, fy, cy - y]]:   p_r = p + dt D m.
-// Derivatives (each checked against finite differences of this function in test_photometric_update.cpp):
-//   d p_r / d vartheta = dt (mu . q) D
-//   d p_r / d mu       = dt (D vartheta) q^T M(mu)
-//   d p_r / d b_w      = dt D [q]x           (w = gyro - b_w, w x q = -[q]x w)
+// Warp (ALGORITHM.md §3, without its first-order approximations in time). Over the image interval the camera
+// turns at the constant rate w = gyro - b_w and moves at constant velocity; the state (vartheta, mu) refers to
+// the time `lag` before the current image (0: the current image; dt/2: the interval's midpoint, the default
+// of the estimator). With rotations E = exp(dt [w]x) (current -> reference), E_a = exp(lag [w]x) (current ->
+// state) and E_b = exp((dt - lag) [w]x) (state -> reference), a world point on the plane seen along the
+// current ray q = K^-1 p (q_z = 1) is seen in the reference camera along
+//   Q = E q + c (b . q) a,   a = E_b vartheta,   b = E_a^T mu,   c = dt / kappa,   kappa = 1 - lag (mu . vartheta)
+// and p_r = (fx Q_x / Q_z + cx, fy Q_y / Q_z + cy). To first order in dt this is the paper's
+// p_r = p + dt (I - p e_z^T) K ([w]x + vartheta mu^T) K^-1 p; the higher-order terms matter at speed: at
+// 76 deg/s and 30 Hz the dropped second-order rotation reads as a scale change, i.e. a velocity error of
+// several cm/s along the optical axis, and a state at the midpoint must be moved to the images' times.
+// With D_r = [[fx, 0, cx - x_r], [0, fy, cy - y_r]] / Q_z (= dp_r / dQ), s_b = b . q, J(.) the left Jacobian of
+// exp and f = lag / dt, the derivatives (checked against finite differences in test_photometric_update.cpp):
+//   d p_r / d vartheta = c s_b D_r N,            N = E_b + (lag c / dt) a mu^T
+//   d p_r / d mu       = c (D_r a) q^T P,        P = (E_a^T + (lag c / dt) b vartheta^T) M(mu)
+//   d p_r / d b_w      = D_r [ dt [E q]x J(dt w) + c s_b (dt - lag) [a]x J((dt - lag) w)
+//                              + c lag a (mu x E_a q)^T J(lag w) ]
+// Rays that do not stay in front of the reference camera (Q_z <= kMinDepthRatio), or kappa <= kMinKappa
+// (the plane reached within the interval), give NaN: no measurement.
 // -------------------------------------------------------------------------------------------------------------
+namespace {
+constexpr double kMinDepthRatio = 0.1;  // Q_z: depth in the reference over depth in the current view, unitless
+constexpr double kMinKappa = 0.1;       // 1 - lag (mu . vartheta), unitless
+
+/// The state-dependent, pixel-independent part of the warp of one update interval.
+struct IntervalWarp {
+  Mat3 E, Ea;      // rotations current -> reference and current -> state
+  Mat3 J, Ja, Jb;  // left Jacobians of exp at dt w, lag w, (dt - lag) w
+  Vec3 a, b, mu;   // E_b vartheta (1/s), E_a^T mu, mu
+  Mat3 H;          // E + c a b^T: Q = H q
+  Mat3 N;          // d Q / d vartheta = c s_b N
+  Mat32 P;         // d Q / d mu = c a q^T P
+  double c = 0.0;  // dt / kappa, s
+  double kappa = 1.0;
+  double dt = 0.0, lag = 0.0;  // s
+  bool ok = false;
+
+  IntervalWarp(const State& x, const Vec3& gyro_mean_C, double dt_s, double state_lag_s) {
+    dt = dt_s;
+    lag = std::min(std::max(state_lag_s, 0.0), dt_s);
+    const Vec3 w = gyro_mean_C - x.b_w;  // rad/s
+    E = expSO3(dt * w);
+    Ea = expSO3(lag * w);
+    const Mat3 Eb = expSO3((dt - lag) * w);
+    J = leftJacobianSO3(dt * w);
+    Ja = leftJacobianSO3(lag * w);
+    Jb = leftJacobianSO3((dt - lag) * w);
+    mu = x.mu.vector();
+    a = Eb * x.vartheta;
+    b = Ea.transpose() * mu;
+    kappa = 1.0 - lag * mu.dot(x.vartheta);
+    ok = kappa > kMinKappa && dt > 0.0;
+    c = ok ? dt / kappa : 0.0;
+    const double k = ok ? lag * c / dt : 0.0;
+    H = E + c * a * b.transpose();
+    N = Eb + k * a * mu.transpose();
+    P = (Ea.transpose() + k * b * x.vartheta.transpose()) * x.mu.M();
+  }
+};
+}  // namespace
+
 Vec2 warpToReference(const State& x, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s, double px,
-                     double py, WarpJacobian* J) {
-  const Vec3 w = gyro_mean_C - x.b_w;  // rad/s
-  const Vec3 mu = x.mu.vector();
+                     double py, WarpJacobian* J, double state_lag_s) {
+  const IntervalWarp iw(x, gyro_mean_C, dt_s, state_lag_s);
   const Vec3 q((px - K.cx) / K.fx, (py - K.cy) / K.fy, 1.0);
-  const double s_q = mu.dot(q);
-  const Vec3 m = w.cross(q) + x.vartheta * s_q;  // 1/s
-  Mat23 D;
-  D << K.fx, 0.0, K.cx - px, 0.0, K.fy, K.cy - py;
-  const Vec2 p_r = Vec2(px, py) + dt_s * (D * m);
+  const Vec3 Q = iw.H * q;
+  if (!iw.ok || !(Q.z() > kMinDepthRatio)) {
+    const double nan = std::numeric_limits<double>::quiet_NaN();
+    if (J != nullptr) J->setConstant(nan);
+    return Vec2(nan, nan);
+  }
+  const double iz = 1.0 / Q.z();
+  const Vec2 p_r(K.fx * Q.x() * iz + K.cx, K.fy * Q.y() * iz + K.cy);
   if (J != nullptr) {
-    J->block<2, 3>(0, 0) = (dt_s * s_q) * D;
-    J->block<2, 2>(0, 3) = (dt_s * (D * x.vartheta)) * (q.transpose() * x.mu.M());
-    J->block<2, 3>(0, 5) = dt_s * (D * skew(q));
+    Mat23 Dr;  // dp_r / dQ
+    Dr << K.fx * iz, 0.0, (K.cx - p_r.x()) * iz, 0.0, K.fy * iz, (K.cy - p_r.y()) * iz;
+    const double s_b = iw.b.dot(q);
+    const Vec3 Eq = iw.E * q;
+    const Vec3 Eaq = iw.Ea * q;
+    J->block<2, 3>(0, 0) = (iw.c * s_b) * (Dr * iw.N);
+    J->block<2, 2>(0, 3) = (iw.c * (Dr * iw.a)) * (q.transpose() * iw.P);
+    const Mat3 dQ_dbw = iw.dt * skew(Eq) * iw.J + (iw.c * s_b * (iw.dt - iw.lag)) * skew(iw.a) * iw.Jb +
+                        (iw.c * iw.lag) * iw.a * (iw.mu.cross(Eaq).transpose() * iw.Ja);
+    J->block<2, 3>(0, 5) = Dr * dQ_dbw;
   }
   return p_r;
 }
 
 namespace {
 
-/// The warp of one state in single precision, laid out for the pixel loop.
+/// The warp of one update in single precision, laid out for the pixel loop. The sweep stores rows S' with
+/// S = (dt / 2) S' T (gradient sum instead of mean), T = blockdiag(N / kappa, I / kappa, J(dt w)); the b_w part
+/// of S' is v = gD x E q + s_b C2^T gD + (gD . a) C3 q, with C2 = c (1 - f) [a]x J_b J^-1 and
+/// C3 = c f (J_a J^-1)^T [mu]x E_a (gD = D_r^T g without the 1/Q_z, applied per pixel).
 struct PixelWarp {
   float fx, fy, cx, cy, ifx, ify;
-  float G[3][3];  // [w]x + vartheta mu^T, 1/s
-  float mu[3];
-  float th[3];    // vartheta, 1/s
-  float M[3][2];  // M(mu)
+  float H[3][3];   // reference ray Q = H q, unitless
+  float E[3][3];   // rotation current -> reference
+  float C2[3][3];  // b_w row: s_b C2^T gD
+  float C3[3][3];  // b_w row: (gD . a) C3 q
+  float b[3];      // s_b = b . q
+  float a[3];      // E_b vartheta, 1/s
+  float P[3][2];   // mu row: (gD . a) q^T P
+  ObservedInfo T;  // S = (dt / 2) S' T (double, applied to the sums)
+  bool ok = false;
 
-  PixelWarp(const State& x, const PinholeK& K, const Vec3& gyro_mean_C) {
+  PixelWarp(const State& x, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s, double state_lag_s) {
     fx = static_cast<float>(K.fx);
     fy = static_cast<float>(K.fy);
     cx = static_cast<float>(K.cx);
     cy = static_cast<float>(K.cy);
     ifx = static_cast<float>(1.0 / K.fx);
     ify = static_cast<float>(1.0 / K.fy);
-    const Vec3 w = gyro_mean_C - x.b_w;
-    const Vec3 n = x.mu.vector();
-    const Mat3 Gd = skew(w) + x.vartheta * n.transpose();
-    const Mat32 Md = x.mu.M();
+    const IntervalWarp iw(x, gyro_mean_C, dt_s, state_lag_s);
+    ok = iw.ok;
+    const double f = iw.dt > 0.0 ? iw.lag / iw.dt : 0.0;
+    const Mat3 J_inv = iw.J.inverse();  // J(phi) is invertible for |phi| < 2 pi
+    const Mat3 C2d = (iw.c * (1.0 - f)) * skew(iw.a) * iw.Jb * J_inv;
+    const Mat3 C3d = (iw.c * f) * (iw.Ja * J_inv).transpose() * skew(iw.mu) * iw.Ea;
     for (int r = 0; r < 3; ++r) {
-      for (int c = 0; c < 3; ++c) G[r][c] = static_cast<float>(Gd(r, c));
-      mu[r] = static_cast<float>(n(r));
-      th[r] = static_cast<float>(x.vartheta(r));
-      M[r][0] = static_cast<float>(Md(r, 0));
-      M[r][1] = static_cast<float>(Md(r, 1));
+      for (int col = 0; col < 3; ++col) {
+        H[r][col] = static_cast<float>(iw.H(r, col));
+        E[r][col] = static_cast<float>(iw.E(r, col));
+        C2[r][col] = static_cast<float>(C2d(r, col));
+        C3[r][col] = static_cast<float>(C3d(r, col));
+      }
+      b[r] = static_cast<float>(iw.b(r));
+      a[r] = static_cast<float>(iw.a(r));
+      P[r][0] = static_cast<float>(iw.P(r, 0));
+      P[r][1] = static_cast<float>(iw.P(r, 1));
     }
+    T.setZero();
+    const double inv_kappa = ok ? 1.0 / iw.kappa : 0.0;
+    T.block<3, 3>(0, 0) = inv_kappa * iw.N;
+    T.block<2, 2>(3, 3) = inv_kappa * Eigen::Matrix2d::Identity();
+    T.block<3, 3>(5, 5) = iw.J;
   }
 };
 
 struct SweepConfig {
   int border = 1;             // px excluded at the current image's border (>= 1: gradients are 0 there)
   int stride = 1;             // use every stride-th pixel in x and y
-  float dt = 0.0f;            // s
   float huber_abs = 0.0f;     // Huber threshold on |r| in intensity units (0 = off)
   bool gradient_weighting = false;
 };
@@ -139,9 +223,10 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
   const v_float32x4 rx_lo = v_setall_f32(1.0f), rx_hi = v_setall_f32(static_cast<float>(W - 2));
   const v_float32x4 ry_lo = v_setall_f32(1.0f), ry_hi = v_setall_f32(static_cast<float>(H - 2));
   const v_float32x4 one = v_setall_f32(1.0f), zero = v_setzero_f32();
-  const v_float32x4 dt = v_setall_f32(cfg.dt);
-  const v_float32x4 fx = v_setall_f32(wp.fx), fy = v_setall_f32(wp.fy), cx = v_setall_f32(wp.cx);
+  const v_float32x4 fx = v_setall_f32(wp.fx), fy = v_setall_f32(wp.fy);
+  const v_float32x4 cx = v_setall_f32(wp.cx), cy = v_setall_f32(wp.cy);
   const v_float32x4 ifx = v_setall_f32(wp.ifx);
+  const v_float32x4 min_depth = v_setall_f32(static_cast<float>(kMinDepthRatio));
   const v_float32x4 huber = v_setall_f32(cfg.huber_abs);
   const int n = (W - 2 * cfg.border + cfg.stride - 1) / cfg.stride;  // candidates per row
   if (n <= 0) return;
@@ -171,31 +256,35 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
     }
     float* res_row = residual->ptr<float>(y);
 
-    // Terms constant along the row: q = (qx, qy, 1), m = G q = qx G_col0 + m_row, etc.
+    // Terms constant along the row: q = (qx, qy, 1), Q = H q = qx H_col0 + h_row, etc.
     const float yf = static_cast<float>(y);
     const float qy_s = (yf - wp.cy) * wp.ify;
-    const v_float32x4 yv = v_setall_f32(yf);
-    const v_float32x4 qy = v_setall_f32(qy_s);
-    const v_float32x4 ey = v_setall_f32(wp.cy - yf);  // D(1, 2)
-    const v_float32x4 m0 = v_setall_f32(wp.G[0][1] * qy_s + wp.G[0][2]);
-    const v_float32x4 m1 = v_setall_f32(wp.G[1][1] * qy_s + wp.G[1][2]);
-    const v_float32x4 m2 = v_setall_f32(wp.G[2][1] * qy_s + wp.G[2][2]);
-    const v_float32x4 s_row = v_setall_f32(wp.mu[1] * qy_s + wp.mu[2]);
-    const v_float32x4 qM0 = v_setall_f32(wp.M[1][0] * qy_s + wp.M[2][0]);
-    const v_float32x4 qM1 = v_setall_f32(wp.M[1][1] * qy_s + wp.M[2][1]);
+    const v_float32x4 h0 = v_setall_f32(wp.H[0][1] * qy_s + wp.H[0][2]);
+    const v_float32x4 h1 = v_setall_f32(wp.H[1][1] * qy_s + wp.H[1][2]);
+    const v_float32x4 h2 = v_setall_f32(wp.H[2][1] * qy_s + wp.H[2][2]);
+    const v_float32x4 e0 = v_setall_f32(wp.E[0][1] * qy_s + wp.E[0][2]);
+    const v_float32x4 e1 = v_setall_f32(wp.E[1][1] * qy_s + wp.E[1][2]);
+    const v_float32x4 e2 = v_setall_f32(wp.E[2][1] * qy_s + wp.E[2][2]);
+    const v_float32x4 k0 = v_setall_f32(wp.C3[0][1] * qy_s + wp.C3[0][2]);
+    const v_float32x4 k1 = v_setall_f32(wp.C3[1][1] * qy_s + wp.C3[1][2]);
+    const v_float32x4 k2 = v_setall_f32(wp.C3[2][1] * qy_s + wp.C3[2][2]);
+    const v_float32x4 s_row = v_setall_f32(wp.b[1] * qy_s + wp.b[2]);
+    const v_float32x4 qP0 = v_setall_f32(wp.P[1][0] * qy_s + wp.P[2][0]);
+    const v_float32x4 qP1 = v_setall_f32(wp.P[1][1] * qy_s + wp.P[2][1]);
 
     v_float32x4 r2 = v_setzero_f32(), gsum = v_setzero_f32(), vcount = v_setzero_f32();
     v_float32x4 xv = v_load(xs_init);
     for (int k = 0; k < n_pad; k += 4, xv += x_step) {
       const v_float32x4 qx = (xv - cx) * ifx;
-      const v_float32x4 ex = cx - xv;  // D(0, 2)
-      const v_float32x4 mx = v_muladd(v_setall_f32(wp.G[0][0]), qx, m0);
-      const v_float32x4 my = v_muladd(v_setall_f32(wp.G[1][0]), qx, m1);
-      const v_float32x4 mz = v_muladd(v_setall_f32(wp.G[2][0]), qx, m2);
-      const v_float32x4 rx = v_muladd(dt, v_muladd(fx, mx, ex * mz), xv);
-      const v_float32x4 ry = v_muladd(dt, v_muladd(fy, my, ey * mz), yv);
+      const v_float32x4 Qx = v_muladd(v_setall_f32(wp.H[0][0]), qx, h0);
+      const v_float32x4 Qy = v_muladd(v_setall_f32(wp.H[1][0]), qx, h1);
+      const v_float32x4 Qz = v_muladd(v_setall_f32(wp.H[2][0]), qx, h2);
+      const v_float32x4 in_front = Qz > min_depth;
+      const v_float32x4 iz = one / v_select(in_front, Qz, one);
+      const v_float32x4 rx = v_muladd(fx, Qx * iz, cx);
+      const v_float32x4 ry = v_muladd(fy, Qy * iz, cy);
       // Comparisons are false for NaN: such pixels are invalid.
-      v_float32x4 valid = (rx >= rx_lo) & (rx < rx_hi) & (ry >= ry_lo) & (ry < ry_hi);
+      v_float32x4 valid = in_front & (rx >= rx_lo) & (rx < rx_hi) & (ry >= ry_lo) & (ry < ry_hi);
       if (k + 4 > n) {
         alignas(16) float lane_ok[4];
         for (int l = 0; l < 4; ++l) lane_ok[l] = k + l < n ? 1.0f : 0.0f;
@@ -224,10 +313,11 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
       const v_float32x4 r = v_select(valid, v_load(Ic + k) - ref[0], zero);
       // Efficient second-order gradient: sum of current and warped reference gradients (1/2 applied later).
       const v_float32x4 gx = gxc + ref[1], gy = gyc + ref[2];
+      const v_float32x4 ex = cx - rxs, ey = cy - rys;  // D_r(0, 2), D_r(1, 2)
       const v_float32x4 gD0 = gx * fx, gD1 = gy * fy, gD2 = v_muladd(gx, ex, gy * ey);
-      const v_float32x4 s_q = v_muladd(v_setall_f32(wp.mu[0]), qx, s_row);
-      const v_float32x4 u = v_muladd(gD2, v_setall_f32(wp.th[2]),
-                                     v_muladd(gD1, v_setall_f32(wp.th[1]), gD0 * v_setall_f32(wp.th[0])));
+      const v_float32x4 s_b = v_muladd(v_setall_f32(wp.b[0]), qx, s_row);
+      const v_float32x4 u = v_muladd(gD2, v_setall_f32(wp.a[2]),
+                                     v_muladd(gD1, v_setall_f32(wp.a[1]), gD0 * v_setall_f32(wp.a[0])));
       // Weight (0 for invalid pixels); the rows are scaled by sqrt(w).
       v_float32x4 w = v_select(valid, one, zero);
       if constexpr (kGradientWeighting) {
@@ -240,16 +330,32 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
         w = w * v_select(ar > huber, huber / v_select(ar > huber, ar, one), one);
       }
       const v_float32x4 sw = (kHuber || kGradientWeighting) ? v_sqrt(w) : w;
-      const v_float32x4 ssq = sw * s_q, su = sw * u;
-      // S = [vartheta (3), mu (2), b_w (3)]; the b_w part is gD [q]x = (gD x q)^T.
-      v_store_aligned(buf.T[0] + k, ssq * gD0);
-      v_store_aligned(buf.T[1] + k, ssq * gD1);
-      v_store_aligned(buf.T[2] + k, ssq * gD2);
-      v_store_aligned(buf.T[3] + k, su * v_muladd(v_setall_f32(wp.M[0][0]), qx, qM0));
-      v_store_aligned(buf.T[4] + k, su * v_muladd(v_setall_f32(wp.M[0][1]), qx, qM1));
-      v_store_aligned(buf.T[5] + k, sw * (gD1 - gD2 * qy));
-      v_store_aligned(buf.T[6] + k, sw * (gD2 * qx - gD0));
-      v_store_aligned(buf.T[7] + k, sw * (gD0 * qy - gD1 * qx));
+      const v_float32x4 swj = sw * iz;  // the Jacobian rows carry dp_r/dQ = D_r / Q_z
+      const v_float32x4 ssb = swj * s_b, su = swj * u;
+      // S' = [vartheta (3), mu (2), b_w (3)] (see PixelWarp); b_w: gD x E q + s_b C2^T gD + u C3 q.
+      const v_float32x4 Ex = v_muladd(v_setall_f32(wp.E[0][0]), qx, e0);
+      const v_float32x4 Ey = v_muladd(v_setall_f32(wp.E[1][0]), qx, e1);
+      const v_float32x4 Ez = v_muladd(v_setall_f32(wp.E[2][0]), qx, e2);
+      v_float32x4 v_bw[3];
+      v_bw[0] = gD1 * Ez - gD2 * Ey;
+      v_bw[1] = gD2 * Ex - gD0 * Ez;
+      v_bw[2] = gD0 * Ey - gD1 * Ex;
+      const v_float32x4 Kq[3] = {v_muladd(v_setall_f32(wp.C3[0][0]), qx, k0),
+                                 v_muladd(v_setall_f32(wp.C3[1][0]), qx, k1),
+                                 v_muladd(v_setall_f32(wp.C3[2][0]), qx, k2)};
+      for (int j = 0; j < 3; ++j) {
+        const v_float32x4 c2g = v_muladd(gD2, v_setall_f32(wp.C2[2][j]),
+                                         v_muladd(gD1, v_setall_f32(wp.C2[1][j]), gD0 * v_setall_f32(wp.C2[0][j])));
+        v_bw[j] = v_muladd(u, Kq[j], v_muladd(s_b, c2g, v_bw[j]));
+      }
+      v_store_aligned(buf.T[0] + k, ssb * gD0);
+      v_store_aligned(buf.T[1] + k, ssb * gD1);
+      v_store_aligned(buf.T[2] + k, ssb * gD2);
+      v_store_aligned(buf.T[3] + k, su * v_muladd(v_setall_f32(wp.P[0][0]), qx, qP0));
+      v_store_aligned(buf.T[4] + k, su * v_muladd(v_setall_f32(wp.P[0][1]), qx, qP1));
+      v_store_aligned(buf.T[5] + k, swj * v_bw[0]);
+      v_store_aligned(buf.T[6] + k, swj * v_bw[1]);
+      v_store_aligned(buf.T[7] + k, swj * v_bw[2]);
       v_store_aligned(buf.T[8] + k, sw * r);
       r2 = v_muladd(r, r, r2);
       vcount += v_select(valid, one, zero);
@@ -270,11 +376,10 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
   }
 }
 
-SweepConfig makeConfig(const PhotometricParams& params, const PreprocessParams& preprocess, double dt_s) {
+SweepConfig makeConfig(const PhotometricParams& params, const PreprocessParams& preprocess) {
   SweepConfig cfg;
   cfg.border = std::max(1, preprocess.border_px);
   cfg.stride = std::max(1, params.pixel_stride);
-  cfg.dt = static_cast<float>(dt_s);
   cfg.huber_abs = params.huber_threshold > 0.0
                       ? static_cast<float>(params.huber_threshold * params.intensity_noise_sigma)
                       : 0.0f;
@@ -322,10 +427,10 @@ PhotometricUpdate::PhotometricUpdate(const PhotometricParams& params, const Prep
 
 int PhotometricUpdate::linearize(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PinholeK& K,
                                  const Vec3& gyro_mean_C, double dt_s, const State& x, ObservedInfo* A,
-                                 ObservedVec* b, int* candidates) {
+                                 ObservedVec* b, int* candidates, double state_lag_s) {
   packReference(ref, &ref_packed_);
   prepareBuffers(cur.intensity.size());
-  return accumulate(cur, K, gyro_mean_C, dt_s, x, A, b, candidates, nullptr);
+  return accumulate(cur, K, gyro_mean_C, dt_s, state_lag_s, x, A, b, candidates, nullptr);
 }
 
 void PhotometricUpdate::prepareBuffers(const cv::Size& size) {
@@ -338,11 +443,18 @@ void PhotometricUpdate::prepareBuffers(const cv::Size& size) {
 }
 
 int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& K, const Vec3& gyro_mean_C,
-                                  double dt_s, const State& x, ObservedInfo* A, ObservedVec* b,
+                                  double dt_s, double state_lag_s, const State& x, ObservedInfo* A, ObservedVec* b,
                                   int* candidates, double* sum_r2) {
-  const SweepConfig cfg = makeConfig(params_, preprocess_, dt_s);
-  const PixelWarp wp(x, K, gyro_mean_C);
+  const SweepConfig cfg = makeConfig(params_, preprocess_);
+  const PixelWarp wp(x, K, gyro_mean_C, dt_s, state_lag_s);
   SweepSums sums;
+  if (!wp.ok) {  // the plane model breaks down within the interval: no measurement
+    A->setZero();
+    b->setZero();
+    if (candidates != nullptr) *candidates = 0;
+    if (sum_r2 != nullptr) *sum_r2 = 0.0;
+    return 0;
+  }
   RowBuffers buf;
   for (int i = 0; i < 9; ++i) buf.T[i] = scratch_.ptr<float>(i);
   for (int i = 0; i < 3; ++i) buf.cur[i] = scratch_.ptr<float>(9 + i);
@@ -369,6 +481,10 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
     for (int j = i; j < 8; ++j) (*A)(i, j) = (*A)(j, i) = sA * sums.G[i][j];
     (*b)(i) = sb * sums.G[i][8];
   }
+  // The sweep's rows are S' with S = (dt / 2) S' T (the dt / 2 is in sA and sb above).
+  *A = (wp.T.transpose() * *A * wp.T).eval();
+  *A = (0.5 * (*A + A->transpose())).eval();
+  *b = (wp.T.transpose() * *b).eval();
   if (candidates != nullptr) *candidates = sums.candidates;
   if (sum_r2 != nullptr) *sum_r2 = sums.sum_r2;
   return sums.valid;
@@ -376,9 +492,9 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
 
 UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const PreprocessedFrame& cur,
                                       const PinholeK& K, const Vec3& gyro_mean_C, double dt_s, State* x,
-                                      ErrorCov* P) {
+                                      ErrorCov* P, double state_lag_s) {
   UpdateStats stats;
-  const SweepConfig cfg = makeConfig(params_, preprocess_, dt_s);
+  const SweepConfig cfg = makeConfig(params_, preprocess_);
   if (x == nullptr || P == nullptr || !framesUsable(ref, cur, cfg.border) || !(dt_s > 0.0) ||
       !std::isfinite(dt_s) || !gyro_mean_C.allFinite() || !x->allFinite() || !P->allFinite() ||
       !(params_.intensity_noise_sigma > 0.0)) {
@@ -391,7 +507,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   auto linearize_at = [&](const State& x_j, internal::ObsMat* A, internal::ObsVec* b) {
     int candidates = 0;
     double sum_r2 = 0.0;
-    const int valid = accumulate(cur, K, gyro_mean_C, dt_s, x_j, A, b, &candidates, &sum_r2);
+    const int valid = accumulate(cur, K, gyro_mean_C, dt_s, state_lag_s, x_j, A, b, &candidates, &sum_r2);
     stats.valid_ratio = candidates > 0 ? static_cast<double>(valid) / candidates : 0.0;
     stats.rms_residual = valid > 0 ? std::sqrt(sum_r2 / valid) : 0.0;
     return valid > 0 && stats.valid_ratio >= params_.min_valid_ratio;
