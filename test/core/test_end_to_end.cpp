@@ -30,7 +30,11 @@ TEST_P(EndToEnd, DistanceAndVelocityConvergeOnSyntheticFlight) {
   const double imu_lag_s = GetParam();
   const SyntheticFlight flight;
   const CameraModel cam = syntheticCamera();
-  EstimatorParams params;  // the paper's initial values: alpha0 = 10 /m (d0 = 0.1 m, truth ~0.9 m)
+  EstimatorParams params;
+  // The paper's initial values, far from the truth (a harder start than the default d0 = 0.5 m):
+  // alpha0 = 10 /m (d0 = 0.1 m, truth ~0.9 m).
+  params.init.alpha0_inv_m = 10.0;
+  params.init.sigma_alpha0_inv_m = 5.0;
   params.preprocess.working_width_px = 90;
   Estimator estimator(cam, params);
 
