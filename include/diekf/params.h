@@ -26,6 +26,7 @@ struct InitParams {
   double tracking_max_relative_sigma_d = 0.15;  ///< status turns tracking once sigma_d / d falls below this
   bool warm_restart = true;                     ///< automatic restarts start from the last tracked distance
   double warm_restart_max_age_s = 10.0;         ///< ... if it is at most this old, s
+  double warm_restart_sigma_alpha_relative = 0.35;  ///< 1-sigma of alpha on a warm restart, relative to it
 };
 
 struct ImuParams {

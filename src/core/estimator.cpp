@@ -4,6 +4,7 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <cstdio>
 #include <cstring>
 #include <sstream>
@@ -294,6 +295,10 @@ struct Estimator::Impl {
     }
     if (best == nullptr) return;
     x.alpha = best->x.alpha;
+    // The remembered distance is at most warm_restart_max_age_s old: a relative 1-sigma, not the wide start-up
+    // one. With the wide one, the first updates at speed explain the unknown velocity by a wrong distance.
+    const double sigma_alpha = params.init.warm_restart_sigma_alpha_relative * x.alpha;
+    P(ErrIdx::kAlpha, ErrIdx::kAlpha) = sigma_alpha * sigma_alpha;
     x.mu = best->x.mu;
     x.g = best->x.g;
     x.b_a = best->x.b_a;

@@ -261,6 +261,8 @@ const std::vector<Entry>& table() {
                      positive()));
     t.push_back(flag("init/warm_restart", DIEKF_FIELD(bool, init.warm_restart)));
     t.push_back(real("init/warm_restart_max_age_s", DIEKF_FIELD(double, init.warm_restart_max_age_s), nonNegative()));
+    t.push_back(real("init/warm_restart_sigma_alpha_relative",
+                     DIEKF_FIELD(double, init.warm_restart_sigma_alpha_relative), positive()));
     // imu
     t.push_back(real("imu/accel_noise_density", DIEKF_FIELD(double, imu.accel_noise_density), positive()));
     t.push_back(real("imu/gyro_noise_density", DIEKF_FIELD(double, imu.gyro_noise_density), positive()));

@@ -57,6 +57,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
   return a.mode == b.mode && ia.alpha0_inv_m == ib.alpha0_inv_m && ia.vartheta0_inv_s == ib.vartheta0_inv_s &&
          ia.mu0 == ib.mu0 && ia.g0 == ib.g0 && ia.g0_from_accel == ib.g0_from_accel &&
          ia.mu0_from_gravity == ib.mu0_from_gravity &&
+         ia.warm_restart_sigma_alpha_relative == ib.warm_restart_sigma_alpha_relative &&
          ia.sigma_alpha0_inv_m == ib.sigma_alpha0_inv_m && ia.sigma_vartheta0_inv_s == ib.sigma_vartheta0_inv_s &&
          ia.sigma_mu0_rad == ib.sigma_mu0_rad && ia.sigma_g0_rad == ib.sigma_g0_rad &&
          ia.sigma_ba0_mps2 == ib.sigma_ba0_mps2 && ia.sigma_bw0_radps == ib.sigma_bw0_radps &&
