@@ -77,6 +77,7 @@ struct FeatureParams {
   double pixel_noise_sigma_px = 0.5;            ///< 1-sigma of a tracked corner position, px
   double huber_threshold_px = 1.0;              ///< Huber threshold on innovation, px
   int working_width_px = 376;                   ///< resolution the baseline tracks at, px
+  bool predict_flow = false;                    ///< start LK at the prior's predicted position (false: at the corner, as the paper)
 };
 
 struct DivergenceParams {

@@ -33,8 +33,29 @@ UpdateStats FeatureUpdate::update(const PreprocessedFrame& ref, const Preprocess
                           feature_.min_distance_px);
   if (static_cast<int>(ref_pts_.size()) < kMinTracks) return stats;
   const int win = std::max(3, feature_.window_px | 1);
+  int flags = 0;
+  if (feature_.predict_flow) {
+    // Start each track where the prior predicts it: invert the warp (current -> reference) by a fixed-point
+    // iteration p_c <- p_c - (warp(p_c) - p_r); a track the warp cannot place starts at its reference position.
+    cur_pts_.resize(ref_pts_.size());
+    for (std::size_t i = 0; i < ref_pts_.size(); ++i) {
+      const Vec2 p_r(ref_pts_[i].x, ref_pts_[i].y);
+      Vec2 p_c = p_r;
+      for (int it = 0; it < 4; ++it) {
+        const Vec2 w = warpToReference(*x, K, gyro_mean_C, dt_s, p_c.x(), p_c.y(), nullptr, state_lag_s);
+        if (!w.allFinite()) {
+          p_c = p_r;
+          break;
+        }
+        p_c -= w - p_r;
+      }
+      cur_pts_[i] = cv::Point2f(static_cast<float>(p_c.x()), static_cast<float>(p_c.y()));
+    }
+    flags = cv::OPTFLOW_USE_INITIAL_FLOW;
+  }
   cv::calcOpticalFlowPyrLK(ref.gray8, cur.gray8, ref_pts_, cur_pts_, status_, err_, cv::Size(win, win),
-                           std::max(0, feature_.pyramid_levels - 1));
+                           std::max(0, feature_.pyramid_levels - 1),
+                           cv::TermCriteria(cv::TermCriteria::COUNT + cv::TermCriteria::EPS, 30, 0.01), flags);
 
   // Keep successfully tracked pairs that land inside the current image (compacted in place).
   const float max_x = static_cast<float>(cur.gray8.cols - 1);

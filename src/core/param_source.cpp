@@ -310,6 +310,7 @@ const std::vector<Entry>& table() {
     t.push_back(real("feature/pixel_noise_sigma_px", DIEKF_FIELD(double, feature.pixel_noise_sigma_px), positive()));
     t.push_back(real("feature/huber_threshold_px", DIEKF_FIELD(double, feature.huber_threshold_px), nonNegative()));
     t.push_back(integer("feature/working_width_px", DIEKF_FIELD(int, feature.working_width_px), between(8, 4096)));
+    t.push_back(flag("feature/predict_flow", DIEKF_FIELD(bool, feature.predict_flow)));
     // divergence handling
     t.push_back(real("divergence/min_distance_m", DIEKF_FIELD(double, divergence.min_distance_m), positive()));
     t.push_back(real("divergence/max_distance_m", DIEKF_FIELD(double, divergence.max_distance_m), positive()));

@@ -77,7 +77,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          ra.border_px == rb.border_px && ha.max_passes == hb.max_passes && ha.stop_threshold == hb.stop_threshold &&
          ha.intensity_noise_sigma == hb.intensity_noise_sigma && ha.gradient_weighting == hb.gradient_weighting &&
          ha.huber_threshold == hb.huber_threshold && ha.min_valid_ratio == hb.min_valid_ratio &&
-         ha.pixel_stride == hb.pixel_stride && fa.max_corners == fb.max_corners &&
+         ha.pixel_stride == hb.pixel_stride && fa.max_corners == fb.max_corners && fa.predict_flow == fb.predict_flow &&
          fa.quality_level == fb.quality_level && fa.min_distance_px == fb.min_distance_px &&
          fa.window_px == fb.window_px && fa.pyramid_levels == fb.pyramid_levels &&
          fa.pixel_noise_sigma_px == fb.pixel_noise_sigma_px && fa.huber_threshold_px == fb.huber_threshold_px &&
