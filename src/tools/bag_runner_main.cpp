@@ -295,12 +295,28 @@ int run(const RunnerOptions& o) {
 
   diekf::Estimator estimator(camera, params);
   diekf::eval::EstimatesCsvWriter csv((out_dir / "estimates.csv").string());
+  // --frames-csv: per-image update diagnostics (not part of the estimates format of CONVENTIONS.md section 4).
+  std::ofstream frames;
+  if (o.frames_csv) {
+    frames.open(out_dir / "frames.csv");
+    if (!frames) throw RunError("cannot write " + (out_dir / "frames.csv").string());
+    frames << "t,applied,passes,photometric_rms,valid_ratio,status,message\n";
+    frames.precision(12);
+  }
   std::vector<diekf::eval::EstimateRow> rows;
   bool keep_rows = true;       // --repeat: only the first pass is kept for the evaluation
   std::size_t soak_rows = 0;   // estimates of the later passes (written to the CSV only)
   auto drain = [&]() {
     diekf::FrameResult result;
     while (estimator.popResult(&result)) {
+      if (frames.is_open()) {
+        std::string msg = result.message;
+        for (char& ch : msg)
+          if (ch == ',' || ch == '\n' || ch == '"') ch = ';';
+        frames << result.t_s << ',' << (result.update_applied ? 1 : 0) << ',' << result.passes << ','
+               << result.photometric_rms << ',' << result.valid_ratio << ',' << diekf::toString(result.status) << ','
+               << msg << '\n';
+      }
       if (keep_rows) {
         rows.push_back(toRow(result));
         csv.write(rows.back());

@@ -19,7 +19,7 @@ TEST(RunnerOptions, FullCommandLine) {
   const RunnerOptions o = parse({"--bag", "f.bag", "--camchain", "c.yaml", "--imu", "i.yaml", "--config", "p.yaml",
                                  "--mode", "ekf", "--image-topic", "/img", "--imu-topic=/imu", "--width", "120",
                                  "--set", "photometric/max_passes=5", "--set", "a=b", "--output", "out",
-                                 "--gt-velocity-window", "0.05", "--quiet"});
+                                 "--gt-velocity-window", "0.05", "--quiet", "--frames-csv"});
   EXPECT_EQ(o.bag, "f.bag");
   EXPECT_EQ(o.camchain, "c.yaml");
   EXPECT_EQ(o.imu, "i.yaml");
@@ -33,7 +33,9 @@ TEST(RunnerOptions, FullCommandLine) {
   EXPECT_EQ(o.output, "out");
   EXPECT_DOUBLE_EQ(o.gt_velocity_window_s, 0.05);
   EXPECT_TRUE(o.quiet);
+  EXPECT_TRUE(o.frames_csv);
   EXPECT_DOUBLE_EQ(o.eval_start_delay_s, 3.0);
+  EXPECT_FALSE(parse({"--bag", "b", "--camchain", "c", "--output", "o"}).frames_csv);
 }
 
 TEST(RunnerOptions, ErrorsAreUsageErrors) {

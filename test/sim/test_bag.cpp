@@ -195,9 +195,19 @@ TEST(SimulatorCli, ParsesAndRejects) {
   EXPECT_DOUBLE_EQ(o.incline_deg, 20.0);
   EXPECT_EQ(o.texture, "natural");
   EXPECT_EQ(parseSimulateArgs({"--help"}, &o, &err), ParseResult::kHelp);
+  SimulationOptions h;
+  EXPECT_EQ(parseSimulateArgs({"--texture", "grass", "--height", "0.4", "--height-amplitude", "0.1", "--output", "x"},
+                              &h, &err),
+            ParseResult::kOk)
+      << err;
+  EXPECT_EQ(h.texture, "grass");
+  EXPECT_DOUBLE_EQ(h.height_amplitude_m, 0.1);
+  EXPECT_LT(SimulationOptions().height_amplitude_m, 0.0);  // default: the preset's
+  EXPECT_NE(simulateUsage().find("grass"), std::string::npos);
   const std::vector<std::vector<std::string>> bad = {{"--preset", "flight9", "--output", "x"},
                                                      {"--duration", "abc", "--output", "x"},
                                                      {"--incline-deg", "80", "--output", "x"},
+                                                     {"--height-amplitude", "-0.1", "--output", "x"},
                                                      {"--seed", "-3", "--output", "x"},
                                                      {"--frobnicate", "--output", "x"},
                                                      {"--duration"},
@@ -209,4 +219,20 @@ TEST(SimulatorCli, ParsesAndRejects) {
     EXPECT_FALSE(err.empty());
     EXPECT_EQ(err.find('\n'), std::string::npos);  // one line
   }
+}
+
+TEST(Simulator, HeightAmplitudeBoundsTheHeight) {
+  SimulationOptions o;
+  o.preset = "flight5";
+  o.duration_s = 20.0;
+  o.height_m = 0.4;
+  const SpeedStats preset = makeTrajectory(o).stats(100.0);
+  o.height_amplitude_m = 0.1;
+  const SpeedStats bounded = makeTrajectory(o).stats(100.0);
+  // The preset's +-0.30 m would take the IMU to ~0.1 m above the ground; +-0.1 m keeps it within 0.3-0.5 m.
+  EXPECT_LT(preset.min_height_m, 0.2);
+  EXPECT_GT(bounded.min_height_m, 0.29);
+  EXPECT_LT(bounded.max_height_m, 0.51);
+  // Horizontal motion unchanged.
+  EXPECT_NEAR(bounded.rms_mps, preset.rms_mps, 0.02);
 }

@@ -27,6 +27,7 @@ struct RunnerOptions {
   double max_duration_s = 0.0;            ///< stop after this much sensor time, s (0: whole bag)
   int repeat = 1;                         ///< soak test: play the bag this many times back to back, stamps shifted
   bool quiet = false;                     ///< no progress on stderr
+  bool frames_csv = false;                ///< also write output/frames.csv (per-image update diagnostics)
   bool help = false;
 };
 

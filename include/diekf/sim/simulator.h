@@ -18,12 +18,13 @@ struct SimulationOptions {
   std::string preset = "flight1";
   double duration_s = 60.0;
   std::uint64_t seed = 1;
-  std::string texture;              ///< "" = the preset's; "checkerboard", "natural" or an image path
+  std::string texture;              ///< "" = the preset's; checkerboard, natural, grass, leaves, dirt or an image path
   double texture_size_m = 1.0;      ///< physical width of one tile of an image texture (m)
   double square_m = 0.05;           ///< checkerboard square (m)
   double incline_deg = 0.0;         ///< plane tilt about a horizontal axis (deg, 0..30 validated by the CLI)
   double incline_azimuth_deg = 0.0; ///< azimuth of that axis in W (deg)
   double height_m = -1.0;           ///< mean IMU height above the plane; < 0 = the preset's
+  double height_amplitude_m = -1.0; ///< amplitude of the slow height changes (m); < 0 = the preset's
   double fps = 30.0;                ///< image rate (Hz)
   double exposure_ms = 4.0;         ///< exposure time (ms); motion blur integrates over it
   int max_subframes = 8;            ///< cap on sub-frame renders per image

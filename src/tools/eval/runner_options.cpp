@@ -59,6 +59,8 @@ Options:
   --max-duration S         process only the first S seconds of the bag (default: all)
   --repeat N               soak test: play the bag N times back to back, stamps shifted so that time runs on;
                            only the first pass is kept for the evaluation; RSS printed to stderr after each pass
+  --frames-csv             also write DIR/frames.csv: per image the update's photometric residual RMS, valid
+                           pixel ratio, passes, whether it was applied, status and message (diagnostics)
   --quiet                  no progress output on stderr
   --help                   this text
 Exit status: 0 on success, 1 on a bad command line, unreadable input or a processing error.
@@ -88,6 +90,8 @@ RunnerOptions parseRunnerOptions(int argc, const char* const* argv) {
       o.help = true;
     } else if (arg == "--quiet") {
       o.quiet = true;
+    } else if (arg == "--frames-csv") {
+      o.frames_csv = true;
     } else if (arg == "--bag") {
       o.bag = next();
     } else if (arg == "--camchain") {

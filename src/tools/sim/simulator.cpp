@@ -40,7 +40,8 @@ bool parseUint(const std::string& s, std::uint64_t* v) {
 
 std::string simulateUsage() {
   std::ostringstream os;
-  os << "usage: diekf_simulate [--preset NAME] [--duration S] [--seed N] [--texture checkerboard|natural|IMAGE]\n"
+  os << "usage: diekf_simulate [--preset NAME] [--duration S] [--seed N]\n"
+        "                      [--texture checkerboard|natural|grass|leaves|dirt|IMAGE]\n"
         "                      [--incline-deg A] [options] --output DIR\n"
         "  -> DIR/sequence.bag, DIR/camchain.yaml, DIR/imu.yaml\n"
         "Renders a downward MYNT EYE S-like camera (752x480 @ 30 Hz, radtan) over a textured plane, with a 500 Hz\n"
@@ -51,10 +52,12 @@ std::string simulateUsage() {
         "  --duration S             sequence length (s)                                 [60]\n"
         "  --seed N                 random seed (trajectory, texture, noise)            [1]\n"
         "  --height M               mean IMU height above the plane (m)                [preset]\n"
+        "  --height-amplitude M     amplitude of the slow height changes (m)            [preset]\n"
         "  --incline-deg A          plane tilt about a horizontal axis, 0..45 (deg)     [0]\n"
         "  --incline-azimuth-deg A  direction of that axis in W (deg)                   [0]\n"
         "Texture:\n"
-        "  --texture T              checkerboard | natural | image file (tiled)         [preset]\n"
+        "  --texture T              checkerboard | natural | grass | leaves | dirt |    [preset]\n"
+        "                           image file (tiled)\n"
         "  --texture-size M         physical width of one image tile (m)                [1.0]\n"
         "  --square M               checkerboard square size (m)                        [0.05]\n"
         "Camera:\n"
@@ -107,6 +110,7 @@ ParseResult parseSimulateArgs(const std::vector<std::string>& args_in, Simulatio
   std::map<std::string, NumOpt> nums = {
       {"--duration", {&opt->duration_s, 0.5, 3600}},
       {"--height", {&opt->height_m, 0.1, 20}},
+      {"--height-amplitude", {&opt->height_amplitude_m, 0, 10}},
       {"--incline-deg", {&opt->incline_deg, 0, 45}},
       {"--incline-azimuth-deg", {&opt->incline_azimuth_deg, -360, 360}},
       {"--texture-size", {&opt->texture_size_m, 1e-3, 1000}},
@@ -214,6 +218,7 @@ Trajectory makeTrajectory(const SimulationOptions& opt) {
   PresetSpec spec;
   if (!findPreset(opt.preset, &spec)) throw std::runtime_error("unknown preset '" + opt.preset + "'");
   if (opt.height_m > 0.0) spec.height_m = opt.height_m;
+  if (opt.height_amplitude_m >= 0.0) spec.height_amplitude_m = opt.height_amplitude_m;
   const Plane plane = Plane::inclined(opt.incline_deg, opt.incline_azimuth_deg);
   return Trajectory(makePresetTrajectory(spec, opt.duration_s, opt.seed, plane));
 }
@@ -246,9 +251,7 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
   // Texture.
   const std::string tex_name = opt.texture.empty() ? spec.texture : opt.texture;
   if (progress) *progress << "[diekf_simulate] preparing texture '" << tex_name << "'\n";
-  const Texture tex = tex_name == "checkerboard" ? Texture::checkerboard(opt.square_m)
-                      : tex_name == "natural"    ? Texture::natural(opt.seed)
-                                                 : Texture::fromImage(tex_name, opt.texture_size_m);
+  const Texture tex = Texture::byName(tex_name, opt.seed, opt.square_m, opt.texture_size_m);
 
   const CameraModel cam = myntEyeSimCamera(opt.scale);
   const Renderer renderer(cam, opt.threads);

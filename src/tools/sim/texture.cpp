@@ -204,6 +204,274 @@ Texture Texture::natural(std::uint64_t seed, double texel_m, int tile_px) {
   return Texture(img, n, n, texel_m, texel_m);
 }
 
+namespace {
+
+// Helpers of the grass, leaves and dirt textures. All sizes handed to them are in texels; the texture functions
+// convert from metres, so the textures keep their physical scale whatever the texel size.
+
+constexpr double kTwoPi = 6.283185307179586;
+
+/// Power-of-two lattice cell count whose cells are closest to `feature_m` on a tile of `tile_m`, within [2, n/2].
+int cellsFor(double tile_m, double feature_m, int n) {
+  int cells = 2;
+  while (cells < n / 2 && tile_m / (cells * 2) >= feature_m / 1.41421356) cells *= 2;
+  return cells;
+}
+
+/// Interval of dx with lo <= a dx <= hi (a = 0: everything or nothing).
+bool slab(double a, double lo, double hi, double* x0, double* x1) {
+  if (std::abs(a) < 1e-12) {
+    *x0 = -1e300;
+    *x1 = 1e300;
+    return lo <= 0.0 && 0.0 <= hi;
+  }
+  *x0 = (a > 0 ? lo : hi) / a;
+  *x1 = (a > 0 ? hi : lo) / a;
+  return true;
+}
+
+/// Calls f(pixel, u, v) for every texel centre (wrapped into the n x n tile) inside the rectangle
+/// u in [u0, u1], v in [v0, v1] of the local frame centred at (cx, cy) (texels) with axes
+/// u = (c, s), v = (-s, c): u = c dx + s dy, v = -s dx + c dy. Scans only the rectangle's rows and spans.
+template <typename F>
+void forEachInRect(std::vector<float>* img, int n, double cx, double cy, double c, double s, double u0, double u1,
+                   double v0, double v1, F f) {
+  double ymin = 1e300, ymax = -1e300;
+  for (double u : {u0, u1})
+    for (double v : {v0, v1}) {
+      const double y = cy + s * u + c * v;
+      ymin = std::min(ymin, y);
+      ymax = std::max(ymax, y);
+    }
+  for (int y = static_cast<int>(std::ceil(ymin - 0.5)); y <= static_cast<int>(std::floor(ymax - 0.5)); ++y) {
+    const double dy = y + 0.5 - cy;
+    double a0, a1, b0, b1;
+    if (!slab(c, u0 - s * dy, u1 - s * dy, &a0, &a1) || !slab(-s, v0 - c * dy, v1 - c * dy, &b0, &b1)) continue;
+    const double lo = std::max(a0, b0), hi = std::min(a1, b1);
+    if (lo > hi) continue;
+    float* row = &(*img)[static_cast<std::size_t>(y & (n - 1)) * n];
+    for (int x = static_cast<int>(std::ceil(cx + lo - 0.5)); x <= static_cast<int>(std::floor(cx + hi - 0.5)); ++x) {
+      const double dx = x + 0.5 - cx;
+      f(row[x & (n - 1)], c * dx + s * dy, -s * dx + c * dy);
+    }
+  }
+}
+
+/// Soft coverage over a wider edge than smoothEdge (shadows): 0 at -width, 1 at +width.
+float softEdge(double inside_px, double width_px) {
+  const double t = std::clamp((inside_px + width_px) / (2.0 * width_px), 0.0, 1.0);
+  return static_cast<float>(t * t * (3 - 2 * t));
+}
+
+/// Shifts and scales to the given mean and standard deviation, then clamps into [lo, hi] grey levels.
+void normalise(std::vector<float>* img, double mean_target, double sd_target, double lo, double hi) {
+  double mean = 0.0, var = 0.0;
+  for (float v : *img) mean += v;
+  mean /= img->size();
+  for (float v : *img) var += (v - mean) * (v - mean);
+  const double sd = std::max(1e-9, std::sqrt(var / img->size()));
+  for (float& v : *img) v = static_cast<float>(std::clamp(mean_target + sd_target * (v - mean) / sd, lo, hi));
+}
+
+void checkProceduralArgs(const char* what, double texel_m, int tile_px) {
+  if (!isPow2(tile_px) || tile_px < 64 || !(texel_m > 0.0))
+    throw std::invalid_argument(std::string(what) + " texture: texel size > 0 and tile_px a power of two >= 64");
+}
+
+}  // namespace
+
+Texture Texture::grass(std::uint64_t seed, double texel_m, int tile_px, double direction_deg) {
+  checkProceduralArgs("grass", texel_m, tile_px);
+  const int n = tile_px;
+  const double tile_m = n * texel_m, px = 1.0 / texel_m;  // px: texels per metre
+  std::mt19937_64 rng(seed ^ 0x6772617373000001ull);
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+  std::normal_distribution<double> nd(0.0, 1.0);
+
+  // Gaps: the shadowed bottom of the sward (dead thatch, soil), dark with centimetre mottling.
+  std::vector<float> img(static_cast<std::size_t>(n) * n, 0.f);
+  addValueNoise(&img, n, n, cellsFor(tile_m, 0.02, n), 6.f, &rng);
+  for (float& v : img) v += 35.f;
+
+  struct Blade {
+    double cx, cy, th, len, hw, bow, bright;
+  };
+  // Blade sizes (m): length 4-12 cm, width 2-5 mm, bend up to +-6 mm; area coverage 3.5 layers.
+  const double mean_area_m2 = 0.08 * 0.0035 * 0.8;
+  const int n_blades = static_cast<int>(3.5 * tile_m * tile_m / mean_area_m2);
+  const double th0 = direction_deg * M_PI / 180.0;
+  std::vector<std::pair<double, Blade>> blades;  // (depth 0 = bottom .. 1 = top, blade)
+  blades.reserve(n_blades);
+  for (int i = 0; i < n_blades; ++i) {
+    Blade b;
+    b.cx = uni(rng) * n;
+    b.cy = uni(rng) * n;
+    const bool aligned = uni(rng) < 0.75;
+    const double spread = nd(rng);
+    b.th = aligned ? th0 + 0.26 * spread + (uni(rng) < 0.5 ? 0.0 : M_PI) : kTwoPi * uni(rng);
+    b.len = (0.04 + 0.08 * uni(rng)) * px;
+    b.hw = 0.5 * (0.002 + 0.003 * uni(rng)) * px;
+    b.bow = (uni(rng) - 0.5) * 0.012 * px;
+    const double depth = uni(rng);
+    const bool dry = uni(rng) < 0.15;  // dry, greyer blades are lighter
+    b.bright = 55.0 + 110.0 * depth + 12.0 * nd(rng) + (dry ? 40.0 : 0.0);
+    blades.emplace_back(depth, b);
+  }
+  std::sort(blades.begin(), blades.end(), [](const auto& a, const auto& b) { return a.first < b.first; });
+  for (const auto& db : blades) {
+    const Blade& b = db.second;
+    const double c = std::cos(b.th), s = std::sin(b.th), half = 0.5 * b.len;
+    forEachInRect(&img, n, b.cx, b.cy, c, s, -half - 1.0, half + 1.0, std::min(0.0, b.bow) - b.hw - 1.0,
+                  std::max(0.0, b.bow) + b.hw + 1.0, [&](float& p, double u, double v) {
+                    const double t = u / half;                       // -1 base .. 1 tip
+                    const double w = b.hw * std::min(1.0, (1.0 - t) / 0.6);  // tapers over the last 30 %
+                    const double off = std::abs(v - b.bow * t * t);  // distance from the bent midline
+                    const float cov = std::min(smoothEdge(half - std::abs(u)), smoothEdge(w - off));
+                    if (cov <= 0.f) return;
+                    const double rel = off / std::max(w, 0.5);
+                    const double shade = (0.85 + 0.15 * (t + 1.0)) * (rel < 0.35 ? 1.08 : 1.0 - 0.12 * rel);
+                    p += cov * (static_cast<float>(b.bright * shade) - p);
+                  });
+  }
+  // Patchy growth and soil moisture: slow multiplicative brightness changes.
+  std::vector<float> patches(img.size(), 0.f);
+  addValueNoise(&patches, n, n, cellsFor(tile_m, 0.4, n), 0.12f, &rng);
+  addValueNoise(&patches, n, n, cellsFor(tile_m, 0.1, n), 0.06f, &rng);
+  for (std::size_t i = 0; i < img.size(); ++i) img[i] *= 1.f + patches[i];
+  normalise(&img, 105.0, 32.0, 5.0, 250.0);
+  return Texture(img, n, n, texel_m, texel_m);
+}
+
+Texture Texture::leaves(std::uint64_t seed, double texel_m, int tile_px) {
+  checkProceduralArgs("leaves", texel_m, tile_px);
+  const int n = tile_px;
+  const double tile_m = n * texel_m, px = 1.0 / texel_m;
+  std::mt19937_64 rng(seed ^ 0x6c65617665000002ull);
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+
+  // Dark gaps: shadowed soil between the leaves.
+  std::vector<float> img(static_cast<std::size_t>(n) * n, 0.f);
+  addValueNoise(&img, n, n, cellsFor(tile_m, 0.01, n), 5.f, &rng);
+  for (float& v : img) v += 30.f;
+
+  // Leaves 3-8 cm long, width 35-60 % of the length; mean area ~ 0.75 L W; 2.2 layers on average.
+  const double mean_area_m2 = 0.75 * 0.055 * 0.055 * 0.475;
+  const int n_leaves = static_cast<int>(2.2 * tile_m * tile_m / mean_area_m2);
+  const double shadow_dx = 0.003 * px, shadow_dy = 0.0025 * px;  // light from one side: 4 mm shadow offset
+  for (int i = 0; i < n_leaves; ++i) {
+    const double cx = uni(rng) * n, cy = uni(rng) * n;
+    const double len = (0.03 + 0.05 * uni(rng)) * px, half = 0.5 * len;
+    const double hw_max = 0.5 * len * (0.35 + 0.25 * uni(rng));
+    const double th = kTwoPi * uni(rng), c = std::cos(th), s = std::sin(th);
+    const double bright = 70.0 + 120.0 * uni(rng);           // wet/dark to dry/light leaves
+    const double tilt_u = 0.4 * (uni(rng) - 0.5), tilt_v = 0.4 * (uni(rng) - 0.5);  // shading by leaf tilt
+    const double rib = uni(rng) < 0.5 ? 0.82 : 1.15;         // darker or lighter midrib
+    const double rim_px = 0.001 * px;
+    // Ovate outline: half-width hw(t) = hw_max (1 - t^2)(1 - 0.25 t) / 1.03, t = u / half in [-1, 1].
+    const auto inside = [&](double u, double v) {
+      const double t = std::clamp(u / half, -1.0, 1.0);
+      const double hw = hw_max * (1.0 - t * t) * (1.0 - 0.25 * t) / 1.03;
+      return std::min(half - std::abs(u), hw - std::abs(v));
+    };
+    // Soft shadow on what lies below.
+    const double shadow_soft = 0.0015 * px;
+    forEachInRect(&img, n, cx + shadow_dx, cy + shadow_dy, c, s, -half - 2 * shadow_soft, half + 2 * shadow_soft,
+                  -hw_max - 2 * shadow_soft, hw_max + 2 * shadow_soft, [&](float& p, double u, double v) {
+                    const float cov = softEdge(inside(u, v), shadow_soft);
+                    p *= 1.f - 0.45f * cov;
+                  });
+    forEachInRect(&img, n, cx, cy, c, s, -half - 1.0, half + 1.0, -hw_max - 1.0, hw_max + 1.0,
+                  [&](float& p, double u, double v) {
+                    const double in = inside(u, v);
+                    const float cov = smoothEdge(in);
+                    if (cov <= 0.f) return;
+                    double shade = 1.0 + tilt_u * u / half + tilt_v * v / hw_max;
+                    if (in < rim_px) shade *= 0.85;
+                    if (std::abs(v) < 0.0006 * px + 0.5 && u < 0.9 * half) shade *= rib;
+                    p += cov * (static_cast<float>(bright * shade) - p);
+                  });
+  }
+  normalise(&img, 95.0, 40.0, 5.0, 250.0);
+  return Texture(img, n, n, texel_m, texel_m);
+}
+
+Texture Texture::dirt(std::uint64_t seed, double texel_m, int tile_px) {
+  checkProceduralArgs("dirt", texel_m, tile_px);
+  const int n = tile_px;
+  const double tile_m = n * texel_m, px = 1.0 / texel_m;
+  std::mt19937_64 rng(seed ^ 0x6469727400000003ull);
+  std::uniform_real_distribution<double> uni(0.0, 1.0);
+  std::normal_distribution<double> nd(0.0, 1.0);
+  std::vector<float> img(static_cast<std::size_t>(n) * n, 0.f);
+
+  // Moisture patches (0.3-1 m) and centimetre mottling (relative units; normalised at the end).
+  addValueNoise(&img, n, n, cellsFor(tile_m, 1.0, n), 0.25f, &rng);
+  addValueNoise(&img, n, n, cellsFor(tile_m, 0.3, n), 0.2f, &rng);
+  addValueNoise(&img, n, n, cellsFor(tile_m, 0.03, n), 0.2f, &rng);
+  addValueNoise(&img, n, n, cellsFor(tile_m, 0.012, n), 0.15f, &rng);
+
+  const double lx = 0.6, ly = 0.8;  // direction the light comes from (tile axes)
+  // Round, slightly irregular bumps with a flat offset and lit/shaded sides (dome shading).
+  const auto bump = [&](double cx, double cy, double r, double offset, double shade_amp) {
+    const double a1 = kTwoPi * uni(rng), a2 = kTwoPi * uni(rng);
+    const double r_out = r * 1.3 + 1.0;
+    forEachInRect(&img, n, cx, cy, 1.0, 0.0, -r_out, r_out, -r_out, r_out, [&](float& p, double u, double v) {
+      const double rho = std::sqrt(u * u + v * v), phi = std::atan2(v, u);
+      const double rr = r * (1.0 + 0.15 * std::sin(3 * phi + a1) + 0.1 * std::sin(5 * phi + a2));
+      const float cov = smoothEdge(rr - rho);
+      if (cov <= 0.f) return;
+      const double q = std::min(1.0, rho / rr);
+      const double lit = (u * lx + v * ly) / std::max(rho, 1e-9) * q;  // -1 shaded side .. 1 lit side
+      p += cov * static_cast<float>(offset + shade_amp * lit);
+    });
+  };
+  // Clods: radius 0.8-3 cm, 30 % of the area.
+  const int n_clods = static_cast<int>(0.3 * tile_m * tile_m / (M_PI * 0.019 * 0.019 * 1.1));
+  for (int i = 0; i < n_clods; ++i) {
+    const double r = (0.008 + 0.022 * uni(rng)) * px;
+    bump(uni(rng) * n, uni(rng) * n, r, 0.15 * nd(rng) + 0.05, 0.5);
+  }
+  // Gravel: stones of radius 1.5-5 mm, 12 % of the area, mostly lighter than the soil.
+  const int n_stones = static_cast<int>(0.12 * tile_m * tile_m / (M_PI * 0.0033 * 0.0033 * 1.1));
+  for (int i = 0; i < n_stones; ++i) {
+    const double r = (0.0015 + 0.0035 * uni(rng)) * px;
+    bump(uni(rng) * n, uni(rng) * n, r, (uni(rng) < 0.7 ? 1.0 : -1.0) * (0.3 + 0.4 * uni(rng)), 0.3);
+  }
+  // Fine grain (1-2 mm): white noise blurred over about 1.5 mm.
+  std::vector<float> grain(img.size());
+  for (float& g : grain) g = static_cast<float>(nd(rng));
+  const int gr = std::max(1, static_cast<int>(std::lround(0.0007 * px)));
+  std::vector<float> tmp(img.size());
+  const float norm = 1.f / (2 * gr + 1);
+  for (int y = 0; y < n; ++y)
+    for (int x = 0; x < n; ++x) {
+      float acc = 0.f;
+      for (int k = -gr; k <= gr; ++k) acc += grain[static_cast<std::size_t>(y) * n + ((x + k) & (n - 1))];
+      tmp[static_cast<std::size_t>(y) * n + x] = acc * norm;
+    }
+  for (int y = 0; y < n; ++y)
+    for (int x = 0; x < n; ++x) {
+      float acc = 0.f;
+      for (int k = -gr; k <= gr; ++k) acc += tmp[static_cast<std::size_t>((y + k) & (n - 1)) * n + x];
+      img[static_cast<std::size_t>(y) * n + x] += 0.3f * acc * norm * (2 * gr + 1);
+    }
+  normalise(&img, 120.0, 14.0, 5.0, 250.0);
+  return Texture(img, n, n, texel_m, texel_m);
+}
+
+bool Texture::isProcedural(const std::string& name) {
+  return name == "checkerboard" || name == "natural" || name == "grass" || name == "leaves" || name == "dirt";
+}
+
+Texture Texture::byName(const std::string& name, std::uint64_t seed, double square_m, double image_tile_width_m) {
+  if (name == "checkerboard") return checkerboard(square_m);
+  if (name == "natural") return natural(seed);
+  if (name == "grass") return grass(seed);
+  if (name == "leaves") return leaves(seed);
+  if (name == "dirt") return dirt(seed);
+  return fromImage(name, image_tile_width_m);
+}
+
 Texture Texture::fromImage(const std::string& path, double tile_width_m) {
   if (!(tile_width_m > 0.0)) throw std::invalid_argument("texture size must be > 0 m");
   cv::Mat im = cv::imread(path, cv::IMREAD_GRAYSCALE);
