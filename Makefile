@@ -23,7 +23,8 @@ APT_PACKAGES := build-essential cmake catkin ros-base-dev libnodeletlib-dev libc
   libtf2-geometry-msgs-dev python3-rosbag python3-rostest python3-roslaunch libnodeletlib-tools ros-base-python-dev rosbash valgrind \
   python3-tf2-msgs image-transport-tools clang libclang-rt-14-dev
 
-.PHONY: all deps workspace build test demo benchmark benchmark-core benchmark-callgrind fuzz sanitize soak clean
+.PHONY: all deps workspace build test demo benchmark benchmark-core benchmark-callgrind fuzz sanitize soak rviz-check \
+  clean
 
 all: build
 
@@ -88,6 +89,17 @@ soak: build
 benchmark-callgrind: build
 	cd $(WS) && catkin_make -j$(JOBS) diekf_benchmark && \
 	  bash $(CURDIR)/scripts/callgrind_core.sh devel/lib/diekf/diekf_benchmark
+
+# rviz on a virtual X server over a simulated flight (replay.launch rviz:=true): screenshots and a log scan in
+# results/rviz/ (docs/ros.md, "rviz"). Not part of `make test`: CI has no rviz.
+RVIZ_APT_PACKAGES := rviz xvfb imagemagick
+rviz-check: build
+	@missing=$$(for p in $(RVIZ_APT_PACKAGES); do dpkg-query -W -f='$${Status}\n' $$p 2>/dev/null | grep -q '^install ok installed' || echo $$p; done); \
+	if [ -n "$$missing" ]; then \
+	  echo "Installing: $$missing"; \
+	  $(SUDO) apt-get update -qq && DEBIAN_FRONTEND=noninteractive $(SUDO) apt-get install -y -qq $$missing; \
+	fi
+	cd $(WS) && source devel/setup.bash && bash $(CURDIR)/scripts/rviz_check.sh $(CURDIR)/results/rviz
 
 clean:
 	rm -rf $(WS)

@@ -1,6 +1,7 @@
 #include "diekf/ros/conversions.h"
 
 #include <cmath>
+#include <cstdio>
 #include <sstream>
 
 #include <opencv2/imgproc.hpp>
@@ -242,36 +243,39 @@ visualization_msgs::MarkerArray makeMarkers(const diekf::FrameResult& r, const s
   const Vec3 mu = r.state.mu.vector();
   const Vec3 g = r.state.g.vector();
   const double d = r.state.distance_m();
+  const double h = r.state.height_m();
   const Vec3 v = r.state.velocity_mps();
-  auto arrow = [&](int id, const Vec3& tip, float red, float green, float blue) {
+  const bool plane_ok = std::isfinite(d) && d > 0.0;
+  auto marker = [&](const char* ns, int id, int type, float red, float green, float blue, float alpha) {
     visualization_msgs::Marker m;
     m.header = header;
-    m.ns = "diekf";
+    m.ns = ns;  // one namespace per item: each can be switched off in rviz's MarkerArray display
     m.id = id;
-    m.type = visualization_msgs::Marker::ARROW;
+    m.type = type;
     m.action = visualization_msgs::Marker::ADD;
     m.pose.orientation.w = 1.0;
-    m.points.push_back(toPoint(Vec3::Zero()));
-    m.points.push_back(toPoint(tip));
-    m.scale.x = 0.02;  // shaft diameter, m
-    m.scale.y = 0.04;  // head diameter, m
-    m.scale.z = 0.06;  // head length, m
     m.color.r = red;
     m.color.g = green;
     m.color.b = blue;
-    m.color.a = 1.0f;
+    m.color.a = alpha;
     return m;
   };
-  if (std::isfinite(d) && d > 0.0) out.markers.push_back(arrow(0, mu * d, 0.1f, 0.4f, 1.0f));  // normal
-  out.markers.push_back(arrow(1, g * gravity_arrow_m, 1.0f, 0.2f, 0.2f));                       // gravity
-  if (v.allFinite()) out.markers.push_back(arrow(2, v, 0.2f, 1.0f, 0.2f));                      // velocity x 1 s
-  if (std::isfinite(d) && d > 0.0) {
-    visualization_msgs::Marker plane;
-    plane.header = header;
-    plane.ns = "diekf";
-    plane.id = 3;
-    plane.type = visualization_msgs::Marker::CUBE;
-    plane.action = visualization_msgs::Marker::ADD;
+  // Shaft diameter in m (head diameter 2x, head length 3x). Near level flight the normal and gravity arrows
+  // overlap: gravity is the thicker one, so both stay visible (red for gravity_arrow_m, then blue down to the plane).
+  auto arrow = [&](const char* ns, int id, const Vec3& tip, double shaft_m, float red, float green, float blue) {
+    visualization_msgs::Marker m = marker(ns, id, visualization_msgs::Marker::ARROW, red, green, blue, 1.0f);
+    m.points.push_back(toPoint(Vec3::Zero()));
+    m.points.push_back(toPoint(tip));
+    m.scale.x = shaft_m;
+    m.scale.y = 2.0 * shaft_m;
+    m.scale.z = 3.0 * shaft_m;
+    return m;
+  };
+  if (plane_ok) out.markers.push_back(arrow("normal", 0, mu * d, 0.015, 0.1f, 0.4f, 1.0f));  // camera -> plane, d
+  out.markers.push_back(arrow("gravity", 1, g * gravity_arrow_m, 0.028, 1.0f, 0.2f, 0.2f));
+  if (v.allFinite()) out.markers.push_back(arrow("velocity", 2, v, 0.02, 0.2f, 1.0f, 0.2f));  // 1 s of motion
+  if (plane_ok) {
+    visualization_msgs::Marker plane = marker("plane", 3, visualization_msgs::Marker::CUBE, 0.8f, 0.8f, 0.5f, 0.5f);
     plane.pose.position = toPoint(mu * d);
     const Eigen::Quaterniond q = Eigen::Quaterniond::FromTwoVectors(Vec3::UnitZ(), mu);
     plane.pose.orientation.w = q.w();
@@ -281,11 +285,30 @@ visualization_msgs::MarkerArray makeMarkers(const diekf::FrameResult& r, const s
     plane.scale.x = plane_size_m;
     plane.scale.y = plane_size_m;
     plane.scale.z = 0.002;
-    plane.color.r = 0.8f;
-    plane.color.g = 0.8f;
-    plane.color.b = 0.5f;
-    plane.color.a = 0.5f;
     out.markers.push_back(plane);
+  }
+  // Height: a thin line from the camera along gravity to the plane (length h; it ends on the plane since
+  // mu . (h g) = d), and a label with the filter's height (and its 1-sigma), distance, speed and status above the
+  // camera.
+  if (plane_ok && std::isfinite(h) && h > 0.0) {
+    visualization_msgs::Marker line =
+        marker("height", 4, visualization_msgs::Marker::LINE_LIST, 0.0f, 1.0f, 1.0f, 1.0f);
+    line.points.push_back(toPoint(Vec3::Zero()));
+    line.points.push_back(toPoint(g * h));
+    line.scale.x = 0.006;  // line width, m
+    out.markers.push_back(line);
+    visualization_msgs::Marker text =
+        marker("label", 5, visualization_msgs::Marker::TEXT_VIEW_FACING, 1.0f, 1.0f, 1.0f, 1.0f);
+    text.pose.position = toPoint(-0.12 * g);  // above the camera
+    text.scale.z = 0.05;                      // letter height, m
+    Row14 J_h;
+    heightAbovePlane(r.state, Vec3::Zero(), &J_h);
+    const double sigma_h = std::sqrt(std::max((J_h * r.covariance * J_h.transpose())(0, 0), 0.0));
+    char buffer[128];
+    std::snprintf(buffer, sizeof(buffer), "h %.2f +- %.2f m  d %.2f m  |v| %.2f m/s  %s", h, sigma_h, d, v.norm(),
+                  diekf::toString(r.status));
+    text.text = buffer;
+    out.markers.push_back(text);
   }
   return out;
 }

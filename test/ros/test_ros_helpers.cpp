@@ -1,6 +1,8 @@
 // Unit tests of the ROS layer's helpers: body-frame odometry, height Jacobian, image and message conversions.
 #include <cmath>
 #include <limits>
+#include <map>
+#include <string>
 
 #include <gtest/gtest.h>
 
@@ -241,6 +243,41 @@ TEST(Conversions, ResidualPicture) {
   EXPECT_EQ(p.at<uint8_t>(0, 0), 128);
   EXPECT_EQ(p.at<uint8_t>(0, 1), 192);
   EXPECT_EQ(p.at<uint8_t>(0, 2), 0);
+}
+
+TEST(Conversions, MarkersShowTheEstimatedGeometry) {
+  diekf::FrameResult r;
+  r.state.alpha = 1.0 / 0.8;
+  r.state.vartheta = Vec3(0.3, 0.0, 0.0) / 0.8;
+  r.state.mu = diekf::UnitVector(Vec3(0.2, -0.1, 1.0));
+  r.state.g = diekf::UnitVector(Vec3(0.0, 0.1, 1.0));
+  r.status = diekf::FilterStatus::kTracking;
+  std_msgs::Header header;
+  header.frame_id = "cam";
+  const visualization_msgs::MarkerArray a = diekf_ros::makeMarkers(r, header, 0.5, 2.0);
+  std::map<std::string, visualization_msgs::Marker> by_ns;
+  for (const auto& m : a.markers) {
+    EXPECT_EQ(m.header.frame_id, "cam");
+    EXPECT_TRUE(by_ns.emplace(m.ns, m).second) << "namespace " << m.ns << " used twice";
+  }
+  ASSERT_EQ(by_ns.size(), 6u);
+  const Vec3 mu = r.state.mu.vector(), g = r.state.g.vector();
+  auto end = [](const visualization_msgs::Marker& m) {
+    return Vec3(m.points.back().x, m.points.back().y, m.points.back().z);
+  };
+  EXPECT_LT((end(by_ns.at("normal")) - 0.8 * mu).norm(), 1e-9);   // camera -> plane, length d
+  EXPECT_LT((end(by_ns.at("gravity")) - 0.5 * g).norm(), 1e-9);   // fixed length
+  EXPECT_LT((end(by_ns.at("velocity")) - Vec3(0.3, 0, 0)).norm(), 1e-9);
+  EXPECT_NEAR(mu.dot(end(by_ns.at("height"))), 0.8, 1e-9);       // the height line ends on the plane
+  EXPECT_NEAR(end(by_ns.at("height")).norm(), r.state.height_m(), 1e-9);
+  const auto& plane = by_ns.at("plane");
+  EXPECT_NEAR(mu.dot(Vec3(plane.pose.position.x, plane.pose.position.y, plane.pose.position.z)), 0.8, 1e-9);
+  const std::string& label = by_ns.at("label").text;
+  EXPECT_NE(label.find("tracking"), std::string::npos) << label;
+  EXPECT_NE(label.find("d 0.80 m"), std::string::npos) << label;
+  EXPECT_NE(label.find("+- 0.00 m"), std::string::npos) << label;  // zero covariance
+  r.state.alpha = std::numeric_limits<double>::quiet_NaN();
+  EXPECT_TRUE(diekf_ros::makeMarkers(r, header, 0.5, 2.0).markers.empty());
 }
 
 }  // namespace

@@ -53,8 +53,10 @@ bool cameraInfoAgrees(const sensor_msgs::CameraInfo& info, const diekf::CameraMo
 /// `gain_levels_per_unit` grey levels per normalised intensity unit, clipped to 0..255.
 cv::Mat residualToMono8(const cv::Mat& residual, double gain_levels_per_unit);
 
-/// Arrows for the normal (camera -> plane, length d), gravity (length gravity_arrow_m) and velocity (1 s of
-/// motion), and a thin square marking the plane (side plane_size_m), all in the camera frame.
+/// rviz markers in the header's frame (the camera frame), one namespace each: `normal` arrow (camera -> plane,
+/// length d, blue), `gravity` arrow (length gravity_arrow_m, red), `velocity` arrow (1 s of motion, green), `plane`
+/// (thin square of side plane_size_m on the estimated plane), `height` (cyan line from the camera along gravity to
+/// the plane, length h) and `label` (text above the camera: h and its 1-sigma, d, speed, filter status). Empty if non-finite.
 visualization_msgs::MarkerArray makeMarkers(const diekf::FrameResult& result, const std_msgs::Header& header,
                                             double gravity_arrow_m, double plane_size_m);
 
