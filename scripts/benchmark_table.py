@@ -19,9 +19,10 @@ import datetime
 import json
 import math
 import os
-import subprocess
 import sys
 import time
+
+from diekf_tools import find_bin_dir, run
 
 # The paper (Zhong & Chirarattananon, RA-L 2020), Table I: distance RMSE (cm) and velocity RMSE (cm/s) for
 # D-IEKF / D-EKF / LK; None = diverged. ALGORITHM.md section 5.
@@ -37,29 +38,6 @@ PAPER = {
 PAPER_MS = {"iekf": "1.36-1.44", "ekf": "1.33", "lk": "7"}
 MODE_INDEX = {"iekf": 0, "ekf": 1, "lk": 2}
 MODE_NAME = {"iekf": "D-IEKF", "ekf": "D-EKF", "lk": "LK"}
-
-
-def find_bin_dir():
-    pkg_dir = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    candidates = []
-    if os.environ.get("DIEKF_BIN_DIR"):
-        candidates.append(os.environ["DIEKF_BIN_DIR"])
-    if os.environ.get("DIEKF_WS"):
-        candidates.append(os.path.join(os.environ["DIEKF_WS"], "devel", "lib", "diekf"))
-    candidates.append(os.path.join(pkg_dir, ".ws", "devel", "lib", "diekf"))
-    for c in candidates:
-        if os.path.isfile(os.path.join(c, "diekf_bag_runner")) and os.path.isfile(os.path.join(c, "diekf_simulate")):
-            return c
-    sys.exit("benchmark_table.py: diekf_simulate / diekf_bag_runner not found in %s; build first (make build) "
-             "or set DIEKF_BIN_DIR" % ", ".join(candidates))
-
-
-def run(cmd, log_path):
-    with open(log_path, "w") as log:
-        log.write("$ " + " ".join(cmd) + "\n")
-        log.flush()
-        proc = subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT)
-    return proc.returncode
 
 
 def simulate(bin_dir, preset, duration_s, seed, out_dir, extra):
@@ -211,7 +189,7 @@ def main(argv=None):
     for k in flights:
         if k not in PAPER:
             sys.exit("benchmark_table.py: flights are 1..7, got %d" % k)
-    bin_dir = find_bin_dir()
+    bin_dir = find_bin_dir("benchmark_table.py")
     runs_dir = os.path.join(args.output, "runs")
     os.makedirs(runs_dir, exist_ok=True)
     sim_extra = args.sim_args.split()

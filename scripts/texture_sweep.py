@@ -30,31 +30,10 @@ import csv
 import json
 import math
 import os
-import subprocess
 import sys
 import time
 
-
-def find_bin_dir():
-    pkg_dir = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
-    candidates = []
-    if os.environ.get("DIEKF_BIN_DIR"):
-        candidates.append(os.environ["DIEKF_BIN_DIR"])
-    if os.environ.get("DIEKF_WS"):
-        candidates.append(os.path.join(os.environ["DIEKF_WS"], "devel", "lib", "diekf"))
-    candidates.append(os.path.join(pkg_dir, ".ws", "devel", "lib", "diekf"))
-    for c in candidates:
-        if os.path.isfile(os.path.join(c, "diekf_bag_runner")) and os.path.isfile(os.path.join(c, "diekf_simulate")):
-            return c
-    sys.exit("texture_sweep.py: diekf_simulate / diekf_bag_runner not found in %s; build first (make build) "
-             "or set DIEKF_BIN_DIR" % ", ".join(candidates))
-
-
-def run(cmd, log_path):
-    with open(log_path, "w") as log:
-        log.write("$ " + " ".join(cmd) + "\n")
-        log.flush()
-        return subprocess.run(cmd, stdout=log, stderr=subprocess.STDOUT).returncode
+from diekf_tools import find_bin_dir, run
 
 
 def height_label(h):
@@ -255,7 +234,7 @@ def main():
         compare(a, [t for t in a.compare.split(",") if t])
         return
 
-    bin_dir = find_bin_dir()
+    bin_dir = find_bin_dir("texture_sweep.py")
     textures = [t for t in a.textures.split(",") if t]
     heights = [float(h) for h in a.heights.split(",") if h]
     widths = [int(w) for w in a.widths.split(",") if w]
