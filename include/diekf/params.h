@@ -11,13 +11,13 @@ namespace diekf {
 enum class UpdateMode { kIterated, kEkf, kFeature };  ///< "iekf", "ekf" (one pass), "lk"
 
 struct InitParams {
-  double alpha0_inv_m = 2.0;                    ///< initial inverse distance, 1/m (0.5 m; the paper: 10)
+  double alpha0_inv_m = 3.0;                    ///< initial inverse distance, 1/m (0.33 m; the paper: 10)
   Vec3 vartheta0_inv_s = Vec3::Zero();          ///< initial velocity over distance, 1/s
   Vec3 mu0 = Vec3(0.2, -0.1, 0.97);             ///< initial plane normal in C (normalised on use)
   Vec3 g0 = Vec3(0.0, 0.0, 1.0);                ///< initial gravity direction in C (normalised on use)
   bool g0_from_accel = true;                    ///< initialise g from the first filtered accelerometer samples
   bool mu0_from_gravity = true;                 ///< initialise mu as the initial gravity direction (level ground)
-  double sigma_alpha0_inv_m = 2.0;              ///< 1-sigma of alpha0, 1/m
+  double sigma_alpha0_inv_m = 3.0;              ///< 1-sigma of alpha0, 1/m
   double sigma_vartheta0_inv_s = 1.0;           ///< 1-sigma of each vartheta0 axis, 1/s
   double sigma_mu0_rad = 0.5;                   ///< 1-sigma of each tangent axis of mu0, rad
   double sigma_g0_rad = 0.1;                    ///< 1-sigma of each tangent axis of g0, rad
@@ -45,6 +45,7 @@ struct ImuParams {
 
 struct ProcessNoiseParams {
   double alpha_inv_m_per_sqrt_s = 0.01;         ///< random-walk density on alpha, (1/m)/sqrt(s)
+  double alpha_rate_noise_sqrt_s = 0.1;         ///< plus k alpha |mu . vartheta| (relative, with the vertical rate), sqrt(s)
   double vartheta_inv_s_per_sqrt_s = 0.05;      ///< random-walk density on vartheta, (1/s)/sqrt(s)
   double mu_rad_per_sqrt_s = 0.005;             ///< random-walk density on the normal, rad/sqrt(s)
   double g_rad_per_sqrt_s = 0.001;              ///< random-walk density on gravity, rad/sqrt(s)

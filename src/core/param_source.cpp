@@ -278,6 +278,8 @@ const std::vector<Entry>& table() {
     // process noise
     t.push_back(real("process/alpha_inv_m_per_sqrt_s", DIEKF_FIELD(double, process.alpha_inv_m_per_sqrt_s),
                      nonNegative()));
+    t.push_back(real("process/alpha_rate_noise_sqrt_s", DIEKF_FIELD(double, process.alpha_rate_noise_sqrt_s),
+                     nonNegative()));
     t.push_back(real("process/vartheta_inv_s_per_sqrt_s",
                      DIEKF_FIELD(double, process.vartheta_inv_s_per_sqrt_s), nonNegative()));
     t.push_back(real("process/mu_rad_per_sqrt_s", DIEKF_FIELD(double, process.mu_rad_per_sqrt_s), nonNegative()));

@@ -146,9 +146,16 @@ void predict(const Vec3& accel_C, const Vec3& gyro_C, double dt_s, const ImuPara
   NoiseJacobian G;
   State out;
   propagate(*x, accel_C, gyro_C, dt_s, imu.gravity_mps2, &out, &F, &G);
-  *x = out;
 
-  const NoiseVec sigma = discreteNoiseSigmas(imu, process, dt_s);
+  NoiseVec sigma = discreteNoiseSigmas(imu, process, dt_s);
+  // Model error of the distance dynamics alpha' = alpha (1 + s dt), s = mu . vartheta: a relative random walk
+  // that grows with the relative vertical rate |s| (take-off, landing, fast climbs), where the linearisation
+  // of the bilinear terms is worst. Without it, a prior far from the truth (a take-off from the ground with a
+  // prior of 0.25 m) is locked in with an overconfident sigma (docs/results.md).
+  const double rate_sigma = process.alpha_rate_noise_sqrt_s * x->alpha *
+                            std::abs(x->mu.vector().dot(x->vartheta)) * std::sqrt(dt_s);  // 1/m
+  sigma(NoiseIdx::kAlpha) = std::hypot(sigma(NoiseIdx::kAlpha), rate_sigma);
+  *x = out;
   // Exploit the structure: the bias rows of F are [0 I] and the bias rows of G only hold the random-walk
   // identities (whose columns are zero in the other rows). With F_top the first 8 rows of F and X = F_top P:
   //   P'_top,top = X F_top^T + G_top Q G_top^T,  P'_top,bias = X_bias,  P'_bias,bias = P_bias,bias + Q_walk.

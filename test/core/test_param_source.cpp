@@ -69,7 +69,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          ma.lowpass_order == mb.lowpass_order && ma.decimation_factor == mb.decimation_factor &&
          ma.compensate_filter_delay == mb.compensate_filter_delay &&
          ma.lever_arm_compensation == mb.lever_arm_compensation && ma.gravity_mps2 == mb.gravity_mps2 &&
-         pa.alpha_inv_m_per_sqrt_s == pb.alpha_inv_m_per_sqrt_s &&
+         pa.alpha_rate_noise_sqrt_s == pb.alpha_rate_noise_sqrt_s && pa.alpha_inv_m_per_sqrt_s == pb.alpha_inv_m_per_sqrt_s &&
          pa.vartheta_inv_s_per_sqrt_s == pb.vartheta_inv_s_per_sqrt_s &&
          pa.mu_rad_per_sqrt_s == pb.mu_rad_per_sqrt_s && pa.g_rad_per_sqrt_s == pb.g_rad_per_sqrt_s &&
          ra.working_width_px == rb.working_width_px && ra.working_height_px == rb.working_height_px &&

@@ -231,7 +231,11 @@ TEST(Prediction, CovarianceStepEqualsDenseFormula) {
     ErrorCov F;
     NoiseJacobian G;
     predictionJacobians(c.x, c.accel_C, c.gyro_C, c.dt_s, kG0, &F, &G);
-    const NoiseVec sigma = discreteNoiseSigmas(imu, proc, c.dt_s);
+    NoiseVec sigma = discreteNoiseSigmas(imu, proc, c.dt_s);
+    // Plus the state-dependent model error of the distance dynamics (alpha_rate_noise_sqrt_s).
+    sigma(NoiseIdx::kAlpha) = std::hypot(sigma(NoiseIdx::kAlpha),
+                                         proc.alpha_rate_noise_sqrt_s * c.x.alpha *
+                                             std::abs(c.x.mu.vector().dot(c.x.vartheta)) * std::sqrt(c.dt_s));
     const ErrorCov expected = F * P0 * F.transpose() + G * sigma.cwiseAbs2().asDiagonal() * G.transpose();
     State x = c.x;
     ErrorCov P = P0;
@@ -239,6 +243,28 @@ TEST(Prediction, CovarianceStepEqualsDenseFormula) {
     EXPECT_LT((P - expected).cwiseAbs().maxCoeff(), 1e-12 * expected.cwiseAbs().maxCoeff());
     EXPECT_LT(x.boxminus(predictState(c.x, c.accel_C, c.gyro_C, c.dt_s, kG0)).norm(), 1e-15);
   }
+}
+
+TEST(Prediction, DistanceRateNoiseGrowsWithVerticalMotionOnly) {
+  // The alpha random walk k alpha |mu . vartheta| adds variance in a climb (vartheta along mu), none in level
+  // flight (vartheta orthogonal to mu), and none with k = 0.
+  ImuParams imu;
+  auto alphaVariance = [&](const Vec3& vartheta_inv_s, double k) {
+    ProcessNoiseParams proc;
+    proc.alpha_rate_noise_sqrt_s = k;
+    State x;
+    x.alpha = 2.0;
+    x.mu = UnitVector(Vec3(0, 0, 1));
+    x.g = UnitVector(Vec3(0, 0, 1));
+    x.vartheta = vartheta_inv_s;
+    ErrorCov P = ErrorCov::Zero();
+    predict(-kG0 * x.g.vector(), Vec3::Zero(), 0.01, imu, proc, &x, &P);
+    return P(ErrIdx::kAlpha, ErrIdx::kAlpha);
+  };
+  const Vec3 climb(0.0, 0.0, 1.5), level(1.5, 0.0, 0.0);
+  EXPECT_NEAR(alphaVariance(level, 0.1), alphaVariance(level, 0.0), 1e-15);
+  // One 10 ms step of a 1.5 /s climb at alpha = 2: (0.1 * 2 * 1.5)^2 * 0.01 = 9e-4 more.
+  EXPECT_NEAR(alphaVariance(climb, 0.1) - alphaVariance(climb, 0.0), 9e-4, 1e-9);
 }
 
 TEST(Prediction, CovarianceStaysSymmetricPositiveDefinite) {

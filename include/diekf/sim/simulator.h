@@ -25,6 +25,7 @@ struct SimulationOptions {
   double incline_azimuth_deg = 0.0; ///< azimuth of that axis in W (deg)
   double height_m = -1.0;           ///< mean IMU height above the plane; < 0 = the preset's
   double height_amplitude_m = -1.0; ///< amplitude of the slow height changes (m); < 0 = the preset's
+  double takeoff_from_m = -1.0;     ///< start at rest at this IMU height and climb to the flight (m); < 0 = no
   double fps = 30.0;                ///< image rate (Hz)
   double exposure_ms = 4.0;         ///< exposure time (ms); motion blur integrates over it
   int max_subframes = 8;            ///< cap on sub-frame renders per image

@@ -66,6 +66,11 @@ struct TrajectoryParams {
   double yaw_phase_rad = 0.0;
   std::vector<SineTerm> sines;     ///< horizontal and vertical motion (zero-mean)
   std::vector<DashTerm> dashes;    ///< fast out-and-back manoeuvres (horizontal)
+  /// Take-off: the IMU rests at this height above the plane until takeoff_start_s, then climbs (C3 ramp over
+  /// climb_s) to height_m; < 0: no take-off (the flight starts at height_m).
+  double takeoff_from_m = -1.0;
+  double takeoff_start_s = 2.0;
+  double climb_s = 3.0;
   Plane plane;                     ///< the ground
 };
 

@@ -53,6 +53,7 @@ std::string simulateUsage() {
         "  --seed N                 random seed (trajectory, texture, noise)            [1]\n"
         "  --height M               mean IMU height above the plane (m)                [preset]\n"
         "  --height-amplitude M     amplitude of the slow height changes (m)            [preset]\n"
+        "  --takeoff-from M         rest at this IMU height for 2 s, climb in 3 s, then fly [off]\n"
         "  --incline-deg A          plane tilt about a horizontal axis, 0..45 (deg)     [0]\n"
         "  --incline-azimuth-deg A  direction of that axis in W (deg)                   [0]\n"
         "Texture:\n"
@@ -111,6 +112,7 @@ ParseResult parseSimulateArgs(const std::vector<std::string>& args_in, Simulatio
       {"--duration", {&opt->duration_s, 0.5, 3600}},
       {"--height", {&opt->height_m, 0.1, 20}},
       {"--height-amplitude", {&opt->height_amplitude_m, 0, 10}},
+      {"--takeoff-from", {&opt->takeoff_from_m, 0.02, 5}},
       {"--incline-deg", {&opt->incline_deg, 0, 45}},
       {"--incline-azimuth-deg", {&opt->incline_azimuth_deg, -360, 360}},
       {"--texture-size", {&opt->texture_size_m, 1e-3, 1000}},
@@ -220,7 +222,15 @@ Trajectory makeTrajectory(const SimulationOptions& opt) {
   if (opt.height_m > 0.0) spec.height_m = opt.height_m;
   if (opt.height_amplitude_m >= 0.0) spec.height_amplitude_m = opt.height_amplitude_m;
   const Plane plane = Plane::inclined(opt.incline_deg, opt.incline_azimuth_deg);
-  return Trajectory(makePresetTrajectory(spec, opt.duration_s, opt.seed, plane));
+  TrajectoryParams P = makePresetTrajectory(spec, opt.duration_s, opt.seed, plane);
+  if (opt.takeoff_from_m >= 0.0) {
+    // Rest, climb, then the preset's flight (its hover, fade-in and dashes shifted after the climb).
+    P.takeoff_from_m = opt.takeoff_from_m;
+    const double shift_s = P.takeoff_start_s + P.climb_s;
+    P.hover_s += shift_s;
+    for (DashTerm& d : P.dashes) d.t_center_s += shift_s;
+  }
+  return Trajectory(P);
 }
 
 CameraPose cameraPose(const KinematicState& k, const CameraModel& cam) {

@@ -103,6 +103,17 @@ KinematicState Trajectory::evaluate(double t_s) const {
     d[k].z() = m[k].z() - (n.x() * m[k].x() + n.y() * m[k].y()) / n.z();
   }
   d[0].z() += P.height_m - P.plane.e_m / n.z();
+  if (P.takeoff_from_m >= 0.0) {
+    // Climb from the resting height to height_m: offset (from - height) (1 - ramp) along W z.
+    double c[4];
+    const double Tc = std::max(P.climb_s, 1e-6);
+    smoothRamp((t_s - P.takeoff_start_s) / Tc, c);
+    const double dh = P.takeoff_from_m - P.height_m;
+    d[0].z() += dh * (1.0 - c[0]);
+    d[1].z() -= dh * c[1] / Tc;
+    d[2].z() -= dh * c[2] / (Tc * Tc);
+    d[3].z() -= dh * c[3] / (Tc * Tc * Tc);
+  }
 
   double s[4];
   const double T = std::max(P.ramp_s, 1e-6);
