@@ -56,6 +56,30 @@ TEST(Trajectory, StartsFromHoverAndStaysAboveInclinedPlane) {
   EXPECT_LT(st.max_height_m, 1.6);
 }
 
+TEST(Trajectory, TakeOffRestsClimbsThenFlies) {
+  SimulationOptions o;
+  o.preset = "flight4";
+  o.duration_s = 20.0;
+  o.seed = 7;
+  o.takeoff_from_m = 0.08;
+  const Trajectory tr = makeTrajectory(o);
+  // At rest on the ground for 2 s, at the preset's height after the 3 s climb.
+  for (double t : {0.0, 1.0, 1.99}) {
+    const KinematicState k = tr.evaluate(t);
+    EXPECT_NEAR(k.p_W.z(), 0.08, 1e-9) << t;
+    EXPECT_LT(k.v_W.norm(), 1e-9) << t;
+  }
+  EXPECT_NEAR(tr.evaluate(5.0).p_W.z(), tr.params().height_m, 1e-9);
+  EXPECT_GT(tr.evaluate(3.5).v_W.z(), 0.2);  // climbing
+  // The climb's derivatives are consistent (the IMU is generated from them).
+  const double h = 1e-4;
+  for (double t : {2.3, 3.5, 4.6, 9.0}) {
+    const KinematicState a = tr.evaluate(t - h), b = tr.evaluate(t + h), k = tr.evaluate(t);
+    EXPECT_LT(((b.p_W - a.p_W) / (2 * h) - k.v_W).norm(), 1e-6) << "t " << t;
+    EXPECT_LT(((b.v_W - a.v_W) / (2 * h) - k.a_W).norm(), 1e-5) << "t " << t;
+  }
+}
+
 TEST(Trajectory, PresetsReachTheirTargetSpeeds) {
   for (const PresetSpec& p : presetSpecs()) {
     if (p.rms_speed_mps <= 0.0) continue;
