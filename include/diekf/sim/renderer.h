@@ -4,11 +4,13 @@
 #pragma once
 
 #include <cstdint>
+#include <functional>
 #include <vector>
 
 #include <opencv2/core.hpp>
 
 #include "diekf/camera_model.h"
+#include "diekf/sim/realism.h"
 #include "diekf/sim/texture.h"
 #include "diekf/sim/trajectory.h"
 
@@ -27,6 +29,27 @@ struct SensorOptions {
   double shot_noise_dn = 0.04;     ///< shot-noise variance per grey level of signal (DN)
   bool noise = true;
 };
+
+/// A band of image rows [row0, row1) rendered with its own sub-frame poses (rolling shutter: each band of
+/// rows is exposed at its own time). Bands must cover the image rows in order without gaps or overlap.
+struct RowBand {
+  int row0 = 0, row1 = 0;
+  std::vector<CameraPose> poses;
+};
+
+/// Optional image effects of the band renderer (all off by default).
+struct RenderEffects {
+  const SpecularPatches* specular = nullptr;  ///< view-dependent glossy ground patches (not owned)
+  double defocus_sigma_px = 0.0;              ///< Gaussian blur of the radiance before the sensor (px, this resolution)
+};
+
+/// Rolling-shutter bands for an image whose middle row is exposed around `t_mid_s`: row v is centred at
+/// t_mid + rowTimeOffset(v, height, readout_s) and averages `n_sub` sub-frames spread over `exposure_s` around
+/// it (the same sub-frame times as a global-shutter image). `rows_per_band` rows share the pose of their middle
+/// row. With readout_s = 0 the result is one band whose poses are the global-shutter sub-frames.
+std::vector<RowBand> rollingShutterBands(const std::function<CameraPose(double)>& pose_at, double t_mid_s,
+                                         int height, double readout_s, double exposure_s, int n_sub,
+                                         int rows_per_band = 1);
 
 class Renderer {
  public:
@@ -50,6 +73,15 @@ class Renderer {
   cv::Mat renderImage(const std::vector<CameraPose>& poses, const Plane& plane, const Texture& tex, double gain,
                       const SensorOptions& opt, std::uint64_t noise_seed) const;
 
+  /// Like renderImage, with each band of rows rendered from its own poses, and the optional effects
+  /// (specular patches in the radiance, defocus blur between radiance and sensor). A single band over all
+  /// rows without effects gives exactly renderImage's image.
+  cv::Mat renderBands(const std::vector<RowBand>& bands, const Plane& plane, const Texture& tex, double gain,
+                      const SensorOptions& opt, std::uint64_t noise_seed, const RenderEffects& fx = {}) const;
+  /// The radiance of renderBands (before defocus and the sensor) into `out`.
+  void renderRadianceBands(const std::vector<RowBand>& bands, const Plane& plane, const Texture& tex,
+                           std::vector<float>* out, const RenderEffects& fx = {}) const;
+
   /// Largest image displacement (pixels) of ground points seen at `a` when viewed from `b` (sampled grid).
   double motionPixels(const CameraPose& a, const CameraPose& b, const Plane& plane) const;
 
@@ -66,6 +98,12 @@ class Renderer {
                   cv::Mat* img, int row0, int row1) const;
   void renderRows(const std::vector<CameraPose>& poses, const Plane& plane, const Texture& tex, float* out,
                   int row0, int row1) const;
+  template <bool kSpecular>
+  void renderRowsT(const std::vector<CameraPose>& poses, const Plane& plane, const Texture& tex,
+                   const SpecularPatches* spec, float* out, int row0, int row1) const;
+  void renderBandRows(const std::vector<RowBand>& bands, const Plane& plane, const Texture& tex,
+                      const SpecularPatches* spec, float* out, int row0, int row1) const;
+  void checkBands(const std::vector<RowBand>& bands) const;
 
   CameraModel cam_;
   int width_ = 0, height_ = 0, threads_ = 1;

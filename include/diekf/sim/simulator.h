@@ -7,6 +7,7 @@
 #include <vector>
 
 #include "diekf/sim/imu_sim.h"
+#include "diekf/sim/realism.h"
 #include "diekf/sim/renderer.h"
 #include "diekf/sim/sequence_io.h"
 #include "diekf/sim/trajectory.h"
@@ -45,6 +46,8 @@ struct SimulationOptions {
   bool lz4 = false;                 ///< LZ4-compress the bag chunks
   double start_stamp_s = 1600000000.0;  ///< stamp of t = 0 on the bag clock
   ImuNoiseParams imu_noise;
+  RealismOptions realism;               ///< realistic-camera effects (all off by default)
+  std::string realism_preset = "clean"; ///< name written to realism.yaml ("custom" if flags changed a preset)
   std::string output_dir;
 };
 
@@ -73,7 +76,7 @@ Trajectory makeTrajectory(const SimulationOptions& opt);
 /// Builds the camera pose of the IMU state with the camera's extrinsics.
 CameraPose cameraPose(const KinematicState& k, const CameraModel& cam);
 
-/// Runs the simulation; writes output_dir/{sequence.bag, camchain.yaml, imu.yaml}.
+/// Runs the simulation; writes output_dir/{sequence.bag, camchain.yaml, imu.yaml, realism.yaml}.
 /// Progress goes to `progress` (may be null). Throws std::runtime_error with a one-line reason.
 SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* progress);
 

@@ -7,6 +7,8 @@
 #include <stdexcept>
 #include <thread>
 
+#include <opencv2/imgproc.hpp>
+
 namespace diekf {
 namespace sim {
 namespace {
@@ -86,6 +88,12 @@ Eigen::Vector3d Renderer::ray(int u, int v) const {
 
 void Renderer::renderRows(const std::vector<CameraPose>& poses, const Plane& plane, const Texture& tex, float* out,
                           int row0, int row1) const {
+  renderRowsT<false>(poses, plane, tex, nullptr, out, row0, row1);
+}
+
+template <bool kSpecular>
+void Renderer::renderRowsT(const std::vector<CameraPose>& poses, const Plane& plane, const Texture& tex,
+                           const SpecularPatches* spec, float* out, int row0, int row1) const {
   Eigen::Vector3d t1, t2;
   plane.basis(&t1, &t2);
   const Eigen::Vector3d origin = -plane.e_m * plane.n;  // a point on the plane (texture origin)
@@ -105,6 +113,20 @@ void Renderer::renderRows(const std::vector<CameraPose>& poses, const Plane& pla
     const float bx = static_cast<float>(bC.x()), by = static_cast<float>(bC.y()), bz = static_cast<float>(bC.z());
     const float fdist = static_cast<float>(dist), fp_scale = tex.invTexelGeo();
     const bool above = dist > 0.0;
+    // Specular patches: plane coordinates in metres (modulo the mask period) and the light in C.
+    float mu = 0.f, mv = 0.f, t1x = 0.f, t1y = 0.f, t1z = 0.f, t2x = 0.f, t2y = 0.f, t2z = 0.f;
+    float lx = 0.f, ly = 0.f, lz = 0.f, nl2 = 0.f, spec_gain = 0.f;
+    if (kSpecular) {
+      const Eigen::Vector3d t1C = P.R_WC.transpose() * t1, t2C = P.R_WC.transpose() * t2;
+      const Eigen::Vector3d lC = P.R_WC.transpose() * spec->lightW();
+      mu = static_cast<float>(std::fmod(t1.dot(P.p_WC - origin), SpecularPatches::kPeriodM));
+      mv = static_cast<float>(std::fmod(t2.dot(P.p_WC - origin), SpecularPatches::kPeriodM));
+      t1x = static_cast<float>(t1C.x()), t1y = static_cast<float>(t1C.y()), t1z = static_cast<float>(t1C.z());
+      t2x = static_cast<float>(t2C.x()), t2y = static_cast<float>(t2C.y()), t2z = static_cast<float>(t2C.z());
+      lx = static_cast<float>(lC.x()), ly = static_cast<float>(lC.y()), lz = static_cast<float>(lC.z());
+      nl2 = static_cast<float>(2.0 * nC.dot(lC));
+      spec_gain = static_cast<float>(spec->amplitude() * tex.mean());
+    }
     for (int v = row0; v < row1; ++v) {
       const RayEntry* re = &rays_[static_cast<std::size_t>(v) * width_];
       float* o = out + static_cast<std::size_t>(v) * width_;
@@ -119,6 +141,21 @@ void Renderer::renderRows(const std::vector<CameraPose>& poses, const Plane& pla
           // Footprint: distance x angular size, stretched by 1/sqrt(cos incidence) (area-equivalent side).
           const float fp = lambda * e.footprint * fp_scale / std::sqrt(-dn * e.inv_norm);
           val = tex.sampleTexel(xt, yt, fastLog2(fp));
+          if (kSpecular) {
+            // Viewing ray (X -> camera) reflected about n, against the light: (r.l - 2 (n.r)(n.l)) / |r|.
+            float c = e.inv_norm * (lx * e.x + ly * e.y + lz - dn * nl2);
+            if (c > 0.f) {
+              c *= c;  // power 16 by four squarings (kShininess)
+              c *= c;
+              c *= c;
+              c *= c;
+              if (c > 1e-4f) {
+                const float pu = mu + lambda * (t1x * e.x + t1y * e.y + t1z);
+                const float pv = mv + lambda * (t2x * e.x + t2y * e.y + t2z);
+                val += spec_gain * c * spec->mask(pu, pv);
+              }
+            }
+          }
         }
         if (k == 0)
           o[u] = val * inv_n;
@@ -127,6 +164,105 @@ void Renderer::renderRows(const std::vector<CameraPose>& poses, const Plane& pla
       }
     }
   }
+}
+
+void Renderer::checkBands(const std::vector<RowBand>& bands) const {
+  int next = 0;
+  for (const RowBand& b : bands) {
+    if (b.row0 != next || b.row1 <= b.row0 || b.poses.empty())
+      throw std::invalid_argument("renderBands: bands must cover the rows in order, each with a pose");
+    next = b.row1;
+  }
+  if (next != height_) throw std::invalid_argument("renderBands: bands must cover all rows");
+}
+
+void Renderer::renderBandRows(const std::vector<RowBand>& bands, const Plane& plane, const Texture& tex,
+                              const SpecularPatches* spec, float* out, int row0, int row1) const {
+  for (const RowBand& b : bands) {
+    const int r0 = std::max(b.row0, row0), r1 = std::min(b.row1, row1);
+    if (r0 >= r1) continue;
+    if (spec)
+      renderRowsT<true>(b.poses, plane, tex, spec, out, r0, r1);
+    else
+      renderRowsT<false>(b.poses, plane, tex, nullptr, out, r0, r1);
+  }
+}
+
+void Renderer::renderRadianceBands(const std::vector<RowBand>& bands, const Plane& plane, const Texture& tex,
+                                   std::vector<float>* out, const RenderEffects& fx) const {
+  checkBands(bands);
+  out->resize(static_cast<std::size_t>(width_) * height_);
+  const SpecularPatches* spec = fx.specular && fx.specular->amplitude() > 0.0 ? fx.specular : nullptr;
+  const int n = std::min(threads_, height_);
+  std::vector<std::thread> pool;
+  for (int i = 1; i < n; ++i) {
+    const int r0 = height_ * i / n, r1 = height_ * (i + 1) / n;
+    pool.emplace_back([&, r0, r1] { renderBandRows(bands, plane, tex, spec, out->data(), r0, r1); });
+  }
+  renderBandRows(bands, plane, tex, spec, out->data(), 0, height_ / std::max(n, 1));
+  for (auto& t : pool) t.join();
+}
+
+cv::Mat Renderer::renderBands(const std::vector<RowBand>& bands, const Plane& plane, const Texture& tex,
+                              double gain, const SensorOptions& opt, std::uint64_t noise_seed,
+                              const RenderEffects& fx) const {
+  checkBands(bands);
+  cv::Mat img(height_, width_, CV_8UC1);
+  std::vector<float> rad(static_cast<std::size_t>(width_) * height_);
+  const SpecularPatches* spec = fx.specular && fx.specular->amplitude() > 0.0 ? fx.specular : nullptr;
+  const bool defocus = fx.defocus_sigma_px > 0.0;
+  const int n = std::min(threads_, height_);
+  const auto run = [&](const std::function<void(int, int)>& work) {
+    std::vector<std::thread> pool;
+    for (int i = 1; i < n; ++i) pool.emplace_back(work, height_ * i / n, height_ * (i + 1) / n);
+    work(0, height_ / std::max(n, 1));
+    for (auto& t : pool) t.join();
+  };
+  if (!defocus) {
+    run([&](int r0, int r1) {
+      renderBandRows(bands, plane, tex, spec, rad.data(), r0, r1);
+      sensorRows(rad.data(), gain, opt, noise_seed, &img, r0, r1);
+    });
+    return img;
+  }
+  run([&](int r0, int r1) { renderBandRows(bands, plane, tex, spec, rad.data(), r0, r1); });
+  // Defocus: Gaussian point spread on the radiance (before gain, vignetting and noise).
+  cv::Mat r(height_, width_, CV_32FC1, rad.data());
+  cv::GaussianBlur(r, r, cv::Size(0, 0), fx.defocus_sigma_px, fx.defocus_sigma_px, cv::BORDER_REFLECT);
+  run([&](int r0, int r1) { sensorRows(rad.data(), gain, opt, noise_seed, &img, r0, r1); });
+  return img;
+}
+
+std::vector<RowBand> rollingShutterBands(const std::function<CameraPose(double)>& pose_at, double t_mid_s,
+                                         int height, double readout_s, double exposure_s, int n_sub,
+                                         int rows_per_band) {
+  if (height <= 0 || n_sub < 1 || rows_per_band < 1) throw std::invalid_argument("rollingShutterBands: bad sizes");
+  std::vector<RowBand> bands;
+  const auto subposes = [&](double t, std::vector<CameraPose>* out) {
+    for (int j = 0; j < n_sub; ++j) {
+      const double ts = n_sub == 1 ? t : t + exposure_s * ((j + 0.5) / n_sub - 0.5);
+      out->push_back(pose_at(ts));
+    }
+  };
+  if (!(readout_s > 0.0)) {
+    RowBand b;
+    b.row0 = 0;
+    b.row1 = height;
+    subposes(t_mid_s, &b.poses);
+    bands.push_back(std::move(b));
+    return bands;
+  }
+  for (int r0 = 0; r0 < height; r0 += rows_per_band) {
+    RowBand b;
+    b.row0 = r0;
+    b.row1 = std::min(height, r0 + rows_per_band);
+    // Time of the band's middle (row index may be half-integer for an even band).
+    const double v_mid = 0.5 * (b.row0 + b.row1 - 1);
+    const double dt = height > 1 ? readout_s * (v_mid / (height - 1) - 0.5) : 0.0;
+    subposes(t_mid_s + dt, &b.poses);
+    bands.push_back(std::move(b));
+  }
+  return bands;
 }
 
 void Renderer::renderRadiance(const std::vector<CameraPose>& poses, const Plane& plane, const Texture& tex,

@@ -7,8 +7,10 @@
 #include <filesystem>
 #include <iomanip>
 #include <map>
+#include <memory>
 #include <ostream>
 #include <random>
+#include <set>
 #include <sstream>
 #include <stdexcept>
 
@@ -75,6 +77,24 @@ std::string simulateUsage() {
         "  --flicker-amplitude R    relative size of a jump                             [0.25]\n"
         "  --drop-prob P            per-frame probability of a dropped image            [0]\n"
         "  --no-camera-info         do not write /mynteye/left/camera_info\n"
+        "Realistic camera (written to DIR/realism.yaml; rendering and IMU always use the true camera):\n"
+        "  --realism clean|realistic  preset of the options below; explicit options win  [clean]\n"
+        "                           clean: all off (perfect camera). realistic: rolling shutter 16 ms,\n"
+        "                           time offset 5 ms, intrinsics error 1.5 %, extrinsic rotation error\n"
+        "                           1 deg, defocus 1.0 px, exposure steps, non-Lambertian 0.3\n"
+        "  --rolling-shutter-ms MS  readout time top row -> bottom row, 0..100 (ms); each  [0]\n"
+        "                           row rendered at its own time, the stamp is the middle row\n"
+        "  --time-offset-ms MS      image stamps = true capture time + MS, -100..100; the   [0]\n"
+        "                           camchain keeps timeshift_cam_imu = 0 (truth: -MS)\n"
+        "  --intrinsics-error PCT   written fu, fv scaled by 1 + PCT/100, pu shifted by     [0]\n"
+        "                           +PCT/100 * width/2, pv by -PCT/100 * height/2; -10..10\n"
+        "  --extrinsic-rot-error-deg DEG  written T_cam_imu rotated by DEG about the      [0]\n"
+        "                           camera axis (1, 1, 0)/sqrt(2) (camera centre kept); -10..10\n"
+        "  --defocus-px PX          Gaussian defocus sigma at full resolution, 0..10 (px)  [0]\n"
+        "  --exposure-steps         auto-exposure gain steps of +-10..25 % every 1-3 s     [off]\n"
+        "  --no-exposure-steps      (turns them off, e.g. after --realism realistic)\n"
+        "  --non-lambertian F       specular amplitude of glossy patches (~20 % of the     [0]\n"
+        "                           ground), relative to the texture mean, 0..1\n"
         "IMU:\n"
         "  --no-vibration           no propeller vibration (on by default)\n"
         "  --no-imu-noise           exact IMU readings (no noise, bias, vibration)\n"
@@ -133,7 +153,24 @@ ParseResult parseSimulateArgs(const std::vector<std::string>& args_in, Simulatio
       {"--accel-random-walk", {&opt->imu_noise.accel_random_walk, 0, 10}},
       {"--gyro-noise-density", {&opt->imu_noise.gyro_noise_density, 0, 10}},
       {"--gyro-random-walk", {&opt->imu_noise.gyro_random_walk, 0, 10}},
+      {"--rolling-shutter-ms", {&opt->realism.rolling_shutter_ms, 0, 100}},
+      {"--time-offset-ms", {&opt->realism.time_offset_ms, -100, 100}},
+      {"--intrinsics-error", {&opt->realism.intrinsics_error_pct, -10, 10}},
+      {"--extrinsic-rot-error-deg", {&opt->realism.extrinsic_rot_error_deg, -10, 10}},
+      {"--defocus-px", {&opt->realism.defocus_px, 0, 10}},
+      {"--non-lambertian", {&opt->realism.non_lambertian, 0, 1}},
   };
+  // Realism options given explicitly: they win over a --realism preset wherever they appear.
+  const std::map<std::string, double RealismOptions::*> realism_fields = {
+      {"--rolling-shutter-ms", &RealismOptions::rolling_shutter_ms},
+      {"--time-offset-ms", &RealismOptions::time_offset_ms},
+      {"--intrinsics-error", &RealismOptions::intrinsics_error_pct},
+      {"--extrinsic-rot-error-deg", &RealismOptions::extrinsic_rot_error_deg},
+      {"--defocus-px", &RealismOptions::defocus_px},
+      {"--non-lambertian", &RealismOptions::non_lambertian},
+  };
+  std::set<std::string> explicit_realism;
+  std::string realism_name;
   bool list = false;
   for (std::size_t i = 0; i < args.size(); ++i) {
     const std::string& a = args[i];
@@ -160,6 +197,17 @@ ParseResult parseSimulateArgs(const std::vector<std::string>& args_in, Simulatio
       opt->camera_info = false;
     } else if (a == "--lz4") {
       opt->lz4 = true;
+    } else if (a == "--exposure-steps" || a == "--no-exposure-steps") {
+      opt->realism.exposure_steps = a == "--exposure-steps";
+      explicit_realism.insert("--exposure-steps");
+    } else if (a == "--realism") {
+      if (!value(&v)) return ParseResult::kError;
+      RealismOptions r;
+      if (!realismPreset(v, &r)) {
+        *error = "unknown --realism '" + v + "' (clean, realistic)";
+        return ParseResult::kError;
+      }
+      realism_name = v;
     } else if (a == "--preset") {
       if (!value(&v)) return ParseResult::kError;
       PresetSpec spec;
@@ -203,10 +251,21 @@ ParseResult parseSimulateArgs(const std::vector<std::string>& args_in, Simulatio
         return ParseResult::kError;
       }
       *n.d = d;
+      if (realism_fields.count(a)) explicit_realism.insert(a);
     } else {
       *error = "unknown argument '" + a + "' (see --help)";
       return ParseResult::kError;
     }
+  }
+  if (!realism_name.empty()) {
+    const RealismOptions given = opt->realism;
+    realismPreset(realism_name, &opt->realism);
+    for (const auto& kv : realism_fields)
+      if (explicit_realism.count(kv.first)) opt->realism.*kv.second = given.*kv.second;
+    if (explicit_realism.count("--exposure-steps")) opt->realism.exposure_steps = given.exposure_steps;
+    opt->realism_preset = explicit_realism.empty() ? realism_name : realism_name + " (with explicit options)";
+  } else if (!explicit_realism.empty()) {
+    opt->realism_preset = "custom";
   }
   if (list) return ParseResult::kListPresets;
   if (opt->output_dir.empty()) {
@@ -263,11 +322,27 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
   if (progress) *progress << "[diekf_simulate] preparing texture '" << tex_name << "'\n";
   const Texture tex = Texture::byName(tex_name, opt.seed, opt.square_m, opt.texture_size_m);
 
-  const CameraModel cam = myntEyeSimCamera(opt.scale);
+  const CameraModel cam = myntEyeSimCamera(opt.scale);  // the true camera: rendering and extrinsics
   const Renderer renderer(cam, opt.threads);
+  // Realistic camera: what the estimator is told (camchain.yaml, camera_info) may differ from the truth.
+  const RealismOptions& real = opt.realism;
+  const CameraModel written = writtenCalibration(cam, real);
+  const ExposureSteps exposure_steps =
+      real.exposure_steps ? ExposureSteps(opt.seed, opt.duration_s + 1.0) : ExposureSteps();
+  std::unique_ptr<SpecularPatches> specular;
+  if (real.non_lambertian > 0.0) specular.reset(new SpecularPatches(opt.seed, real.non_lambertian));
+  RenderEffects effects;
+  effects.specular = specular.get();
+  effects.defocus_sigma_px = real.defocus_px * opt.scale;
+  const double readout_s = real.rolling_shutter_ms * 1e-3;
+  const bool effects_render = readout_s > 0.0 || specular || effects.defocus_sigma_px > 0.0;
+  const std::int64_t stamp_offset_ns = std::llround(real.time_offset_ms * 1e6);
+  const double stamp_offset_s = static_cast<double>(stamp_offset_ns) * 1e-9;
   TopicNames topics;
-  writeCamchainYaml((fs::path(opt.output_dir) / "camchain.yaml").string(), cam, topics.image);
+  writeCamchainYaml((fs::path(opt.output_dir) / "camchain.yaml").string(), written, topics.image);
   writeImuYaml((fs::path(opt.output_dir) / "imu.yaml").string(), opt.imu_noise, topics.imu);
+  writeRealismYaml((fs::path(opt.output_dir) / "realism.yaml").string(), opt.realism_preset, real, opt.scale, cam,
+                   written, &exposure_steps, specular.get());
 
   ImuSimOptions imu_opt;
   imu_opt.noise = opt.imu_noise;
@@ -288,7 +363,9 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
   std::uniform_real_distribution<double> uni(0.0, 1.0);
   const double exposure_s = opt.exposure_ms * 1e-3;
   const double frame_dt = 1.0 / opt.fps;
-  const int n_frames = std::max(0, static_cast<int>(std::floor((opt.duration_s - 0.5 * exposure_s) / frame_dt)));
+  // Last frame: its last row's exposure and its stamp within the sequence.
+  const double frame_tail_s = 0.5 * exposure_s + 0.5 * readout_s + std::max(0.0, stamp_offset_s);
+  const int n_frames = std::max(0, static_cast<int>(std::floor((opt.duration_s - frame_tail_s) / frame_dt)));
   const double pose_dt = 1.0 / opt.pose_rate_hz;
   std::size_t next_imu = 0, next_pose_idx = 0;
   std::uint32_t imu_seq = 0;
@@ -313,14 +390,15 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
   std::vector<CameraPose> subposes;
   long subframes_total = 0;
   for (int f = 0; f < n_frames; ++f) {
-    const double t = (f + 1) * frame_dt;  // mid-exposure stamp (s)
-    flushUntil(t);
+    const double t = (f + 1) * frame_dt;  // true mid-exposure time of the middle row (s)
+    flushUntil(t + stamp_offset_s);       // the image's stamp
     // Brightness for this frame (draws happen for every frame so dropping does not change the others).
     double gain = 1.0 + opt.gain_ramp * std::sin(2.0 * M_PI * t / opt.gain_ramp_period_s);
     const bool flicker = uni(rng) < opt.flicker_prob;
     const double flicker_draw = uni(rng);
     const bool drop = uni(rng) < opt.drop_prob;
     if (flicker) gain *= 1.0 + opt.flicker_amplitude * (flicker_draw < 0.5 ? -1.0 : 1.0) * (0.5 + flicker_draw);
+    if (real.exposure_steps) gain *= exposure_steps.gain(t);
     if (drop) {
       ++sum.frames_dropped;
       continue;
@@ -332,16 +410,26 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
       const double blur_px = renderer.motionPixels(p0, p1, plane);
       n_sub = std::clamp(static_cast<int>(std::ceil(blur_px / opt.blur_step_px)), 1, opt.max_subframes);
     }
-    subposes.clear();
-    for (int j = 0; j < n_sub; ++j) {
-      const double ts = n_sub == 1 ? t : t + exposure_s * ((j + 0.5) / n_sub - 0.5);
-      subposes.push_back(cameraPose(traj.evaluate(ts), cam));
-    }
     subframes_total += n_sub;
-    const cv::Mat img =
-        renderer.renderImage(subposes, plane, tex, gain, opt.sensor, opt.seed * 7919ull + static_cast<std::uint64_t>(f));
-    const std::int64_t stamp = clock.toNs(t);
-    if (opt.camera_info) bag.writeCameraInfo(stamp, cam, static_cast<std::uint32_t>(f));
+    const std::uint64_t noise_seed = opt.seed * 7919ull + static_cast<std::uint64_t>(f);
+    cv::Mat img;
+    if (!effects_render) {
+      subposes.clear();
+      for (int j = 0; j < n_sub; ++j) {
+        const double ts = n_sub == 1 ? t : t + exposure_s * ((j + 0.5) / n_sub - 0.5);
+        subposes.push_back(cameraPose(traj.evaluate(ts), cam));
+      }
+      img = renderer.renderImage(subposes, plane, tex, gain, opt.sensor, noise_seed);
+    } else {
+      // Rolling shutter: every row its own exposure (same sub-frame count), centred readout * (v/(H-1) - 1/2)
+      // after t; then the optional glossy patches and defocus.
+      const std::vector<RowBand> bands = rollingShutterBands(
+          [&](double ts) { return cameraPose(traj.evaluate(ts), cam); }, t, renderer.height(), readout_s, exposure_s,
+          n_sub, 1);
+      img = renderer.renderBands(bands, plane, tex, gain, opt.sensor, noise_seed, effects);
+    }
+    const std::int64_t stamp = clock.toNs(t) + stamp_offset_ns;
+    if (opt.camera_info) bag.writeCameraInfo(stamp, written, static_cast<std::uint32_t>(f));
     bag.writeImage(stamp, img, static_cast<std::uint32_t>(f));
     ++sum.frames_written;
     if (progress && (f % 30 == 29 || f + 1 == n_frames)) {
