@@ -128,10 +128,15 @@ TEST(EvalIo, JsonHasEveryKeyAndNullForNaN) {
   e.rmse_distance_m = 0.029;
   e.rmse_velocity_mps = std::nan("");
   e.diverged = true;
+  e.coverage2_d = 0.9;
+  e.nees_mean = std::nan("");
   const std::string json = evaluationToJson(e);
   for (const char* key : {"sequence", "frames", "duration_s", "rmse_distance_m", "rmse_height_m", "rmse_velocity_mps",
                           "rms_normal_deg", "rms_gravity_deg", "max_normal_deg", "max_gravity_deg", "diverged",
-                          "update_ms_mean", "update_ms_median", "update_ms_p99", "realtime_factor"}) {
+                          "update_ms_mean", "update_ms_median", "update_ms_p99", "realtime_factor", "coverage2_d",
+                          "coverage2_v", "nees_mean", "nees_median", "coverage2_d_last_half",
+                          "coverage2_v_last_half", "nees_mean_last_half", "consistency_frames",
+                          "consistency_frames_excluded"}) {
     EXPECT_NE(json.find("\"" + std::string(key) + "\":"), std::string::npos) << key;
   }
   EXPECT_NE(json.find("\"rmse_velocity_mps\": null"), std::string::npos);
@@ -139,7 +144,10 @@ TEST(EvalIo, JsonHasEveryKeyAndNullForNaN) {
   EXPECT_NE(json.find("\"diverged\": true"), std::string::npos);
   EXPECT_NE(json.find("\"flight\\\"4\""), std::string::npos);
   EXPECT_EQ(json.find("nan"), std::string::npos);
+  EXPECT_NE(json.find("\"coverage2_d\": 0.9,"), std::string::npos);
+  EXPECT_NE(json.find("\"nees_mean\": null"), std::string::npos);
   EXPECT_NE(evaluationSummary(e).find("2.90 cm"), std::string::npos);
+  EXPECT_NE(evaluationSummary(e).find("d 90.0 %"), std::string::npos);
 }
 
 }  // namespace

@@ -1,6 +1,7 @@
 // Metrics of CONVENTIONS.md section 5 on hand-made series.
 #include <cmath>
 #include <limits>
+#include <random>
 
 #include <gtest/gtest.h>
 
@@ -191,6 +192,180 @@ TEST(Metrics, NoUpdateOrNoEstimatesIsDiverged) {
   EXPECT_TRUE(ev.diverged);
   EXPECT_TRUE(std::isnan(ev.rmse_distance_m));
   EXPECT_TRUE(evaluate({}, {}).diverged);
+}
+
+// --- Consistency of the reported sigma: 2-sigma coverage and NEES. ---
+
+/// `seconds` of 30 Hz frames whose distance and velocity errors are drawn from N(0, sigma^2) with the true sigma
+/// (varying over time and per axis); the estimates report sigma / `understatement`.
+Series makeGaussianSeries(double seconds, double understatement, unsigned seed = 7) {
+  Series s = makeSeries(0.0, seconds);
+  std::mt19937 rng(seed);
+  std::normal_distribution<double> normal(0.0, 1.0);
+  for (std::size_t i = 0; i < s.est.size(); ++i) {
+    const double phase = 0.01 * static_cast<double>(i);
+    const double sigma_d = 0.02 * (1.0 + 0.5 * std::sin(phase));
+    const Eigen::Vector3d sigma_v(0.03 * (1.0 + 0.5 * std::cos(phase)), 0.05, 0.01 * (2.0 + std::sin(3.0 * phase)));
+    s.truth[i]->v_C_mps = Eigen::Vector3d(0.3, -0.2, 0.1);
+    s.est[i].d_m = s.truth[i]->d_m + sigma_d * normal(rng);
+    for (int k = 0; k < 3; ++k) s.est[i].v_mps[k] = s.truth[i]->v_C_mps[k] + sigma_v[k] * normal(rng);
+    s.est[i].sigma_d_m = sigma_d / understatement;
+    s.est[i].sigma_v_mps = sigma_v / understatement;
+  }
+  return s;
+}
+
+TEST(MetricsConsistency, HonestSigmaGivesNinetyFivePercentAndNeesFour) {
+  const Series s = makeGaussianSeries(600.0, 1.0);  // 18 000 frames
+  const Evaluation ev = evaluate(s.est, s.truth);
+  ASSERT_GT(ev.frames, 17000);
+  EXPECT_EQ(ev.consistency_frames, ev.frames);
+  EXPECT_EQ(ev.consistency_frames_excluded, 0);
+  // Standard errors: coverage about 0.0016 (d) and 0.0009 (v); NEES mean sqrt(8 / n) = 0.02.
+  EXPECT_NEAR(ev.coverage2_d, 0.9545, 0.01);
+  EXPECT_NEAR(ev.coverage2_v, 0.9545, 0.01);
+  EXPECT_NEAR(ev.nees_mean, 4.0, 0.12);
+  EXPECT_NEAR(ev.nees_median, 3.357, 0.12);  // median of chi-square with 4 degrees of freedom
+  EXPECT_NEAR(ev.coverage2_d_last_half, 0.9545, 0.015);
+  EXPECT_NEAR(ev.coverage2_v_last_half, 0.9545, 0.01);
+  EXPECT_NEAR(ev.nees_mean_last_half, 4.0, 0.17);
+}
+
+TEST(MetricsConsistency, SigmaThreeTimesTooSmallLowersCoverageAndGivesNeesThirtySix) {
+  const Series s = makeGaussianSeries(600.0, 3.0);
+  const Evaluation ev = evaluate(s.est, s.truth);
+  // |z| <= 2 now means |error| <= 2/3 sigma: P = 0.495.
+  EXPECT_NEAR(ev.coverage2_d, 0.495, 0.02);
+  EXPECT_NEAR(ev.coverage2_v, 0.495, 0.015);
+  EXPECT_LT(ev.coverage2_v, 0.6);
+  EXPECT_NEAR(ev.nees_mean, 36.0, 1.0);  // 9 x 4; standard error 9 sqrt(8 / n) = 0.19
+  EXPECT_NEAR(ev.nees_median, 9.0 * 3.357, 1.0);
+  EXPECT_NEAR(ev.nees_mean_last_half, 36.0, 1.5);
+}
+
+TEST(MetricsConsistency, FramesWithoutAUsableSigmaAreLeftOut) {
+  Series s = makeGaussianSeries(600.0, 1.0);
+  const Evaluation honest = evaluate(s.est, s.truth);
+  int spoiled = 0;
+  for (std::size_t i = 0; i < s.est.size(); ++i) {
+    if (s.est[i].t_s < 3.5 || i % 7 != 0) continue;  // inside the evaluation window
+    s.est[i].d_m += 10.0;  // would be far outside any band if used
+    s.est[i].v_mps.x() += 10.0;
+    switch (spoiled++ % 4) {
+      case 0: s.est[i].sigma_d_m = 0.0; break;
+      case 1: s.est[i].sigma_v_mps.y() = 0.0; break;
+      case 2: s.est[i].sigma_v_mps.z() = -0.1; break;
+      default: s.est[i].sigma_d_m = std::numeric_limits<double>::quiet_NaN(); break;
+    }
+  }
+  ASSERT_GT(spoiled, 2000);
+  const Evaluation ev = evaluate(s.est, s.truth);
+  EXPECT_EQ(ev.frames, honest.frames);
+  EXPECT_EQ(ev.consistency_frames_excluded, spoiled);
+  EXPECT_EQ(ev.consistency_frames, ev.frames - spoiled);
+  EXPECT_NEAR(ev.coverage2_d, 0.9545, 0.012);
+  EXPECT_NEAR(ev.coverage2_v, 0.9545, 0.01);
+  EXPECT_NEAR(ev.nees_mean, 4.0, 0.15);
+  EXPECT_TRUE(std::isfinite(ev.nees_mean_last_half));
+
+  // Every sigma zero: nothing to evaluate, NaN (null in the JSON), the RMSE unaffected.
+  Series zero = makeGaussianSeries(10.0, 1.0);
+  for (auto& e : zero.est) e.sigma_d_m = 0.0;
+  const Evaluation ev_zero = evaluate(zero.est, zero.truth);
+  EXPECT_EQ(ev_zero.consistency_frames, 0);
+  EXPECT_EQ(ev_zero.consistency_frames_excluded, ev_zero.frames);
+  EXPECT_TRUE(std::isnan(ev_zero.coverage2_d));
+  EXPECT_TRUE(std::isnan(ev_zero.coverage2_v));
+  EXPECT_TRUE(std::isnan(ev_zero.nees_mean));
+  EXPECT_TRUE(std::isnan(ev_zero.nees_median));
+  EXPECT_TRUE(std::isnan(ev_zero.nees_mean_last_half));
+  EXPECT_TRUE(std::isfinite(ev_zero.rmse_distance_m));
+}
+
+/// Four evaluated frames (start delay 0: frames 1..4 of 0, 1/30, ..., 4/30 s), sigma_d = 0.25 m and
+/// sigma_v = (0.25, 0.5, 1) m/s, errors chosen so every z is exact in binary:
+///   frame 1: z_d = 1,  z_v = (0, 0, 0)        NEES 1     d inside, 3 v inside
+///   frame 2: z_d = 3,  z_v = (1, 0, 0)        NEES 10    d outside, 3 v inside
+///   frame 3: z_d = -2, z_v = (2.5, -2.5, 3)   NEES 25.5  d inside (on the bound), 0 v inside
+///   frame 4: z_d = 0,  z_v = (-2, 2, 2)       NEES 12    d inside, 3 v inside (on the bound)
+Series handSeries() {
+  Series s = makeSeries(0.0, 4.0 / 30.0);
+  const double zd[] = {0.0, 1.0, 3.0, -2.0, 0.0};
+  const Eigen::Vector3d zv[] = {Eigen::Vector3d::Zero(), Eigen::Vector3d::Zero(), Eigen::Vector3d(1, 0, 0),
+                                Eigen::Vector3d(2.5, -2.5, 3), Eigen::Vector3d(-2, 2, 2)};
+  const Eigen::Vector3d sigma_v(0.25, 0.5, 1.0);
+  for (std::size_t i = 0; i < s.est.size(); ++i) {
+    s.truth[i]->v_C_mps = Eigen::Vector3d(0.5, 0.0, -0.25);
+    s.est[i].sigma_d_m = 0.25;
+    s.est[i].sigma_v_mps = sigma_v;
+    s.est[i].d_m = s.truth[i]->d_m + 0.25 * zd[i];
+    s.est[i].v_mps = s.truth[i]->v_C_mps + zv[i].cwiseProduct(sigma_v);
+  }
+  return s;
+}
+
+TEST(MetricsConsistency, HandComputedCase) {
+  const Series s = handSeries();
+  ASSERT_EQ(s.est.size(), 5u);
+  EvaluationOptions opt;
+  opt.start_delay_s = 0.0;
+  const Evaluation ev = evaluate(s.est, s.truth, opt);
+  ASSERT_EQ(ev.frames, 4);
+  EXPECT_EQ(ev.consistency_frames, 4);
+  EXPECT_EQ(ev.consistency_frames_excluded, 0);
+  EXPECT_DOUBLE_EQ(ev.coverage2_d, 0.75);
+  EXPECT_DOUBLE_EQ(ev.coverage2_v, 9.0 / 12.0);
+  EXPECT_DOUBLE_EQ(ev.nees_mean, (1.0 + 10.0 + 25.5 + 12.0) / 4.0);
+  EXPECT_DOUBLE_EQ(ev.nees_median, 11.0);
+  // Second half of the window [1/30, 4/30] s: frames 3 and 4.
+  EXPECT_DOUBLE_EQ(ev.coverage2_d_last_half, 1.0);
+  EXPECT_DOUBLE_EQ(ev.coverage2_v_last_half, 0.5);
+  EXPECT_DOUBLE_EQ(ev.nees_mean_last_half, 18.75);
+
+  // The same through consistency() on chosen frames; frames without truth are skipped, not counted as excluded.
+  Consistency c = consistency(s.est, s.truth, {2, 3});
+  EXPECT_EQ(c.frames, 2);
+  EXPECT_DOUBLE_EQ(c.coverage2_d, 0.5);
+  EXPECT_DOUBLE_EQ(c.coverage2_v, 0.5);
+  EXPECT_DOUBLE_EQ(c.nees_mean, 17.75);
+  EXPECT_DOUBLE_EQ(c.nees_median, 17.75);
+  Series no_truth = s;
+  no_truth.truth[2].reset();
+  c = consistency(no_truth.est, no_truth.truth, {1, 2, 3});
+  EXPECT_EQ(c.frames, 2);
+  EXPECT_EQ(c.excluded, 0);
+  EXPECT_DOUBLE_EQ(c.nees_mean, (1.0 + 25.5) / 2.0);
+  c = consistency(s.est, s.truth, {});
+  EXPECT_EQ(c.frames, 0);
+  EXPECT_TRUE(std::isnan(c.coverage2_d) && std::isnan(c.nees_mean));
+}
+
+TEST(MetricsConsistency, ZeroSigmaFrameIsExcludedExactly) {
+  Series s = handSeries();
+  s.est[2].sigma_v_mps.y() = 0.0;  // frame 2 (NEES 10, d outside) leaves the figures
+  EvaluationOptions opt;
+  opt.start_delay_s = 0.0;
+  const Evaluation ev = evaluate(s.est, s.truth, opt);
+  EXPECT_EQ(ev.frames, 4);
+  EXPECT_EQ(ev.consistency_frames, 3);
+  EXPECT_EQ(ev.consistency_frames_excluded, 1);
+  EXPECT_DOUBLE_EQ(ev.coverage2_d, 1.0);
+  EXPECT_DOUBLE_EQ(ev.coverage2_v, 6.0 / 9.0);
+  EXPECT_DOUBLE_EQ(ev.nees_mean, (1.0 + 25.5 + 12.0) / 3.0);
+  EXPECT_DOUBLE_EQ(ev.nees_median, 12.0);
+}
+
+TEST(MetricsConsistency, NonFiniteEstimateIsOutsideTheBandAndMakesTheNeesNaN) {
+  Series s = handSeries();
+  s.est[4].d_m = std::numeric_limits<double>::quiet_NaN();
+  EvaluationOptions opt;
+  opt.start_delay_s = 0.0;
+  const Evaluation ev = evaluate(s.est, s.truth, opt);
+  EXPECT_TRUE(ev.diverged);
+  EXPECT_EQ(ev.consistency_frames, 4);
+  EXPECT_DOUBLE_EQ(ev.coverage2_d, 0.5);
+  EXPECT_TRUE(std::isnan(ev.nees_mean));
+  EXPECT_TRUE(std::isnan(ev.nees_median));
 }
 
 }  // namespace

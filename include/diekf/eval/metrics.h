@@ -61,7 +61,36 @@ struct Evaluation {
   double update_ms_p99 = 0.0;
   double realtime_factor = 0.0;    ///< wall time of the whole run / duration_s (set by the caller)
   double wall_time_s = 0.0;        ///< wall time of the whole run, s (set by the caller)
+
+  // Consistency of the reported 1-sigma (the sigma_* columns) with the actual errors, over the evaluated frames
+  // whose sigma_d and sigma_v are all finite and positive. Normalised errors z_d = (d_est - d_true) / sigma_d,
+  // z_v,i = (v_est,i - v_true,i) / sigma_v,i (i = x, y, z). For a consistent filter with Gaussian errors the
+  // coverages are about 0.95 and the NEES about 4 (chi-square with 4 degrees of freedom).
+  int consistency_frames = 0;           ///< evaluated frames that enter the consistency metrics
+  int consistency_frames_excluded = 0;  ///< evaluated frames left out: a sigma non-positive or non-finite
+  double coverage2_d = 0.0;             ///< fraction of frames with |z_d| <= 2
+  double coverage2_v = 0.0;             ///< fraction of (frame, axis) pairs with |z_v,i| <= 2
+  double nees_mean = 0.0;               ///< mean over frames of z_d^2 + sum_i z_v,i^2
+  double nees_median = 0.0;             ///< median of the same
+  double coverage2_d_last_half = 0.0;   ///< coverage2_d over the second half (in time) of the evaluation window
+  double coverage2_v_last_half = 0.0;   ///< coverage2_v over the second half of the evaluation window
+  double nees_mean_last_half = 0.0;     ///< nees_mean over the second half of the evaluation window
 };
+
+/// Consistency figures of one set of frames (the fields of the same names in Evaluation).
+struct Consistency {
+  int frames = 0;           ///< frames used (every sigma finite and positive)
+  int excluded = 0;         ///< frames left out for a non-positive or non-finite sigma
+  double coverage2_d = 0.0;
+  double coverage2_v = 0.0;
+  double nees_mean = 0.0;
+  double nees_median = 0.0;
+};
+
+/// Consistency of `estimates[i]` against `truth[i]` for every index in `indices` (all must have a true value);
+/// NaN figures when no frame can be used.
+Consistency consistency(const std::vector<EstimateRow>& estimates,
+                        const std::vector<std::optional<TruthSample>>& truth, const std::vector<std::size_t>& indices);
 
 /// Angle between two directions, degrees (atan2 form, exact near 0 and 180; NaN for a zero vector).
 double angleBetweenDeg(const Eigen::Vector3d& a, const Eigen::Vector3d& b);

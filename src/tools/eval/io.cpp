@@ -174,6 +174,9 @@ std::string evaluationToJson(const Evaluation& e) {
     << "  \"rms_gravity_deg\": " << jsonNum(e.rms_gravity_deg) << ",\n"
     << "  \"max_normal_deg\": " << jsonNum(e.max_normal_deg) << ",\n"
     << "  \"max_gravity_deg\": " << jsonNum(e.max_gravity_deg) << ",\n"
+    << "  \"coverage2_d\": " << jsonNum(e.coverage2_d) << ",\n"
+    << "  \"coverage2_v\": " << jsonNum(e.coverage2_v) << ",\n"
+    << "  \"nees_mean\": " << jsonNum(e.nees_mean) << ",\n"
     << "  \"diverged\": " << (e.diverged ? "true" : "false") << ",\n"
     << "  \"update_ms_mean\": " << jsonNum(e.update_ms_mean) << ",\n"
     << "  \"update_ms_median\": " << jsonNum(e.update_ms_median) << ",\n"
@@ -182,6 +185,12 @@ std::string evaluationToJson(const Evaluation& e) {
     << "  \"frames_total\": " << e.frames_total << ",\n"
     << "  \"eval_start_s\": " << jsonNum(e.eval_start_s) << ",\n"
     << "  \"wall_time_s\": " << jsonNum(e.wall_time_s) << ",\n"
+    << "  \"nees_median\": " << jsonNum(e.nees_median) << ",\n"
+    << "  \"coverage2_d_last_half\": " << jsonNum(e.coverage2_d_last_half) << ",\n"
+    << "  \"coverage2_v_last_half\": " << jsonNum(e.coverage2_v_last_half) << ",\n"
+    << "  \"nees_mean_last_half\": " << jsonNum(e.nees_mean_last_half) << ",\n"
+    << "  \"consistency_frames\": " << e.consistency_frames << ",\n"
+    << "  \"consistency_frames_excluded\": " << e.consistency_frames_excluded << ",\n"
     << "  \"divergence_reason\": " << jsonString(e.divergence_reason) << "\n"
     << "}\n";
   return o.str();
@@ -210,6 +219,13 @@ std::string evaluationSummary(const Evaluation& e) {
     << "  normal error RMS " << f(e.rms_normal_deg, 1.0, 2) << " deg (max " << f(e.max_normal_deg, 1.0, 2)
     << "), gravity error RMS " << f(e.rms_gravity_deg, 1.0, 2) << " deg (max " << f(e.max_gravity_deg, 1.0, 2)
     << ")\n"
+    << "  consistency over " << e.consistency_frames << " frames";
+  if (e.consistency_frames_excluded > 0) o << " (" << e.consistency_frames_excluded << " left out: a sigma not finite and positive)";
+  o << ": within 2 sigma d " << f(e.coverage2_d, 100.0, 1) << " %, v " << f(e.coverage2_v, 100.0, 1)
+    << " %, NEES mean " << f(e.nees_mean, 1.0, 2) << " (median " << f(e.nees_median, 1.0, 2)
+    << "); consistent: 95 %, 4\n"
+    << "  consistency, last half: within 2 sigma d " << f(e.coverage2_d_last_half, 100.0, 1) << " %, v "
+    << f(e.coverage2_v_last_half, 100.0, 1) << " %, NEES mean " << f(e.nees_mean_last_half, 1.0, 2) << "\n"
     << "  update time mean " << f(e.update_ms_mean, 1.0, 3) << " ms, median " << f(e.update_ms_median, 1.0, 3)
     << " ms, p99 " << f(e.update_ms_p99, 1.0, 3) << " ms; real-time factor " << f(e.realtime_factor, 1.0, 3)
     << "\n"

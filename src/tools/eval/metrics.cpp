@@ -38,6 +38,46 @@ double percentile(std::vector<double> values, double q) {
   return values[lo] + frac * (values[hi] - values[lo]);
 }
 
+Consistency consistency(const std::vector<EstimateRow>& estimates,
+                        const std::vector<std::optional<TruthSample>>& truth, const std::vector<std::size_t>& indices) {
+  Consistency c;
+  c.coverage2_d = c.coverage2_v = c.nees_mean = c.nees_median = kNaN;
+  std::vector<double> nees;
+  int inside_d = 0, inside_v = 0;
+  for (std::size_t i : indices) {
+    const EstimateRow& est = estimates.at(i);
+    const std::optional<TruthSample>& tr = truth.at(i);
+    if (!tr) continue;
+    const bool sigma_ok = std::isfinite(est.sigma_d_m) && est.sigma_d_m > 0.0 && est.sigma_v_mps.allFinite() &&
+                          (est.sigma_v_mps.array() > 0.0).all();
+    if (!sigma_ok) {
+      ++c.excluded;
+      continue;
+    }
+    const double zd = (est.d_m - tr->d_m) / est.sigma_d_m;
+    const Eigen::Vector3d zv = (est.v_mps - tr->v_C_mps).cwiseQuotient(est.sigma_v_mps);
+    // A NaN estimate is outside every band (and makes the NEES NaN, as it makes the RMSE NaN).
+    if (std::abs(zd) <= 2.0) ++inside_d;
+    for (int k = 0; k < 3; ++k) {
+      if (std::abs(zv[k]) <= 2.0) ++inside_v;
+    }
+    nees.push_back(zd * zd + zv.squaredNorm());
+  }
+  c.frames = static_cast<int>(nees.size());
+  if (c.frames == 0) return c;
+  const double n = static_cast<double>(c.frames);
+  c.coverage2_d = static_cast<double>(inside_d) / n;
+  c.coverage2_v = static_cast<double>(inside_v) / (3.0 * n);
+  double sum = 0.0;
+  for (double v : nees) sum += v;
+  c.nees_mean = sum / n;
+  // percentile() sorts, which puts NaN anywhere; a NaN NEES makes the median NaN too.
+  bool any_nan = false;
+  for (double v : nees) any_nan = any_nan || std::isnan(v);
+  c.nees_median = any_nan ? kNaN : percentile(nees, 50.0);
+  return c;
+}
+
 Evaluation evaluate(const std::vector<EstimateRow>& estimates, const std::vector<std::optional<TruthSample>>& truth,
                     const EvaluationOptions& options) {
   if (estimates.size() != truth.size()) {
@@ -49,6 +89,8 @@ Evaluation evaluate(const std::vector<EstimateRow>& estimates, const std::vector
   ev.rmse_distance_m = ev.rmse_height_m = ev.rmse_velocity_mps = kNaN;
   ev.rms_normal_deg = ev.rms_gravity_deg = ev.max_normal_deg = ev.max_gravity_deg = kNaN;
   ev.update_ms_mean = ev.update_ms_median = ev.update_ms_p99 = kNaN;
+  ev.coverage2_d = ev.coverage2_v = ev.nees_mean = ev.nees_median = kNaN;
+  ev.coverage2_d_last_half = ev.coverage2_v_last_half = ev.nees_mean_last_half = kNaN;
   ev.eval_start_s = kNaN;
   if (estimates.empty()) {
     ev.diverged = true;
@@ -98,9 +140,11 @@ Evaluation evaluate(const std::vector<EstimateRow>& estimates, const std::vector
   double max_mu = 0.0, max_g = 0.0;
   int n = 0;
   int window_frames = 0, window_bad = 0;
+  std::vector<std::size_t> evaluated;  // indices of the evaluated frames, for the consistency metrics
   for (std::size_t i = 0; i < estimates.size(); ++i) {
     const EstimateRow& est = estimates[i];
     if (!truth[i] || est.t_s < ev.eval_start_s) continue;
+    evaluated.push_back(i);
     const TruthSample& tr = *truth[i];
     const double ed = est.d_m - tr.d_m;
     const double eh = est.h_m - tr.h_m;
@@ -132,6 +176,24 @@ Evaluation evaluate(const std::vector<EstimateRow>& estimates, const std::vector
     ev.max_normal_deg = max_mu;
     ev.max_gravity_deg = max_g;
   }
+
+  // Consistency over the evaluated frames, and over those in the second half (in time) of the window.
+  const Consistency all = consistency(estimates, truth, evaluated);
+  ev.consistency_frames = all.frames;
+  ev.consistency_frames_excluded = all.excluded;
+  ev.coverage2_d = all.coverage2_d;
+  ev.coverage2_v = all.coverage2_v;
+  ev.nees_mean = all.nees_mean;
+  ev.nees_median = all.nees_median;
+  const double t_half = ev.eval_start_s + 0.5 * (t_end - ev.eval_start_s);
+  std::vector<std::size_t> last_half;
+  for (std::size_t i : evaluated) {
+    if (estimates[i].t_s >= t_half) last_half.push_back(i);
+  }
+  const Consistency late = consistency(estimates, truth, last_half);
+  ev.coverage2_d_last_half = late.coverage2_d;
+  ev.coverage2_v_last_half = late.coverage2_v;
+  ev.nees_mean_last_half = late.nees_mean;
   if (!ev.diverged && window_frames > 0 &&
       static_cast<double>(window_bad) > options.divergence_frame_fraction * static_cast<double>(window_frames)) {
     ev.diverged = true;
