@@ -8,7 +8,10 @@ Reads RUN_DIR/estimates.csv and, when present, RUN_DIR/groundtruth.csv and RUN_D
   distance.png      distance d and height h against truth, 2-sigma band on d (the paper's Fig. 3, top)
   velocity.png      the three velocity axes in C against truth with 2-sigma bands
   normal_gravity.png  plane normal and gravity direction components against truth
-  errors.png        distance, velocity, normal and gravity errors over time (evaluation window shaded)
+  errors.png        distance error and the three velocity-axis errors over time, each with the filter's +-2-sigma
+                    band around zero (the truth is inside the band where the error is), then the normal and
+                    gravity angle errors (evaluation window shaded; 2-sigma coverage and NEES in the title)
+  consistency.png   NEES per frame (z_d^2 + sum z_v,i^2) against the chi-square(4) mean and 95 % interval
   update_time.png   histogram of the per-frame update time
 """
 
@@ -62,6 +65,18 @@ def angle_deg(a, b):
     cross = np.linalg.norm(np.cross(a, b), axis=1)
     dot = np.sum(a * b, axis=1)
     return np.degrees(np.arctan2(cross, dot))
+
+
+# 2.5 % and 97.5 % quantiles of the chi-square distribution with 4 degrees of freedom.
+CHI2_4_95 = (0.4844, 11.1433)
+
+
+def fmt(v, decimals=1):
+    return "n/a" if v is None or (isinstance(v, float) and not math.isfinite(v)) else "%.*f" % (decimals, v)
+
+
+def pct(v):
+    return "n/a" if v is None else fmt(100.0 * v) + " %"
 
 
 def shade_eval_window(ax, t_eval_start, t_end):
@@ -177,29 +192,42 @@ def main(argv=None):
     axes[0][0].legend(loc="best", fontsize=8)
     save(fig, os.path.join(out_dir, "normal_gravity.png"))
 
-    # Errors over time.
+    # Errors over time, the distance and velocity errors inside the filter's +-2-sigma band.
     if has.any():
         e = {name: est[name][has] for name in EST_COLUMNS if name != "status"}
-        fig, axes = plt.subplots(4, 1, figsize=(9, 8), sharex=True)
+        fig, axes = plt.subplots(6, 1, figsize=(9, 11), sharex=True)
         err_d = e["d"] - truth("d")
-        v_est = np.stack([e["vx"], e["vy"], e["vz"]], axis=1)
-        v_true = np.stack([truth("vx"), truth("vy"), truth("vz")], axis=1)
-        err_v = np.linalg.norm(v_est - v_true, axis=1)
         err_mu = angle_deg(np.stack([e["mux"], e["muy"], e["muz"]], axis=1),
                            np.stack([truth("mux"), truth("muy"), truth("muz")], axis=1))
         err_g = angle_deg(np.stack([e["gx"], e["gy"], e["gz"]], axis=1),
                           np.stack([truth("gx"), truth("gy"), truth("gz")], axis=1))
-        series = [(100.0 * err_d, "d error (cm)", 200.0 * e["sigma_d"]),
-                  (100.0 * err_v, "|v error| (cm/s)", None),
-                  (err_mu, "normal error (deg)", None),
-                  (err_g, "gravity error (deg)", None)]
+        series = [(100.0 * err_d, "d error (cm)", 200.0 * e["sigma_d"])]
+        for axis in "xyz":
+            series.append((100.0 * (e["v" + axis] - truth("v" + axis)), "v%s error (cm/s)" % axis,
+                           200.0 * e["sigma_v" + axis]))
+        series += [(err_mu, "normal error (deg)", None), (err_g, "gravity error (deg)", None)]
+        in_window = tg >= t_eval if t_eval is not None and math.isfinite(t_eval) else np.ones(tg.size, dtype=bool)
         for ax, (y, label, band) in zip(axes, series):
             shade_eval_window(ax, t_eval, t_end)
             if band is not None:
-                ax.fill_between(tg, -band, band, color="tab:blue", alpha=0.15, lw=0, label="± 2σ")
-                ax.legend(loc="upper right", fontsize=8)
-            ax.plot(tg, y, color="tab:red", lw=0.9)
+                ax.fill_between(tg, -band, band, color="tab:blue", alpha=0.2, lw=0, label="± 2σ (filter)")
+            ax.plot(tg, y, color="tab:red", lw=0.9, label="error")
             ax.axhline(0.0, color="0.5", lw=0.6)
+            if band is not None:
+                # Same frames as the metrics: evaluation window, positive finite sigma.
+                ok = in_window & np.isfinite(band) & (band > 0)
+                if ok.any():
+                    inside = 100.0 * np.mean(np.abs(y[ok]) <= band[ok])
+                    ax.text(0.01, 0.95, "inside ±2σ: %.1f %%" % inside, transform=ax.transAxes, fontsize=8,
+                            va="top", bbox=dict(facecolor="white", alpha=0.7, lw=0))
+                ax.legend(loc="upper right", fontsize=8, ncol=2)
+                # Scale to the error and the band over the evaluation window, not to a start-up transient.
+                sel = in_window if in_window.any() else np.ones(tg.size, dtype=bool)
+                vals = np.concatenate([np.abs(y[sel]), band[sel]])
+                vals = vals[np.isfinite(vals)]
+                if vals.size:
+                    lim = 1.15 * max(np.percentile(vals, 99.5), 1e-6)
+                    ax.set_ylim(-lim, lim)
             ax.set_ylabel(label)
             ax.grid(alpha=0.3)
         heading = "%s: errors (shaded: evaluation window)" % title
@@ -209,9 +237,38 @@ def main(argv=None):
                 return "n/a" if v is None else "%.2f" % (100.0 * v)
             heading += "\nRMSE distance %s cm, velocity %s cm/s%s" % (
                 cm("rmse_distance_m"), cm("rmse_velocity_mps"), ", DIVERGED" if evaluation.get("diverged") else "")
-        axes[0].set_title(heading)
+            if "coverage2_d" in evaluation:
+                heading += "\ninside ±2σ: d %s, v %s (consistent: 95 %%); NEES mean %s (consistent: 4)" % (
+                    pct(evaluation.get("coverage2_d")), pct(evaluation.get("coverage2_v")),
+                    fmt(evaluation.get("nees_mean"), 2))
+        axes[0].set_title(heading, fontsize=10)
         axes[-1].set_xlabel("time (s)")
         save(fig, os.path.join(out_dir, "errors.png"))
+
+        # NEES per frame (distance and the three velocity axes: chi-square with 4 degrees of freedom if consistent).
+        with np.errstate(divide="ignore", invalid="ignore"):
+            sig = np.stack([e["sigma_d"], e["sigma_vx"], e["sigma_vy"], e["sigma_vz"]], axis=1)
+            err = np.stack([err_d] + [e["v" + a] - truth("v" + a) for a in "xyz"], axis=1)
+            usable = np.all(np.isfinite(sig) & (sig > 0), axis=1)
+            nees = np.sum((err / np.where(usable[:, None], sig, 1.0)) ** 2, axis=1)
+        fig, ax = plt.subplots(figsize=(9, 4))
+        shade_eval_window(ax, t_eval, t_end)
+        ax.axhspan(CHI2_4_95[0], CHI2_4_95[1], color="tab:green", alpha=0.15, lw=0,
+                   label="χ²(4) 95 %% interval %.2f–%.2f" % CHI2_4_95)
+        ax.axhline(4.0, color="tab:green", lw=1.0, label="consistent mean 4")
+        ax.plot(tg[usable], nees[usable], color="tab:red", lw=0.7, label="NEES per frame")
+        ax.set_yscale("log")
+        ax.set_xlabel("time (s)")
+        ax.set_ylabel("NEES")
+        heading = "%s: normalised estimation error squared (d, vx, vy, vz)" % title
+        if evaluation and "nees_mean" in evaluation:
+            heading += "\nmean %s, median %s; last half of the window: mean %s" % (
+                fmt(evaluation.get("nees_mean"), 2), fmt(evaluation.get("nees_median"), 2),
+                fmt(evaluation.get("nees_mean_last_half"), 2))
+        ax.set_title(heading, fontsize=10)
+        ax.legend(loc="upper right", fontsize=8)
+        ax.grid(alpha=0.3, which="both")
+        save(fig, os.path.join(out_dir, "consistency.png"))
 
     # Update time histogram.
     updated = est["iterations"] > 0
