@@ -4,9 +4,10 @@
 For each texture (default grass, leaves, dirt, natural) and mean height (default 0.4, 0.8, 1.3 m; the slow height
 changes are kept to +-0.1 m), simulate one sequence with flight5-like motion (RMS / max speed 0.22 / 0.86 m/s,
 20 s), run diekf_bag_runner with the iterated filter at each working width (default 90 and 180 px) and print a
-Markdown table: distance, height and velocity RMSE, normal error, divergence, mean update time, and from the
-runner's per-frame diagnostics (--frames-csv) the photometric residual RMS, the valid-pixel ratio, skipped
-updates and restarts over the evaluated part of the flight.
+Markdown table: distance, height and velocity RMSE, normal error, divergence, mean update time, the consistency of
+the reported uncertainty (fractions of the distance and velocity errors inside the filter's 2-sigma, 95 % if
+consistent, and the mean NEES, 4 if consistent), and from the runner's per-frame diagnostics (--frames-csv) the
+photometric residual RMS, the valid-pixel ratio, skipped updates and restarts over the evaluated part of the flight.
 
 Output under --output (default results/textures):
   bags/TEXTURE_hH/                  the simulated sequences (kept; --reuse-bags uses them again; --bags names
@@ -146,18 +147,20 @@ def num(v, decimals=1, scale=1.0):
 
 HEADER = ("| texture | height (m) | width (px) | distance RMSE (cm) | velocity RMSE (cm/s) | normal error RMS (deg) | "
           "diverged | mean update (ms) | last %gs: distance / velocity / normal | residual RMS | valid ratio | "
-          "skipped updates (%%) / restarts |")
+          "skipped updates (%%) / restarts | d within 2σ (%%) | v within 2σ (%%) | NEES mean |")
 
 
 def table_row(texture, height, width, ev):
     if ev.get("failed"):
-        return "| %s | %.1f | %d | failed (exit %s) | | | | | | | | |" % (texture, height, width, ev.get("exit_code"))
-    return "| %s | %.1f | %d | %s | %s | %s | %s | %s | %s / %s / %s | %s | %s | %s / %s |" % (
+        return "| %s | %.1f | %d | failed (exit %s) | | | | | | | | | | | |" % (
+            texture, height, width, ev.get("exit_code"))
+    return "| %s | %.1f | %d | %s | %s | %s | %s | %s | %s / %s / %s | %s | %s | %s / %s | %s | %s | %s |" % (
         texture, height, width, num(ev.get("rmse_distance_m"), 1, 100), num(ev.get("rmse_velocity_mps"), 1, 100),
         num(ev.get("rms_normal_deg"), 2), "yes" if ev.get("diverged") else "no", num(ev.get("update_ms_mean"), 2),
         num(ev.get("steady_rmse_distance_m"), 1, 100), num(ev.get("steady_rmse_velocity_mps"), 1, 100),
         num(ev.get("steady_rms_normal_deg"), 2), num(ev.get("residual_rms"), 3), num(ev.get("valid_ratio"), 2),
-        num(ev.get("skipped_pct"), 1), "n/a" if ev.get("resets") is None else str(ev.get("resets")))
+        num(ev.get("skipped_pct"), 1), "n/a" if ev.get("resets") is None else str(ev.get("resets")),
+        num(ev.get("coverage2_d"), 1, 100), num(ev.get("coverage2_v"), 1, 100), num(ev.get("nees_mean"), 1))
 
 
 def compare(a, tags):
@@ -174,9 +177,12 @@ def compare(a, tags):
     widths = [int(w) for w in a.widths.split(",") if w]
     heights = [float(h) for h in a.heights.split(",") if h]
     head = ("| configuration | width (px) | " + " | ".join(textures) +
-            " | all textures: distance all / last (cm), velocity (cm/s), normal (deg), diverged |")
-    lines = ["Mean over heights %s m of distance RMSE whole evaluation / last %g s (cm), velocity RMSE (cm/s) and "
-             "normal error RMS (deg):" % (", ".join("%g" % h for h in heights), a.steady_window), "", head,
+            " | all textures: distance all / last (cm), velocity (cm/s), normal (deg), diverged"
+            " | all textures: d / v within 2σ (%), NEES mean |")
+    lines = ["Simulated sequences. Mean over heights %s m of distance RMSE whole evaluation / last %g s (cm), "
+             "velocity RMSE (cm/s) and normal error RMS (deg); over every run: the fractions of distance and velocity "
+             "errors inside the filter's 2σ (95 %% if consistent) and the NEES (4 if consistent):" % (
+                 ", ".join("%g" % h for h in heights), a.steady_window), "", head,
              "|" + "---|" * (head.count("|") - 1)]
 
     def mean(vals):
@@ -200,6 +206,10 @@ def compare(a, tags):
                 num(mean([e.get("steady_rmse_distance_m") for e in every]), 1, 100),
                 num(mean([e.get("rmse_velocity_mps") for e in every]), 1, 100),
                 num(mean([e.get("rms_normal_deg") for e in every]), 2), sum(1 for e in every if e.get("diverged"))))
+            cells.append("%s / %s, %s" % (
+                num(mean([e.get("coverage2_d") for e in every]), 1, 100),
+                num(mean([e.get("coverage2_v") for e in every]), 1, 100),
+                num(mean([e.get("nees_mean") for e in every]), 1)))
             lines.append("| %s | %d | %s |" % (tag, width, " | ".join(cells)))
     text = "\n".join(lines) + "\n"
     print(text)
@@ -256,7 +266,9 @@ def main():
     cmd = "scripts/texture_sweep.py" + (" --reuse-bags" if a.reuse_bags else "") + " --tag %s" % a.tag + "".join(
         " --set %s" % s for s in a.set) + ("" if a.bags == "bags" else " --bags %s" % a.bags) + (
         " --sim-args \"%s\"" % a.sim_args if a.sim_args else "")
-    md = ["Configuration `%s`: preset %s (motion only), %g s, seed %d, heights +-%g m%s, iterated filter%s." % (
+    md = ["Configuration `%s`, simulated sequences: preset %s (motion only), %g s, seed %d, heights +-%g m%s, "
+          "iterated filter%s. Within 2σ: fraction of distance / velocity errors inside the filter's ±2σ (95 %% if "
+          "consistent); NEES: mean normalised squared error of distance and velocity (4 if consistent)." % (
         a.tag, a.preset, a.duration, a.seed, a.height_amplitude,
         ", simulator %s" % a.sim_args if a.sim_args else "",
         (", " + ", ".join("`%s`" % s for s in a.set)) if a.set else ", config/estimator.yaml defaults"),
