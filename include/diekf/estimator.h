@@ -15,7 +15,10 @@
 
 namespace diekf {
 
-enum class FilterStatus { kInitializing, kTracking, kReset };
+/// kDegraded: converged, but the last consistency checks failed (updates gated or rejected, residuals
+/// anomalous, a bridged IMU gap); the message says which. Tracking again once they pass for
+/// divergence.degraded_hold_s.
+enum class FilterStatus { kInitializing, kTracking, kReset, kDegraded };
 const char* toString(FilterStatus status);
 
 /// What happened at one image.
@@ -30,6 +33,11 @@ struct FrameResult {
   double photometric_rms = 0.0;      ///< RMS residual at the last linearisation (normalised intensity units;
                                      ///< px for LK at the final estimate); see UpdateStats::rms_residual
   double valid_ratio = 0.0;          ///< fraction of pixels (or features) used
+  double nis = 0.0;                  ///< normalised innovation squared of the update (chi-square(8)); 0: none
+  double noise_sigma = 0.0;          ///< per-pixel photometric noise 1-sigma used (normalised units); 0: none
+  double noise_correlation = 0.0;    ///< pixels per independent measurement used; 0: none
+  double nis_scale = 1.0;            ///< innovation-based noise inflation used (>= 1)
+  double gate_inflation = 1.0;       ///< noise inflation applied by the innovation gate (1: passed)
   std::string message;               ///< why initializing / reset / skipped (empty when tracking normally)
   int resets = 0;                    ///< filter restarts since construction (automatic and requested)
   std::string last_reset_reason;     ///< why the filter last restarted (empty if it never did)

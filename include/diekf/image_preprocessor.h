@@ -29,6 +29,8 @@ struct PreprocessedFrame {
                           ///< else grey level / 255 (0..1)
   cv::Mat grad_x;         ///< CV_32FC1 (I(x+1,y) - I(x-1,y)) / 2 of `intensity`, per pixel; 0 on the border
   cv::Mat grad_y;         ///< CV_32FC1 (I(x,y+1) - I(x,y-1)) / 2 of `intensity`, per pixel; 0 on the border
+  double grey_per_unit = 255.0;  ///< grey levels per unit of `intensity` (the working image's std when
+                                 ///< normalize_brightness, else 255): converts a sensor noise in grey levels
   bool valid = false;
 };
 
@@ -40,6 +42,13 @@ class ImagePreprocessor {
   /// Pinhole intrinsics of the working image (undistorted, rescaled).
   const PinholeK& workingK() const { return working_K_; }
   cv::Size workingSize() const { return cv::Size(working_K_.width, working_K_.height); }
+
+  /// Noise propagation of the preprocessing (docs/noise_model.md), for white sensor noise of variance s^2 per raw
+  /// pixel: the working pixel after area resampling and blur has variance s^2 * noiseVarianceGain(), and is
+  /// correlated with its neighbours over noiseCorrelationAreaPx() working pixels (the area whose independent
+  /// count equals the information: 1 / sum of the squared 2-D blur weights, >= 1).
+  double noiseVarianceGain() const { return noise_variance_gain_; }
+  double noiseCorrelationAreaPx() const { return noise_correlation_area_px_; }
 
   /// `raw`: CV_8UC1 at the calibration resolution. Throws std::invalid_argument on a wrong size or type.
   /// The Mats of `out` are written in place when they already have the right size and type (no allocation);
@@ -95,6 +104,8 @@ class ImagePreprocessor {
   std::vector<TapSet> tapsets_;
   std::vector<SlowPixel> slow_pixels_;
   std::vector<float> blur_kernel_;  // symmetric Gaussian, taps 0..radius (empty: no blur)
+  double noise_variance_gain_ = 1.0;
+  double noise_correlation_area_px_ = 1.0;
   int pad_ = 0;                     // blur radius, px: columns of replicated border on each side of resampled_
   cv::Mat raw_copy_;                // continuous copy of a non-continuous input
   cv::Mat resampled_;               // CV_32FC1 H x (W + 2 pad_): working image before blur, grey levels

@@ -62,11 +62,22 @@ struct PreprocessParams {
 struct PhotometricParams {
   int max_passes = 3;                           ///< Gauss-Newton passes per image (1 = plain EKF)
   double stop_threshold = 0.05;                 ///< stop iterating when |delta| < this
-  double intensity_noise_sigma = 0.3;           ///< photometric noise 1-sigma in normalised intensity units
+  /// Per-pixel photometric noise 1-sigma in normalised intensity units: with adaptive_noise the start value of
+  /// the Huber scale only; without, the fixed noise of every pixel, taken as independent (the paper's model).
+  double intensity_noise_sigma = 0.3;
   bool gradient_weighting = false;              ///< weight pixels by gradient magnitude
   double huber_threshold = 0.0;                 ///< Huber threshold on residual / sigma (0 = off)
   double min_valid_ratio = 0.3;                 ///< skip the update if fewer pixels stay in view
   int pixel_stride = 1;                         ///< use every n-th pixel in x and y
+  // Measurement noise model (docs/noise_model.md).
+  bool adaptive_noise = true;                   ///< noise from the residuals and their correlation (else fixed sigma)
+  double sensor_noise_grey = 2.0;               ///< 1-sigma sensor noise per raw pixel, grey levels (the floor)
+  int noise_tiles_x = 8;                        ///< tiles across the image for the score-correlation estimate
+  int noise_tiles_y = 6;                        ///< tiles down the image
+  double noise_time_constant_s = 1.0;           ///< smoothing time constant of the noise estimates, s
+  double gate_nis = 26.12;                      ///< chi-square(8) gate on the innovation (99.9 %); 0 = off
+  double gate_target_nis = 8.0;                 ///< a gated frame is down-weighted until its NIS equals this
+  double nis_time_constant_s = 2.0;             ///< smoothing of the innovation-based inflation, s (0 = off)
 };
 
 struct FeatureParams {
@@ -89,6 +100,9 @@ struct DivergenceParams {
   int bad_frames_before_reset = 30;             ///< consecutive bad frames before a reset
   double max_speed_mps = 20.0;                  ///< reset when the speed |v| exceeds, m/s
   double max_sigma_velocity_mps = 5.0;          ///< reset when the 1-sigma of any velocity axis exceeds, m/s
+  double max_step_sigma = 5.0;                  ///< reject an update moving alpha by more prior sigmas than this
+  double degraded_hold_s = 1.0;                 ///< status stays degraded this long after a failed check, s
+  double max_nis_ratio = 3.0;                   ///< degraded while the smoothed NIS exceeds this x its mean (8)
 };
 
 /// Input checks of the facade (docs/robustness.md): what is rejected, bridged or restarts the filter.
@@ -101,6 +115,8 @@ struct InputParams {
   double min_unclipped_ratio = 0.1;             ///< fraction of working pixels neither 0 nor 255 required
   double max_accel_mps2 = 200.0;                ///< IMU samples with a larger |specific force| are rejected, m/s^2
   double max_gyro_radps = 35.0;                 ///< IMU samples with a larger |rate| are rejected, rad/s
+  double gap_accel_sigma_mps2 = 3.0;            ///< unknown acceleration during a bridged IMU gap, 1-sigma, m/s^2
+  double gap_gyro_sigma_radps = 0.5;            ///< unknown rate change during a bridged IMU gap, 1-sigma, rad/s
 };
 
 struct EstimatorParams {

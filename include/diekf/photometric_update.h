@@ -18,6 +18,15 @@ struct UpdateStats {
   double rms_residual = 0.0;
   double valid_ratio = 0.0;      ///< fraction of pixels inside the bounds mask (last linearisation)
   double last_step_norm = 0.0;   ///< |delta| of the last pass
+  // Noise model and gate (docs/noise_model.md); 0 where not computed.
+  double residual_sigma = 0.0;   ///< robust scale of the residual at the last linearisation (normalised units)
+  double correlation = 0.0;      ///< score-correlation factor of the last linearisation (pixels per independent one)
+  double noise_sigma = 0.0;      ///< per-pixel noise 1-sigma used in this update (normalised units)
+  double noise_correlation = 0.0;  ///< pixels per independent measurement used in this update
+  double nis = 0.0;              ///< normalised innovation squared of the first pass (chi-square(8) if consistent)
+  double nis_scale = 1.0;        ///< innovation-based noise inflation used in this update (>= 1)
+  double gate_inflation = 1.0;   ///< factor the measurement noise was inflated by at the gate (1: passed)
+  bool gated = false;            ///< the innovation failed the gate: the update was down-weighted
 };
 
 /// Observed error-state columns: vartheta (3), mu (2), b_w (3).
@@ -46,6 +55,12 @@ class PhotometricUpdate {
   /// outside the mask and on pixels skipped by pixel_stride).
   const cv::Mat& residualImage() const { return residual_; }
 
+  /// Noise propagation of the preprocessing (ImagePreprocessor::noiseVarianceGain / noiseCorrelationAreaPx):
+  /// the floors of the per-pixel variance and of the correlation area. Defaults 1 and 1.
+  void setPreprocessNoise(double variance_gain, double correlation_area_px);
+  /// Forgets the smoothed noise estimates (the next update starts from its own residuals).
+  void resetNoiseModel() { noise_ = NoiseEstimate(); }
+
   /// One linearisation at x (what every Gauss-Newton pass accumulates), without the solve:
   /// A = sum w_p S_p^T S_p (full symmetric 8x8) and b = sum w_p S_p^T r_p over the observed columns
   /// [d_vartheta, d_mu, d_b_w]. Returns the number of valid pixels; `candidates` (optional) receives the number
@@ -57,8 +72,23 @@ class PhotometricUpdate {
 
  private:
   /// linearize() against the reference already packed into ref_packed_ (buffers prepared).
+  /// Unit-weight sums of one linearisation and the statistics of its residual.
+  struct PassSums {
+    ObservedInfo A = ObservedInfo::Zero();  ///< sum w S^T S (w: Huber / gradient weights only, no 1/sigma^2)
+    ObservedVec b = ObservedVec::Zero();    ///< sum w S^T r
+    int valid = 0, candidates = 0;
+    double sum_r2 = 0.0;
+    double robust_sigma = 0.0;  ///< sqrt(pi/2) mean |r| over the valid pixels
+    double correlation = 1.0;   ///< variance of the tile scores over the variance of independent pixels
+  };
+  struct NoiseEstimate {
+    bool valid = false;
+    double variance = 0.0;     ///< per-pixel residual variance, normalised units^2
+    double correlation = 1.0;  ///< pixels per independent measurement
+    double nis_scale = 1.0;    ///< innovation-based inflation (>= 1): E[NIS] = 8 when consistent
+  };
   int accumulate(const PreprocessedFrame& cur, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s,
-                 double state_lag_s, const State& x, ObservedInfo* A, ObservedVec* b, int* candidates, double* sum_r2);
+                 double state_lag_s, const State& x, double huber_sigma, PassSums* out);
   /// Residual image and row scratch for images of `size` (allocates only when the size changes).
   void prepareBuffers(const cv::Size& size);
 
@@ -66,7 +96,11 @@ class PhotometricUpdate {
   PreprocessParams preprocess_;
   cv::Mat residual_;
   cv::Mat ref_packed_;  ///< CV_32FC4 (I, dI/dx, dI/dy, 0) of the reference frame, reused between calls
-  cv::Mat scratch_;     ///< CV_32FC1 12 x (width rounded up to 4): row buffers of the sweep
+  cv::Mat scratch_;     ///< CV_32FC1 13 x (width rounded up to 4): row buffers of the sweep
+  double noise_variance_gain_ = 1.0;
+  double noise_correlation_floor_ = 1.0;
+  NoiseEstimate noise_;
+  double pending_nis_scale_ = 1.0;  ///< the inflation to keep after the current update
 };
 
 }  // namespace diekf

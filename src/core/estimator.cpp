@@ -27,6 +27,8 @@ const char* toString(FilterStatus status) {
       return "tracking";
     case FilterStatus::kReset:
       return "reset";
+    case FilterStatus::kDegraded:
+      return "degraded";
   }
   return "unknown";
 }
@@ -112,6 +114,7 @@ struct Estimator::Impl {
       slot.last_reset_reason.reserve(kMessageCapacity);
     }
     results.clear();
+    photometric.setPreprocessNoise(img_pre.noiseVarianceGain(), img_pre.noiseCorrelationAreaPx());
     resetFilter();
   }
 
@@ -159,6 +162,10 @@ struct Estimator::Impl {
     converged = false;
     skip_reason.clear();
     warm_started = false;
+    photometric.resetNoiseModel();
+    nis_smoothed = 0.0;
+    degraded_until_s = -HUGE_VAL;
+    degraded_reason[0] = '\0';
   }
 
   /// Gravity direction from the mean specific force of the recent filtered samples (if the vehicle is near
@@ -209,9 +216,19 @@ struct Estimator::Impl {
       const double t_end = std::min(s.t_s, t_target);
       const double dt = t_end - t_state_s;
       if (dt > 0.0) {
-        const int steps = dt > 2.0 * nominal_dt_s ? static_cast<int>(std::ceil(dt / nominal_dt_s)) : 1;
+        const bool gap = dt > 2.0 * nominal_dt_s;
+        const int steps = gap ? static_cast<int>(std::ceil(dt / nominal_dt_s)) : 1;
         const double h = dt / steps;
-        for (int k = 0; k < steps; ++k) predict(s.accel_mps2, s.gyro_radps, h, params.imu, params.process, &x, &P);
+        // Across a bridged IMU gap the held sample stands for unknown motion: an unknown acceleration and rate
+        // change, constant over the gap, add variance (sigma T)^2, i.e. a white-noise density sigma^2 T.
+        ImuParams imu = params.imu;
+        if (gap) {
+          imu.accel_noise_density = std::sqrt(imu.accel_noise_density * imu.accel_noise_density +
+                                              params.input.gap_accel_sigma_mps2 * params.input.gap_accel_sigma_mps2 * dt);
+          imu.gyro_noise_density = std::sqrt(imu.gyro_noise_density * imu.gyro_noise_density +
+                                             params.input.gap_gyro_sigma_radps * params.input.gap_gyro_sigma_radps * dt);
+        }
+        for (int k = 0; k < steps; ++k) predict(s.accel_mps2, s.gyro_radps, h, imu, params.process, &x, &P);
         gyro_integral += s.gyro_radps * dt;
         gyro_time_s += dt;
         t_state_s = t_end;
@@ -319,6 +336,13 @@ struct Estimator::Impl {
     oldest->x = x;
   }
 
+  /// A consistency check failed at `t_s`: the status is degraded (with `why`) for divergence.degraded_hold_s.
+  void noteDegraded(double t_s, const std::string& why) { noteDegraded(t_s, why.c_str()); }
+  void noteDegraded(double t_s, const char* why) {
+    degraded_until_s = t_s + params.divergence.degraded_hold_s;
+    std::snprintf(degraded_reason, sizeof(degraded_reason), "%s", why);
+  }
+
   /// Records a restart (counted, reason kept for the status of later frames).
   void noteRestart(const std::string& reason) {
     ++resets;
@@ -415,6 +439,10 @@ struct Estimator::Impl {
         os << "update skipped: " << dt << " s since the reference image (max_frame_interval_s = "
            << params.input.max_frame_interval_s << " s); this image is the new reference";
         skip_reason = os.str();
+      } else if (ref.t_s < last_imu_gap_end_s) {
+        // The gyro over the interval is unknown (held across the gap): the warp cannot be predicted.
+        skip_reason = "update skipped: the image interval spans a bridged IMU gap; this image is the new reference";
+        noteDegraded(img.t_s, "IMU gap bridged: covariance grown, one image pair skipped");
       } else {
         if (params.mode == UpdateMode::kFeature) {
           stats = feature.update(ref, cur, img_pre.workingK(), gyro_mean, dt, &x, &P, state_lag);
@@ -422,6 +450,9 @@ struct Estimator::Impl {
           const State x_prior = x;
           const ErrorCov P_prior = P;
           stats = photometric.update(ref, cur, img_pre.workingK(), gyro_mean, dt, &x, &P, state_lag);
+          // alpha's step in prior sigmas: d must never jump by many sigma in one frame.
+          const double step_sigma =
+              std::abs(x.alpha - x_prior.alpha) / std::sqrt(std::max(1e-300, P_prior(ErrIdx::kAlpha, ErrIdx::kAlpha)));
           if (stats.applied && !(stats.rms_residual <= params.divergence.max_photometric_rms)) {
             // The images do not fit the plane model (occlusion, unrelated or corrupt image): keep the prior.
             x = x_prior;
@@ -431,6 +462,32 @@ struct Estimator::Impl {
             os << "update rejected: photometric RMS " << stats.rms_residual << " above "
                << params.divergence.max_photometric_rms;
             skip_reason = os.str();
+            noteDegraded(img.t_s, skip_reason);
+          } else if (stats.applied && !(step_sigma <= params.divergence.max_step_sigma)) {
+            x = x_prior;
+            P = P_prior;
+            stats.applied = false;
+            std::ostringstream os;
+            os << "update rejected: it moved the inverse distance by " << step_sigma << " prior sigmas (max_step_sigma = "
+               << params.divergence.max_step_sigma << ")";
+            skip_reason = os.str();
+            noteDegraded(img.t_s, skip_reason);
+          } else if (stats.applied && stats.gated) {
+            char why[kMessageCapacity];
+            std::snprintf(why, sizeof(why), "update gated: NIS %.3g above %.3g, measurement down-weighted x%.3g",
+                          stats.nis, params.photometric.gate_nis, stats.gate_inflation);
+            noteDegraded(img.t_s, why);
+          }
+          if (stats.applied && std::isfinite(stats.nis)) {
+            // Smoothed NIS over about a second: persistently above its mean = the noise model does not fit.
+            const double a = 1.0 - std::exp(-dt / 1.0);
+            nis_smoothed = nis_smoothed > 0.0 ? nis_smoothed + a * (stats.nis - nis_smoothed) : stats.nis;
+            if (nis_smoothed > params.divergence.max_nis_ratio * internal_obs_dim) {
+              char why[kMessageCapacity];
+              std::snprintf(why, sizeof(why), "innovations too large: smoothed NIS %.3g (expected %d)", nis_smoothed,
+                            internal_obs_dim);
+              noteDegraded(img.t_s, why);
+            }
           }
         }
       }
@@ -451,6 +508,11 @@ struct Estimator::Impl {
     r.update_applied = stats.applied;
     r.passes = stats.passes;
     r.photometric_rms = std::isfinite(stats.rms_residual) ? stats.rms_residual : 0.0;
+    r.nis = std::isfinite(stats.nis) ? stats.nis : 0.0;
+    r.noise_sigma = std::isfinite(stats.noise_sigma) ? stats.noise_sigma : 0.0;
+    r.noise_correlation = std::isfinite(stats.noise_correlation) ? stats.noise_correlation : 0.0;
+    r.gate_inflation = std::isfinite(stats.gate_inflation) ? stats.gate_inflation : 1.0;
+    r.nis_scale = std::isfinite(stats.nis_scale) ? stats.nis_scale : 1.0;
     r.valid_ratio = std::isfinite(stats.valid_ratio) ? stats.valid_ratio : 0.0;
     if (stats.applied) ++updates_since_reset;
 
@@ -508,6 +570,9 @@ struct Estimator::Impl {
         std::snprintf(msg + used, sizeof(msg) - used, " (last reset: %s%s", last_reset_reason.c_str(),
                       warm_started ? "; restarted from the last good distance)" : ")");
       }
+    } else if (img.t_s <= degraded_until_s) {
+      r.status = FilterStatus::kDegraded;
+      std::snprintf(msg, sizeof(msg), "%s", degraded_reason);
     } else {
       r.status = FilterStatus::kTracking;
       std::snprintf(msg, sizeof(msg), "%s", skip_reason.c_str());
@@ -603,6 +668,11 @@ struct Estimator::Impl {
   static constexpr double kSnapshotSpacingS = 0.25;  // spacing of the kept snapshots, s
   std::array<GoodSnapshot, 12> good_history;  // healthy tracking states, about the last 3 s
   bool warm_started = false;         // the current run started from last_good
+  static constexpr int internal_obs_dim = 8;  // degrees of freedom of the NIS
+  double nis_smoothed = 0.0;         // NIS smoothed over about 1 s (0: none yet)
+  double degraded_until_s = -HUGE_VAL;  // status degraded up to this image time (IMU clock), s
+  char degraded_reason[kMessageCapacity] = "";  // the last failed consistency check (no allocation per frame)
+  double last_imu_gap_end_s = -HUGE_VAL;  // IMU-clock stamp of the first sample after the last bridged gap
 
   bool have_raw_imu = false;
   double last_raw_imu_t_s = 0.0;
@@ -649,6 +719,7 @@ bool Estimator::addImu(const ImuSample& raw) {
         os << "IMU gap of " << dt << " s bridged";
         m.warn(os.str());
         m.imu_pre.reset();
+        m.last_imu_gap_end_s = raw.t_s;
       }
     }
     m.have_raw_imu = true;

@@ -244,6 +244,19 @@ ImagePreprocessor::ImagePreprocessor(const CameraModel& camera, const Preprocess
     for (int i = 0; i <= r; ++i) blur_kernel_[i] = static_cast<float>(std::exp(-0.5 * i * i / (s * s)) / sum);
     pad_ = r;
   }
+  // Noise propagation: an area average over a x b raw pixels divides white-noise variance by a b (not below 1:
+  // upsampling does not create independent samples); a separable blur k multiplies it by (sum_i k_i^2)^2 and
+  // correlates neighbours: the sum over a large area then has the variance of 1 / (sum_i k_i^2)^2 fewer pixels.
+  {
+    const double raw_per_working = std::max(1.0, 1.0 / sx) * std::max(1.0, 1.0 / sy);
+    double k2 = 1.0;
+    if (!blur_kernel_.empty()) {
+      k2 = static_cast<double>(blur_kernel_[0]) * blur_kernel_[0];
+      for (std::size_t i = 1; i < blur_kernel_.size(); ++i) k2 += 2.0 * blur_kernel_[i] * blur_kernel_[i];
+    }
+    noise_variance_gain_ = k2 * k2 / raw_per_working;
+    noise_correlation_area_px_ = std::max(1.0, 1.0 / (k2 * k2));
+  }
   const int padded_W = W + 2 * pad_;
 
   // ---- resampling table ----
@@ -527,6 +540,9 @@ void ImagePreprocessor::process(const cv::Mat& raw, double t_s, PreprocessedFram
     const double sd = std::sqrt(var);
     scale = sd > 1e-3 ? static_cast<float>(1.0 / sd) : 0.f;
     offset = static_cast<float>(-mean) * scale;
+    out->grey_per_unit = sd > 1e-3 ? sd : 0.0;
+  } else {
+    out->grey_per_unit = 255.0;
   }
   auto normalizeRow = [&](int y) {
     float* r = I + y * W;

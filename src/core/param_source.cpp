@@ -303,6 +303,18 @@ const std::vector<Entry>& table() {
     t.push_back(real("photometric/min_valid_ratio", DIEKF_FIELD(double, photometric.min_valid_ratio),
                      between(0.0, 1.0)));
     t.push_back(integer("photometric/pixel_stride", DIEKF_FIELD(int, photometric.pixel_stride), between(1, 64)));
+    t.push_back(flag("photometric/adaptive_noise", DIEKF_FIELD(bool, photometric.adaptive_noise)));
+    t.push_back(real("photometric/sensor_noise_grey", DIEKF_FIELD(double, photometric.sensor_noise_grey),
+                     between(0.0, 255.0)));
+    t.push_back(integer("photometric/noise_tiles_x", DIEKF_FIELD(int, photometric.noise_tiles_x), between(2, 16)));
+    t.push_back(integer("photometric/noise_tiles_y", DIEKF_FIELD(int, photometric.noise_tiles_y), between(2, 16)));
+    t.push_back(real("photometric/noise_time_constant_s", DIEKF_FIELD(double, photometric.noise_time_constant_s),
+                     between(0.0, 1000.0)));
+    t.push_back(real("photometric/gate_nis", DIEKF_FIELD(double, photometric.gate_nis), between(0.0, 1e6)));
+    t.push_back(real("photometric/gate_target_nis", DIEKF_FIELD(double, photometric.gate_target_nis),
+                     Range{0.0, 1e6, true, false}));
+    t.push_back(real("photometric/nis_time_constant_s", DIEKF_FIELD(double, photometric.nis_time_constant_s),
+                     between(0.0, 1000.0)));
     // feature baseline
     t.push_back(integer("feature/max_corners", DIEKF_FIELD(int, feature.max_corners), between(1, 100000)));
     t.push_back(real("feature/quality_level", DIEKF_FIELD(double, feature.quality_level), Range{0.0, 1.0, true, false}));
@@ -325,6 +337,10 @@ const std::vector<Entry>& table() {
     t.push_back(real("divergence/max_speed_mps", DIEKF_FIELD(double, divergence.max_speed_mps), positive()));
     t.push_back(real("divergence/max_sigma_velocity_mps", DIEKF_FIELD(double, divergence.max_sigma_velocity_mps),
                      positive()));
+    t.push_back(real("divergence/max_step_sigma", DIEKF_FIELD(double, divergence.max_step_sigma), positive()));
+    t.push_back(real("divergence/degraded_hold_s", DIEKF_FIELD(double, divergence.degraded_hold_s),
+                     between(0.0, 3600.0)));
+    t.push_back(real("divergence/max_nis_ratio", DIEKF_FIELD(double, divergence.max_nis_ratio), positive()));
     // input checks
     t.push_back(real("input/max_imu_bridge_s", DIEKF_FIELD(double, input.max_imu_bridge_s), positive(60.0)));
     t.push_back(real("input/time_jump_reset_s", DIEKF_FIELD(double, input.time_jump_reset_s), positive()));
@@ -335,6 +351,10 @@ const std::vector<Entry>& table() {
     t.push_back(real("input/min_unclipped_ratio", DIEKF_FIELD(double, input.min_unclipped_ratio), between(0.0, 1.0)));
     t.push_back(real("input/max_accel_mps2", DIEKF_FIELD(double, input.max_accel_mps2), positive()));
     t.push_back(real("input/max_gyro_radps", DIEKF_FIELD(double, input.max_gyro_radps), positive()));
+    t.push_back(real("input/gap_accel_sigma_mps2", DIEKF_FIELD(double, input.gap_accel_sigma_mps2),
+                     between(0.0, 1000.0)));
+    t.push_back(real("input/gap_gyro_sigma_radps", DIEKF_FIELD(double, input.gap_gyro_sigma_radps),
+                     between(0.0, 100.0)));
     // queueing
     t.push_back(real("max_imu_gap_s", DIEKF_FIELD(double, max_imu_gap_s), positive()));
     t.push_back(integer("max_queued_images", DIEKF_FIELD(int, max_queued_images), between(1, 10000)));

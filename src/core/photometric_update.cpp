@@ -155,21 +155,31 @@ struct SweepConfig {
   int stride = 1;             // use every stride-th pixel in x and y
   float huber_abs = 0.0f;     // Huber threshold on |r| in intensity units (0 = off)
   bool gradient_weighting = false;
+  int tiles_x = 8, tiles_y = 6;  // tile grid of the score sums (noise model)
 };
 
-/// Sums of one sweep in double: G = [A | b] (A upper triangle, i <= j < 8; b in column 8).
+constexpr int kMaxTilesPerAxis = 16;
+constexpr int kMaxTiles = kMaxTilesPerAxis * kMaxTilesPerAxis;
+
+/// Sums of one sweep in double: G = [A | b] (A upper triangle, i <= j < 8; b in column 8), and per tile of the
+/// image the score sum_tile sqrt(w) S'^T t and the valid pixel count (docs/noise_model.md).
 struct SweepSums {
   int candidates = 0;
   int valid = 0;
   double sum_r2 = 0.0;
+  double sum_abs_r = 0.0;
   double grad_sum = 0.0;  // sum of |grad I_c| over valid pixels (gradient weighting normalisation)
   double G[8][9] = {};
+  double tile_b[kMaxTiles][8] = {};
+  double tile_n[kMaxTiles] = {};
 };
 
 /// Row buffers of one sweep (structure of arrays, length padded to a multiple of 4):
-/// T_k = sqrt(w) S_k (k = 0..7) and t = sqrt(w) r, zero for invalid pixels, and the current image's samples.
+/// T_k = sqrt(w) S_k (k = 0..7) and t = sqrt(w) r, zero for invalid pixels, the valid mask (1/0), and the
+/// current image's samples.
 struct RowBuffers {
   float* T[9];
+  float* valid;
   float* cur[3];  // I_c, dI_c/dx, dI_c/dy at the row's candidates (strided rows only)
 };
 
@@ -194,14 +204,39 @@ void gramBlock(float* const* T, int n_pad, double (*G)[9]) {
       if (!kUpper || J0 + j >= I0 + i) G[I0 + i][J0 + j] += v_reduce_sum(acc[i][j]);
 }
 
-/// Gram sums of one row over [T_0..T_7 | t]: A_ij += sum T_i T_j (i <= j < 8), b_i += sum T_i t, in blocks of
-/// at most 10 accumulators (4 lanes each) so that nothing spills.
-void accumulateRow(float* const* T, int n_pad, double (*G)[9]) {
-  gramBlock<0, 4, 0, 4, true>(T, n_pad, G);
-  gramBlock<4, 4, 4, 4, true>(T, n_pad, G);
-  gramBlock<0, 4, 4, 2, false>(T, n_pad, G);
-  gramBlock<0, 4, 6, 2, false>(T, n_pad, G);
-  gramBlock<0, 8, 8, 1, false>(T, n_pad, G);
+/// Score sums b_i += sum T_i t of one row, per tile-column segment [seg[c], seg[c+1]) (multiples of 4), also
+/// added to the tiles of row `tile_row` with their valid counts.
+void scoreRow(float* const* T, const float* valid, const int* seg, int tiles_x, int tile_row, SweepSums* sums) {
+  using namespace cv;
+  for (int c = 0; c < tiles_x; ++c) {
+    if (seg[c] >= seg[c + 1]) continue;
+    v_float32x4 acc[8];
+    for (int i = 0; i < 8; ++i) acc[i] = v_setzero_f32();
+    v_float32x4 cnt = v_setzero_f32();
+    for (int k = seg[c]; k < seg[c + 1]; k += 4) {
+      const v_float32x4 t = v_load(T[8] + k);
+      for (int i = 0; i < 8; ++i) acc[i] = v_muladd(v_load(T[i] + k), t, acc[i]);
+      cnt += v_load(valid + k);
+    }
+    const int tile = tile_row * tiles_x + c;
+    for (int i = 0; i < 8; ++i) {
+      const double v = v_reduce_sum(acc[i]);
+      sums->G[i][8] += v;
+      sums->tile_b[tile][i] += v;
+    }
+    sums->tile_n[tile] += v_reduce_sum(cnt);
+  }
+}
+
+/// Gram sums of one row over [T_0..T_7 | t]: A_ij += sum T_i T_j (i <= j < 8) in blocks of at most 10
+/// accumulators (4 lanes each) so that nothing spills, and the score sums per tile (scoreRow).
+void accumulateRow(float* const* T, const float* valid, int n_pad, const int* seg, int tiles_x, int tile_row,
+                   SweepSums* sums) {
+  gramBlock<0, 4, 0, 4, true>(T, n_pad, sums->G);
+  gramBlock<4, 4, 4, 4, true>(T, n_pad, sums->G);
+  gramBlock<0, 4, 4, 2, false>(T, n_pad, sums->G);
+  gramBlock<0, 4, 6, 2, false>(T, n_pad, sums->G);
+  scoreRow(T, valid, seg, tiles_x, tile_row, sums);
 }
 
 /// One linearisation sweep over the current image against the packed reference (I, dI/dx, dI/dy, 0 per
@@ -230,6 +265,13 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
   const int n = (W - 2 * cfg.border + cfg.stride - 1) / cfg.stride;  // candidates per row
   if (n <= 0) return;
   const int n_pad = (n + 3) & ~3;
+  // Tile-column segments of the candidates (multiples of 4 lanes) and the rows of the tile rows.
+  const int tiles_x = std::clamp(cfg.tiles_x, 1, kMaxTilesPerAxis);
+  const int tiles_y = std::clamp(cfg.tiles_y, 1, kMaxTilesPerAxis);
+  int seg[kMaxTilesPerAxis + 1];
+  for (int c = 0; c < tiles_x; ++c) seg[c] = ((c * n_pad) / tiles_x) & ~3;
+  seg[tiles_x] = n_pad;
+  const int rows_used = std::max(1, H - 2 * cfg.border);
   alignas(16) int32_t idx[4];
   alignas(16) float xs_init[4];
   for (int l = 0; l < 4; ++l) xs_init[l] = static_cast<float>(cfg.border + l * cfg.stride);
@@ -271,7 +313,7 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
     const v_float32x4 qP0 = v_setall_f32(wp.P[1][0] * qy_s + wp.P[2][0]);
     const v_float32x4 qP1 = v_setall_f32(wp.P[1][1] * qy_s + wp.P[2][1]);
 
-    v_float32x4 r2 = v_setzero_f32(), gsum = v_setzero_f32(), vcount = v_setzero_f32();
+    v_float32x4 r2 = v_setzero_f32(), rabs = v_setzero_f32(), gsum = v_setzero_f32(), vcount = v_setzero_f32();
     v_float32x4 xv = v_load(xs_init);
     for (int k = 0; k < n_pad; k += 4, xv += x_step) {
       const v_float32x4 qx = (xv - cx) * ifx;
@@ -357,7 +399,10 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
       v_store_aligned(buf.T[7] + k, swj * v_bw[2]);
       v_store_aligned(buf.T[8] + k, sw * r);
       r2 = v_muladd(r, r, r2);
-      vcount += v_select(valid, one, zero);
+      rabs += v_abs(r);
+      const v_float32x4 valid01 = v_select(valid, one, zero);
+      v_store_aligned(buf.valid + k, valid01);
+      vcount += valid01;
       if (cfg.stride == 1) {
         // Up to 3 lanes past the last candidate land in the border (or the next row, written later): zeros.
         v_store(res_row + cfg.border + k, r);
@@ -367,22 +412,25 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
         for (int l = 0; l < 4 && k + l < n; ++l) res_row[cfg.border + (k + l) * cfg.stride] = rr[l];
       }
     }
-    accumulateRow(buf.T, n_pad, sums->G);
+    const int tile_row = std::min(tiles_y - 1, ((y - cfg.border) * tiles_y) / rows_used);
+    accumulateRow(buf.T, buf.valid, n_pad, seg, tiles_x, tile_row, sums);
     sums->candidates += n;
     sums->valid += static_cast<int>(v_reduce_sum(vcount));
     sums->sum_r2 += v_reduce_sum(r2);
+    sums->sum_abs_r += v_reduce_sum(rabs);
     sums->grad_sum += v_reduce_sum(gsum);
   }
 }
 
-SweepConfig makeConfig(const PhotometricParams& params, const PreprocessParams& preprocess) {
+/// `huber_sigma`: the per-pixel noise 1-sigma the Huber threshold refers to (normalised units).
+SweepConfig makeConfig(const PhotometricParams& params, const PreprocessParams& preprocess, double huber_sigma) {
   SweepConfig cfg;
   cfg.border = std::max(1, preprocess.border_px);
   cfg.stride = std::max(1, params.pixel_stride);
-  cfg.huber_abs = params.huber_threshold > 0.0
-                      ? static_cast<float>(params.huber_threshold * params.intensity_noise_sigma)
-                      : 0.0f;
+  cfg.huber_abs = params.huber_threshold > 0.0 ? static_cast<float>(params.huber_threshold * huber_sigma) : 0.0f;
   cfg.gradient_weighting = params.gradient_weighting;
+  cfg.tiles_x = params.noise_tiles_x;
+  cfg.tiles_y = params.noise_tiles_y;
   return cfg;
 }
 
@@ -424,12 +472,24 @@ bool framesUsable(const PreprocessedFrame& ref, const PreprocessedFrame& cur, in
 PhotometricUpdate::PhotometricUpdate(const PhotometricParams& params, const PreprocessParams& preprocess)
     : params_(params), preprocess_(preprocess) {}
 
+void PhotometricUpdate::setPreprocessNoise(double variance_gain, double correlation_area_px) {
+  noise_variance_gain_ = std::isfinite(variance_gain) && variance_gain > 0.0 ? variance_gain : 1.0;
+  noise_correlation_floor_ =
+      std::isfinite(correlation_area_px) && correlation_area_px >= 1.0 ? correlation_area_px : 1.0;
+}
+
 int PhotometricUpdate::linearize(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PinholeK& K,
                                  const Vec3& gyro_mean_C, double dt_s, const State& x, ObservedInfo* A,
                                  ObservedVec* b, int* candidates, double state_lag_s) {
   packReference(ref, &ref_packed_);
   prepareBuffers(cur.intensity.size());
-  return accumulate(cur, K, gyro_mean_C, dt_s, state_lag_s, x, A, b, candidates, nullptr);
+  PassSums sums;
+  const int valid = accumulate(cur, K, gyro_mean_C, dt_s, state_lag_s, x, params_.intensity_noise_sigma, &sums);
+  const double inv_var = 1.0 / (params_.intensity_noise_sigma * params_.intensity_noise_sigma);
+  *A = inv_var * sums.A;
+  *b = inv_var * sums.b;
+  if (candidates != nullptr) *candidates = sums.candidates;
+  return valid;
 }
 
 void PhotometricUpdate::prepareBuffers(const cv::Size& size) {
@@ -438,25 +498,21 @@ void PhotometricUpdate::prepareBuffers(const cv::Size& size) {
     residual_.setTo(0.0f);  // pixels the sweeps never visit (border, pixel_stride gaps) stay 0
   }
   const int n_pad = (size.width + 3) & ~3;
-  if (scratch_.rows != 12 || scratch_.cols < n_pad) scratch_.create(12, n_pad, CV_32FC1);
+  if (scratch_.rows != 13 || scratch_.cols < n_pad) scratch_.create(13, n_pad, CV_32FC1);
 }
 
 int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& K, const Vec3& gyro_mean_C,
-                                  double dt_s, double state_lag_s, const State& x, ObservedInfo* A, ObservedVec* b,
-                                  int* candidates, double* sum_r2) {
-  const SweepConfig cfg = makeConfig(params_, preprocess_);
+                                  double dt_s, double state_lag_s, const State& x, double huber_sigma,
+                                  PassSums* out) {
+  *out = PassSums();
+  const SweepConfig cfg = makeConfig(params_, preprocess_, huber_sigma);
   const PixelWarp wp(x, K, gyro_mean_C, dt_s, state_lag_s);
+  if (!wp.ok) return 0;  // the plane model breaks down within the interval: no measurement
   SweepSums sums;
-  if (!wp.ok) {  // the plane model breaks down within the interval: no measurement
-    A->setZero();
-    b->setZero();
-    if (candidates != nullptr) *candidates = 0;
-    if (sum_r2 != nullptr) *sum_r2 = 0.0;
-    return 0;
-  }
   RowBuffers buf;
   for (int i = 0; i < 9; ++i) buf.T[i] = scratch_.ptr<float>(i);
-  for (int i = 0; i < 3; ++i) buf.cur[i] = scratch_.ptr<float>(9 + i);
+  buf.valid = scratch_.ptr<float>(9);
+  for (int i = 0; i < 3; ++i) buf.cur[i] = scratch_.ptr<float>(10 + i);
   const bool huber = cfg.huber_abs > 0.0f;
   if (huber && cfg.gradient_weighting) {
     sweep<true, true>(ref_packed_, cur, wp, cfg, buf, &sums, &residual_);
@@ -469,31 +525,78 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
   }
 
   // Scale: the sweep's rows are 2/dt times the true S (gradient sum instead of mean, Jacobian without dt);
-  // weights 1/sigma^2, times the gradient normalisation (weights |grad I_c| / mean |grad I_c| over the valid
-  // pixels) when enabled.
-  double scale = 1.0 / (params_.intensity_noise_sigma * params_.intensity_noise_sigma);
+  // times the gradient normalisation (weights |grad I_c| / mean |grad I_c| over the valid pixels) when enabled.
+  // No 1/sigma^2 here: the noise model applies it (update(), linearize()).
+  double scale = 1.0;
   if (cfg.gradient_weighting) scale *= sums.grad_sum > 0.0 ? sums.valid / sums.grad_sum : 0.0;
   const double half_dt = 0.5 * dt_s;
   const double sA = scale * half_dt * half_dt;
   const double sb = scale * half_dt;
+  ObservedInfo& A = out->A;
+  ObservedVec& b = out->b;
   for (int i = 0; i < 8; ++i) {
-    for (int j = i; j < 8; ++j) (*A)(i, j) = (*A)(j, i) = sA * sums.G[i][j];
-    (*b)(i) = sb * sums.G[i][8];
+    for (int j = i; j < 8; ++j) A(i, j) = A(j, i) = sA * sums.G[i][j];
+    b(i) = sb * sums.G[i][8];
   }
   // The sweep's rows are S' with S = (dt / 2) S' T (the dt / 2 is in sA and sb above).
-  *A = (wp.T.transpose() * *A * wp.T).eval();
-  *A = (0.5 * (*A + A->transpose())).eval();
-  *b = (wp.T.transpose() * *b).eval();
-  if (candidates != nullptr) *candidates = sums.candidates;
-  if (sum_r2 != nullptr) *sum_r2 = sums.sum_r2;
+  A = (wp.T.transpose() * A * wp.T).eval();
+  A = (0.5 * (A + A.transpose())).eval();
+  b = (wp.T.transpose() * b).eval();
+  out->valid = sums.valid;
+  out->candidates = sums.candidates;
+  out->sum_r2 = sums.sum_r2;
+  out->robust_sigma = sums.valid > 0 ? std::sqrt(0.5 * 3.14159265358979323846) * sums.sum_abs_r / sums.valid : 0.0;
+
+  // Score correlation (docs/noise_model.md): with independent pixels of variance s^2 the tile scores b_t are
+  // independent with covariance s^2 A_t, so sum_t (b_t - f_t b)^T A^-1 (b_t - f_t b) has the expectation
+  // s^2 tr(A^-1 A) (1 - sum_t f_t^2) (f_t: the tile's share of the valid pixels; subtracting f_t b removes
+  // the part common to all tiles, e.g. the innovation of the prior). Its ratio to that expectation, with s the
+  // robust residual scale, is the number of pixels that carry one pixel's worth of independent information.
+  out->correlation = 1.0;
+  const int tiles = std::clamp(cfg.tiles_x, 1, kMaxTilesPerAxis) * std::clamp(cfg.tiles_y, 1, kMaxTilesPerAxis);
+  const double s2 = out->robust_sigma * out->robust_sigma;
+  if (sums.valid > 0 && s2 > 0.0) {
+    const double ridge = 1e-9 * std::max(1e-300, A.trace()) + 1e-300;
+    const Eigen::LDLT<ObservedInfo> ldlt(A + ridge * ObservedInfo::Identity());
+    if (ldlt.info() == Eigen::Success) {
+      const ObservedInfo M = ldlt.solve(ObservedInfo::Identity());
+      const double dof = (M * A).trace();
+      double phi = 0.0, f2 = 0.0;
+      for (int t = 0; t < tiles; ++t) {
+        if (sums.tile_n[t] <= 0.0) continue;
+        const double f = sums.tile_n[t] / sums.valid;
+        ObservedVec bt;
+        for (int i = 0; i < 8; ++i) bt(i) = sb * sums.tile_b[t][i];
+        bt = (wp.T.transpose() * bt).eval() - f * b;
+        phi += bt.dot(M * bt);
+        f2 += f * f;
+      }
+      const double expected = s2 * dof * (1.0 - f2);
+      if (expected > 0.0 && std::isfinite(phi)) out->correlation = phi / expected;
+    }
+  }
   return sums.valid;
 }
+
+namespace {
+
+/// NIS of the innovation score b (information A) against the prior covariance P_obs of the observed states,
+/// with the measurement noise inflated by `inflation`: b^T (inflation A + A P_obs A)^-1 b.
+double inflatedNis(const ObservedInfo& A, const ObservedInfo& APA, const ObservedVec& b, double inflation) {
+  ObservedInfo S = inflation * A + APA;
+  S += (1e-12 * std::max(1e-300, S.trace())) * ObservedInfo::Identity();
+  const Eigen::LDLT<ObservedInfo> ldlt(S);
+  if (ldlt.info() != Eigen::Success) return std::numeric_limits<double>::quiet_NaN();
+  return b.dot(ldlt.solve(b));
+}
+
+}  // namespace
 
 UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const PreprocessedFrame& cur,
                                       const PinholeK& K, const Vec3& gyro_mean_C, double dt_s, State* x,
                                       ErrorCov* P, double state_lag_s) {
   UpdateStats stats;
-  const SweepConfig cfg = makeConfig(params_, preprocess_);
+  const SweepConfig cfg = makeConfig(params_, preprocess_, params_.intensity_noise_sigma);
   if (x == nullptr || P == nullptr || !framesUsable(ref, cur, cfg.border) || !(dt_s > 0.0) ||
       !std::isfinite(dt_s) || !gyro_mean_C.allFinite() || !x->allFinite() || !P->allFinite() ||
       !(params_.intensity_noise_sigma > 0.0)) {
@@ -502,20 +605,107 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   prepareBuffers(cur.intensity.size());  // no-op after the first call at this size
   packReference(ref, &ref_packed_);      // once per update, shared by every pass
 
+  // Prior covariance of the observed states (for the innovation test of the first pass).
+  ObservedInfo P_obs;
+  for (int r = 0; r < internal::kObsDim; ++r)
+    for (int c = 0; c < internal::kObsDim; ++c) P_obs(r, c) = (*P)(internal::kObsToErr[r], internal::kObsToErr[c]);
+
+  const bool adaptive = params_.adaptive_noise;
+  // Per-pixel noise the Huber threshold refers to: the smoothed estimate once there is one.
+  const double huber_sigma = adaptive && noise_.valid ? std::sqrt(noise_.variance) : params_.intensity_noise_sigma;
+  // Floor of the per-pixel variance: sensor noise through resampling and blur, in both images of the pair.
+  const double grey = cur.grey_per_unit > 0.0 ? cur.grey_per_unit : 255.0;
+  const double floor_var =
+      2.0 * params_.sensor_noise_grey * params_.sensor_noise_grey * noise_variance_gain_ / (grey * grey);
+  pending_nis_scale_ = adaptive && noise_.valid ? noise_.nis_scale : 1.0;
+  const double alpha_ema = params_.noise_time_constant_s > 0.0 ? 1.0 - std::exp(-dt_s / params_.noise_time_constant_s)
+                                                               : 1.0;
+
+  double info_scale = 0.0;  // 1 / (sigma^2 c gamma): fixed at the first pass, used by every pass
+  int pass = 0;
+  PassSums sums;
   // Every pass writes the residual image; the RMS and the valid ratio are those of the last linearisation.
   auto linearize_at = [&](const State& x_j, internal::ObsMat* A, internal::ObsVec* b) {
-    int candidates = 0;
-    double sum_r2 = 0.0;
-    const int valid = accumulate(cur, K, gyro_mean_C, dt_s, state_lag_s, x_j, A, b, &candidates, &sum_r2);
-    stats.valid_ratio = candidates > 0 ? static_cast<double>(valid) / candidates : 0.0;
-    stats.rms_residual = valid > 0 ? std::sqrt(sum_r2 / valid) : 0.0;
-    return valid > 0 && stats.valid_ratio >= params_.min_valid_ratio;
+    const int valid = accumulate(cur, K, gyro_mean_C, dt_s, state_lag_s, x_j, huber_sigma, &sums);
+    stats.valid_ratio = sums.candidates > 0 ? static_cast<double>(valid) / sums.candidates : 0.0;
+    stats.rms_residual = valid > 0 ? std::sqrt(sums.sum_r2 / valid) : 0.0;
+    stats.residual_sigma = sums.robust_sigma;
+    stats.correlation = sums.correlation;
+    if (!(valid > 0 && stats.valid_ratio >= params_.min_valid_ratio)) return false;
+    if (pass == 0) {
+      double var, corr;
+      if (!adaptive) {
+        var = params_.intensity_noise_sigma * params_.intensity_noise_sigma;
+        corr = 1.0;
+      } else {
+        // This frame's estimates, blended into the smoothed ones (alone on the first frame).
+        const double var_frame = sums.robust_sigma * sums.robust_sigma;
+        const double corr_frame = std::isfinite(sums.correlation) ? sums.correlation : 1.0;
+        var = noise_.valid ? (1.0 - alpha_ema) * noise_.variance + alpha_ema * var_frame : var_frame;
+        corr = noise_.valid ? (1.0 - alpha_ema) * noise_.correlation + alpha_ema * corr_frame : corr_frame;
+        var = std::max(var, floor_var);
+        corr = std::max(corr, noise_correlation_floor_);
+      }
+      if (!(var > 0.0) || !std::isfinite(var) || !std::isfinite(corr)) return false;
+      const double lambda = adaptive && noise_.valid ? noise_.nis_scale : 1.0;
+      stats.noise_sigma = std::sqrt(var);
+      stats.noise_correlation = corr;
+      stats.nis_scale = lambda;
+      info_scale = 1.0 / (var * corr * lambda);
+      // Innovation gate: NIS = b^T (A + A P A)^-1 b ~ chi-square(8) for a consistent filter.
+      const ObservedInfo A0 = info_scale * sums.A;
+      const ObservedVec b0 = info_scale * sums.b;
+      const ObservedInfo APA = A0 * P_obs * A0;
+      stats.nis = inflatedNis(A0, APA, b0, 1.0);
+      // The inflation gamma at which the NIS equals `target` (NIS falls monotonically with gamma).
+      auto inflationFor = [&](double target) {
+        double lo = std::log(1e-6), hi = std::log(1e12);
+        for (int it = 0; it < 50; ++it) {
+          const double mid = 0.5 * (lo + hi);
+          if (inflatedNis(A0, APA, b0, std::exp(mid)) > target) lo = mid; else hi = mid;
+        }
+        return std::exp(0.5 * (lo + hi));
+      };
+      if (adaptive && params_.nis_time_constant_s > 0.0 && std::isfinite(stats.nis) && stats.nis > 0.0) {
+        // Innovation-based adaptation: the noise scale at which this frame's NIS would be its mean (8), smoothed
+        // in log over nis_time_constant_s and never below 1 (the model of sections 2-3 is the floor). Frames
+        // at the gate count at the gate's level only, so that one bad frame cannot inflate the noise for long.
+        const double cap = params_.gate_nis > 0.0 ? std::max(params_.gate_nis, 8.0) : HUGE_VAL;
+        const double frame_inflation = inflationFor(8.0 * std::max(1.0, stats.nis / cap));
+        const double a = 1.0 - std::exp(-dt_s / params_.nis_time_constant_s);
+        const double log_next = std::log(lambda) + a * std::log(std::max(1e-6, frame_inflation));
+        pending_nis_scale_ = std::min(1e6, std::max(1.0, std::exp(log_next)));
+      }
+      if (params_.gate_nis > 0.0 && stats.nis > params_.gate_nis) {
+        // Down-weight until the NIS equals the target.
+        stats.gate_inflation = inflationFor(params_.gate_target_nis);
+        stats.gated = true;
+        info_scale /= stats.gate_inflation;
+      }
+    }
+    *A = info_scale * sums.A;
+    *b = info_scale * sums.b;
+    ++pass;
+    return true;
   };
   const internal::IterationResult it = internal::iterateInformationForm(
       params_.max_passes, params_.stop_threshold, linearize_at, x, P);
   stats.applied = it.ok;
   stats.passes = it.passes;
   stats.last_step_norm = it.last_step_norm;
+  // Smoothed noise estimates from the last linearisation (the closest to the converged residual).
+  if (adaptive && pass > 0 && sums.valid > 0 && sums.robust_sigma > 0.0 && std::isfinite(sums.correlation)) {
+    const double var_frame = sums.robust_sigma * sums.robust_sigma;
+    noise_.nis_scale = pending_nis_scale_;
+    if (!noise_.valid) {
+      noise_.variance = var_frame;
+      noise_.correlation = sums.correlation;
+      noise_.valid = true;
+    } else {
+      noise_.variance += alpha_ema * (var_frame - noise_.variance);
+      noise_.correlation += alpha_ema * (sums.correlation - noise_.correlation);
+    }
+  }
   return stats;
 }
 

@@ -109,6 +109,8 @@ uint8_t statusToMsg(diekf::FilterStatus status) {
       return diekf::PlanarState::STATUS_TRACKING;
     case diekf::FilterStatus::kReset:
       return diekf::PlanarState::STATUS_RESET;
+    case diekf::FilterStatus::kDegraded:
+      return diekf::PlanarState::STATUS_DEGRADED;
     case diekf::FilterStatus::kInitializing:
     default:
       return diekf::PlanarState::STATUS_INITIALIZING;

@@ -77,7 +77,13 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          ra.border_px == rb.border_px && ha.max_passes == hb.max_passes && ha.stop_threshold == hb.stop_threshold &&
          ha.intensity_noise_sigma == hb.intensity_noise_sigma && ha.gradient_weighting == hb.gradient_weighting &&
          ha.huber_threshold == hb.huber_threshold && ha.min_valid_ratio == hb.min_valid_ratio &&
-         ha.pixel_stride == hb.pixel_stride && fa.max_corners == fb.max_corners && fa.predict_flow == fb.predict_flow &&
+         ha.pixel_stride == hb.pixel_stride && ha.adaptive_noise == hb.adaptive_noise &&
+         ha.sensor_noise_grey == hb.sensor_noise_grey && ha.noise_tiles_x == hb.noise_tiles_x &&
+         ha.noise_tiles_y == hb.noise_tiles_y && ha.noise_time_constant_s == hb.noise_time_constant_s &&
+         ha.gate_nis == hb.gate_nis && ha.nis_time_constant_s == hb.nis_time_constant_s && ha.gate_target_nis == hb.gate_target_nis &&
+         da.max_step_sigma == db.max_step_sigma && da.degraded_hold_s == db.degraded_hold_s &&
+         da.max_nis_ratio == db.max_nis_ratio && a.input.gap_accel_sigma_mps2 == b.input.gap_accel_sigma_mps2 &&
+         a.input.gap_gyro_sigma_radps == b.input.gap_gyro_sigma_radps && fa.max_corners == fb.max_corners && fa.predict_flow == fb.predict_flow &&
          fa.quality_level == fb.quality_level && fa.min_distance_px == fb.min_distance_px &&
          fa.window_px == fb.window_px && fa.pyramid_levels == fb.pyramid_levels &&
          fa.pixel_noise_sigma_px == fb.pixel_noise_sigma_px && fa.huber_threshold_px == fb.huber_threshold_px &&

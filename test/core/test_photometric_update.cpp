@@ -370,6 +370,7 @@ TEST_F(PhotometricScene, PosteriorCovarianceIsSymmetricPositiveAndSmaller) {
   for (int passes : {1, 3}) {
     PhotometricParams params;
     params.max_passes = passes;
+    params.adaptive_noise = false;  // the fixed per-pixel noise: the information this scene is known to carry
     PhotometricUpdate update(params, PreprocessParams{});
     State x = startState(0.5);
     const ErrorCov P0 = priorCov();
