@@ -4,6 +4,7 @@
 #include <cmath>
 #include <limits>
 
+#include <Eigen/Eigenvalues>
 #include <opencv2/core/hal/intrin.hpp>
 
 #include "gauss_newton.h"
@@ -170,8 +171,11 @@ struct SweepSums {
   double sum_abs_r = 0.0;
   double grad_sum = 0.0;  // sum of |grad I_c| over valid pixels (gradient weighting normalisation)
   double G[8][9] = {};
-  double tile_b[kMaxTiles][8] = {};
-  double tile_n[kMaxTiles] = {};
+  double tile_b[kMaxTiles][8];  // written for the tiles in use at the end of sweep()
+  double tile_n[kMaxTiles];
+  // Per-tile lane sums during the sweep (score of the 8 columns, valid count), reduced into tile_b / tile_n at
+  // its end; only the tiles in use are zeroed (sweep()).
+  alignas(16) float tile_acc[kMaxTiles][9][4];
 };
 
 /// Row buffers of one sweep (structure of arrays, length padded to a multiple of 4):
@@ -204,10 +208,13 @@ void gramBlock(float* const* T, int n_pad, double (*G)[9]) {
       if (!kUpper || J0 + j >= I0 + i) G[I0 + i][J0 + j] += v_reduce_sum(acc[i][j]);
 }
 
-/// Score sums b_i += sum T_i t of one row, per tile-column segment [seg[c], seg[c+1]) (multiples of 4), also
-/// added to the tiles of row `tile_row` with their valid counts.
+/// Score sums b_i += sum T_i t of one row (reduced to double per row, like the Gram sums), and per
+/// tile-column segment [seg[c], seg[c+1]) (multiples of 4) the lane sums added to the tiles of row `tile_row`
+/// with their valid counts (float lanes: a tile's sums only feed the noise statistics).
 void scoreRow(float* const* T, const float* valid, const int* seg, int tiles_x, int tile_row, SweepSums* sums) {
   using namespace cv;
+  v_float32x4 row[8];
+  for (int i = 0; i < 8; ++i) row[i] = v_setzero_f32();
   for (int c = 0; c < tiles_x; ++c) {
     if (seg[c] >= seg[c + 1]) continue;
     v_float32x4 acc[8];
@@ -218,14 +225,14 @@ void scoreRow(float* const* T, const float* valid, const int* seg, int tiles_x, 
       for (int i = 0; i < 8; ++i) acc[i] = v_muladd(v_load(T[i] + k), t, acc[i]);
       cnt += v_load(valid + k);
     }
-    const int tile = tile_row * tiles_x + c;
+    float(*tile)[4] = sums->tile_acc[tile_row * tiles_x + c];
     for (int i = 0; i < 8; ++i) {
-      const double v = v_reduce_sum(acc[i]);
-      sums->G[i][8] += v;
-      sums->tile_b[tile][i] += v;
+      row[i] += acc[i];
+      v_store_aligned(tile[i], v_load_aligned(tile[i]) + acc[i]);
     }
-    sums->tile_n[tile] += v_reduce_sum(cnt);
+    v_store_aligned(tile[8], v_load_aligned(tile[8]) + cnt);
   }
+  for (int i = 0; i < 8; ++i) sums->G[i][8] += v_reduce_sum(row[i]);
 }
 
 /// Gram sums of one row over [T_0..T_7 | t]: A_ij += sum T_i T_j (i <= j < 8) in blocks of at most 10
@@ -272,6 +279,9 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
   for (int c = 0; c < tiles_x; ++c) seg[c] = ((c * n_pad) / tiles_x) & ~3;
   seg[tiles_x] = n_pad;
   const int rows_used = std::max(1, H - 2 * cfg.border);
+  for (int t = 0; t < tiles_x * tiles_y; ++t)
+    for (int i = 0; i < 9; ++i)
+      for (int l = 0; l < 4; ++l) sums->tile_acc[t][i][l] = 0.0f;
   alignas(16) int32_t idx[4];
   alignas(16) float xs_init[4];
   for (int l = 0; l < 4; ++l) xs_init[l] = static_cast<float>(cfg.border + l * cfg.stride);
@@ -419,6 +429,11 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
     sums->sum_r2 += v_reduce_sum(r2);
     sums->sum_abs_r += v_reduce_sum(rabs);
     sums->grad_sum += v_reduce_sum(gsum);
+  }
+  for (int t = 0; t < tiles_x * tiles_y; ++t) {
+    const float(*tile)[4] = sums->tile_acc[t];
+    for (int i = 0; i < 8; ++i) sums->tile_b[t][i] = double(tile[i][0]) + tile[i][1] + tile[i][2] + tile[i][3];
+    sums->tile_n[t] = double(tile[8][0]) + tile[8][1] + tile[8][2] + tile[8][3];
   }
 }
 
@@ -580,15 +595,43 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
 
 namespace {
 
-/// NIS of the innovation score b (information A) against the prior covariance P_obs of the observed states,
-/// with the measurement noise inflated by `inflation`: b^T (inflation A + A P_obs A)^-1 b.
-double inflatedNis(const ObservedInfo& A, const ObservedInfo& APA, const ObservedVec& b, double inflation) {
-  ObservedInfo S = inflation * A + APA;
-  S += (1e-12 * std::max(1e-300, S.trace())) * ObservedInfo::Identity();
-  const Eigen::LDLT<ObservedInfo> ldlt(S);
-  if (ldlt.info() != Eigen::Success) return std::numeric_limits<double>::quiet_NaN();
-  return b.dot(ldlt.solve(b));
-}
+/// NIS of the innovation score b (information A) against the prior covariance P_o of the observed states, as a
+/// function of a noise inflation gamma: NIS(gamma) = b^T (gamma A + A P_o A)^-1 b. With A = L L^T (Cholesky, a
+/// tiny ridge for directions the image does not see) and L^T P_o L = U diag(m) U^T, gamma A + A P_o A =
+/// L U (gamma I + diag(m)) U^T L^T, so NIS(gamma) = sum_i z_i^2 / (gamma + m_i) with z = U^T L^-1 b: one
+/// factorisation, then every gamma costs 8 divisions.
+struct InnovationSpectrum {
+  ObservedVec z2 = ObservedVec::Zero();
+  ObservedVec m = ObservedVec::Zero();
+  bool ok = false;
+
+  InnovationSpectrum(const ObservedInfo& A, const ObservedInfo& P_o, const ObservedVec& b) {
+    const ObservedInfo Ar = A + (1e-12 * std::max(1e-300, A.trace())) * ObservedInfo::Identity();
+    const Eigen::LLT<ObservedInfo> llt(Ar);
+    if (llt.info() != Eigen::Success) return;
+    const ObservedInfo L = llt.matrixL();
+    const ObservedInfo C = L.transpose() * P_o * L;
+    const Eigen::SelfAdjointEigenSolver<ObservedInfo> eig(0.5 * (C + C.transpose()));
+    if (eig.info() != Eigen::Success) return;
+    const ObservedVec z = eig.eigenvectors().transpose() * llt.matrixL().solve(b);
+    z2 = z.cwiseProduct(z);
+    m = eig.eigenvalues().cwiseMax(0.0);
+    ok = z2.allFinite() && m.allFinite();
+  }
+  double nis(double gamma) const {
+    if (!ok) return std::numeric_limits<double>::quiet_NaN();
+    return (z2.array() / (gamma + m.array())).sum();
+  }
+  /// The inflation at which NIS equals `target` (NIS falls monotonically with gamma); in [1e-6, 1e12].
+  double inflationFor(double target) const {
+    double lo = std::log(1e-6), hi = std::log(1e12);
+    for (int it = 0; it < 48; ++it) {
+      const double mid = 0.5 * (lo + hi);
+      if (nis(std::exp(mid)) > target) lo = mid; else hi = mid;
+    }
+    return std::exp(0.5 * (lo + hi));
+  }
+};
 
 }  // namespace
 
@@ -655,17 +698,9 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
       // Innovation gate: NIS = b^T (A + A P A)^-1 b ~ chi-square(8) for a consistent filter.
       const ObservedInfo A0 = info_scale * sums.A;
       const ObservedVec b0 = info_scale * sums.b;
-      const ObservedInfo APA = A0 * P_obs * A0;
-      stats.nis = inflatedNis(A0, APA, b0, 1.0);
-      // The inflation gamma at which the NIS equals `target` (NIS falls monotonically with gamma).
-      auto inflationFor = [&](double target) {
-        double lo = std::log(1e-6), hi = std::log(1e12);
-        for (int it = 0; it < 50; ++it) {
-          const double mid = 0.5 * (lo + hi);
-          if (inflatedNis(A0, APA, b0, std::exp(mid)) > target) lo = mid; else hi = mid;
-        }
-        return std::exp(0.5 * (lo + hi));
-      };
+      const InnovationSpectrum spectrum(A0, P_obs, b0);
+      stats.nis = spectrum.nis(1.0);
+      auto inflationFor = [&](double target) { return spectrum.inflationFor(target); };
       if (adaptive && params_.nis_time_constant_s > 0.0 && std::isfinite(stats.nis) && stats.nis > 0.0) {
         // Innovation-based adaptation: the noise scale at which this frame's NIS would be its mean (8), smoothed
         // in log over nis_time_constant_s and never below 1 (the model of sections 2-3 is the floor). Frames

@@ -4,6 +4,8 @@
 #include <Eigen/Cholesky>
 #include <gtest/gtest.h>
 
+#include <opencv2/imgproc.hpp>
+
 #include "diekf/photometric_update.h"
 #include "two_view_scene.h"
 
@@ -464,6 +466,100 @@ TEST_F(PhotometricScene, ResidualImageIsZeroOutsideTheMask) {
   ASSERT_GT(nonzero, 0);
   EXPECT_NEAR(std::sqrt(sum2 / (st.valid_ratio * 178 * 114)), st.rms_residual, 1e-3);
   EXPECT_GT(st.rms_residual, 0.0);
+}
+
+
+// --------------------------------------------------------------------------------------------------------
+// Noise model and innovation gate (docs/noise_model.md).
+// --------------------------------------------------------------------------------------------------------
+
+/// The current frame with `noise` added to its intensity (gradients kept: the residual is what changes).
+PreprocessedFrame withNoise(const PreprocessedFrame& f, const cv::Mat& noise) {
+  PreprocessedFrame out = f;
+  out.intensity = f.intensity + noise;
+  return out;
+}
+
+TEST_F(PhotometricScene, NoiseModelMeasuresResidualScaleAndCorrelation) {
+  const cv::Size size = scene_->cur.intensity.size();
+  cv::RNG rng(7);
+  cv::Mat white(size, CV_32FC1), raw(size, CV_32FC1), blurred;
+  rng.fill(white, cv::RNG::NORMAL, 0.0, 0.3);
+  rng.fill(raw, cv::RNG::NORMAL, 0.0, 1.0);
+  cv::GaussianBlur(raw, blurred, cv::Size(0, 0), 2.0);
+  cv::Scalar mean, sd;
+  cv::meanStdDev(blurred, mean, sd);
+  blurred *= 0.3 / sd[0];  // the same per-pixel scale, correlated over ~4 pi 2^2 = 50 px
+  PhotometricParams params;
+  params.max_passes = 1;
+  params.gate_nis = 0.0;
+  UpdateStats st[2];
+  const cv::Mat* noise[2] = {&white, &blurred};
+  for (int i = 0; i < 2; ++i) {
+    PhotometricUpdate update(params, PreprocessParams{});
+    State x = startState(1.0);
+    ErrorCov P = priorCov();
+    st[i] = update.update(scene_->ref, withNoise(scene_->cur, *noise[i]), scene_->K, scene_->w_C, scene_->dt_s, &x, &P);
+    ASSERT_TRUE(st[i].applied);
+    // The robust scale sees the added noise (plus the scene's own small residual).
+    EXPECT_GT(st[i].residual_sigma, 0.27) << i;
+    EXPECT_LT(st[i].residual_sigma, 0.45) << i;
+    EXPECT_NEAR(st[i].noise_sigma, st[i].residual_sigma, 1e-12) << "first frame: its own estimate";
+  }
+  // Independent pixels: about one pixel per independent measurement; correlated ones: many.
+  EXPECT_GT(st[0].correlation, 0.5);
+  EXPECT_LT(st[0].correlation, 2.5);
+  EXPECT_GT(st[1].correlation, 4.0 * st[0].correlation) << st[0].correlation << " vs " << st[1].correlation;
+  // The information used follows: per-pixel variance times correlation area.
+  EXPECT_GT(st[1].noise_correlation, 4.0 * st[0].noise_correlation);
+}
+
+TEST_F(PhotometricScene, NoiseModelFloorsAreTheSensorNoiseAndTheBlur) {
+  PhotometricParams params;
+  params.max_passes = 1;
+  params.gate_nis = 0.0;
+  params.sensor_noise_grey = 50.0;  // far above the scene's residual: the floor decides
+  PhotometricUpdate update(params, PreprocessParams{});
+  update.setPreprocessNoise(0.1, 8.0);
+  State x = startState(1.0);
+  ErrorCov P = priorCov();
+  PreprocessedFrame cur = scene_->cur;
+  cur.grey_per_unit = 40.0;
+  const UpdateStats st = update.update(scene_->ref, cur, scene_->K, scene_->w_C, scene_->dt_s, &x, &P);
+  ASSERT_TRUE(st.applied);
+  EXPECT_NEAR(st.noise_sigma, std::sqrt(2.0 * 50.0 * 50.0 * 0.1) / 40.0, 1e-9);
+  EXPECT_GE(st.noise_correlation, 8.0);
+}
+
+TEST_F(PhotometricScene, GateBoundsTheStepOfAnInconsistentUpdate) {
+  // A prior far too confident for its error (vartheta 0 against the truth, 1-sigma 5 mm/s): the innovation fails
+  // the chi-square test and the frame is down-weighted until its NIS is the target; the step, in prior sigmas,
+  // is then at most sqrt(target).
+  PhotometricParams params;
+  params.max_passes = 1;
+  PhotometricUpdate update(params, PreprocessParams{});
+  State x = startState(0.0);
+  const State x_prior = x;
+  const ErrorCov P0 = priorCov() * 1e-4;
+  ErrorCov P = P0;
+  const UpdateStats st = update.update(scene_->ref, scene_->cur, scene_->K, scene_->w_C, scene_->dt_s, &x, &P);
+  ASSERT_TRUE(st.applied);
+  EXPECT_TRUE(st.gated);
+  EXPECT_GT(st.nis, params.gate_nis);
+  EXPECT_GT(st.gate_inflation, 1.0);
+  const ErrorVec e = x.boxminus(x_prior);
+  const double step2 = e.dot(P0.ldlt().solve(e));
+  EXPECT_LE(step2, params.gate_target_nis * 1.05) << "NIS " << st.nis << ", inflation " << st.gate_inflation;
+  EXPECT_GT(step2, 1e-4) << "down-weighted, not discarded";
+
+  // The same frame with a prior that admits the error passes the gate untouched.
+  PhotometricUpdate update2(params, PreprocessParams{});
+  State x2 = startState(0.0);
+  ErrorCov P2 = priorCov();
+  const UpdateStats st2 = update2.update(scene_->ref, scene_->cur, scene_->K, scene_->w_C, scene_->dt_s, &x2, &P2);
+  ASSERT_TRUE(st2.applied);
+  EXPECT_FALSE(st2.gated) << "NIS " << st2.nis;
+  EXPECT_EQ(st2.gate_inflation, 1.0);
 }
 
 }  // namespace

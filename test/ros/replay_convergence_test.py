@@ -86,7 +86,7 @@ class ReplayConvergence(unittest.TestCase):
         self.assertEqual(len(odometry), len(states), "one odometry message per processed image")
 
         t0 = states[0].header.stamp.to_sec()
-        err_d, err_v, err_h, tracking = [], [], [], 0
+        err_d, err_v, err_h, tracking, converged = [], [], [], 0, 0
         for s in states:
             t = s.header.stamp.to_sec()
             values = [s.distance, s.height, s.velocity.x, s.velocity.y, s.velocity.z]
@@ -97,6 +97,9 @@ class ReplayConvergence(unittest.TestCase):
             err_d.append(s.distance - d)
             err_v.append(np.linalg.norm(np.array([s.velocity.x, s.velocity.y, s.velocity.z]) - v))
             tracking += s.status == PlanarState.STATUS_TRACKING
+            converged += s.status in (PlanarState.STATUS_TRACKING, PlanarState.STATUS_DEGRADED)
+            if s.status == PlanarState.STATUS_DEGRADED:
+                self.assertTrue(s.status_text, "degraded without a reason")
         for o in odometry:
             t = o.header.stamp.to_sec()
             if t >= t0 + settle_s and truth.covers(t):
@@ -112,7 +115,10 @@ class ReplayConvergence(unittest.TestCase):
                    % (preset, len(states), len(err_d), settle_s, rmse_d, mean_d, rmse_v, rmse_h, tracking, len(err_d)))
         rospy.loginfo(summary)
         print("\n[diekf rostest] " + summary)
-        self.assertEqual(tracking, len(err_d), "filter not tracking on every evaluated frame")
+        # Converged on every evaluated frame; 'degraded' (a consistency check failed, e.g. an update gated at the
+        # flight's fastest dash) is allowed, but most frames must pass every check.
+        self.assertEqual(converged, len(err_d), "filter not converged (tracking or degraded) on every evaluated frame")
+        self.assertGreaterEqual(tracking, 0.5 * len(err_d), "filter degraded on most frames")
         self.assertLess(rmse_d, tol_d, summary)
         self.assertLess(rmse_v, tol_v, summary)
         self.assertLess(rmse_h, tol_h, summary)
