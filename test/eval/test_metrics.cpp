@@ -304,12 +304,17 @@ Series handSeries() {
   return s;
 }
 
+/// The metrics of a hand series with the evaluation window starting at its first frame.
+Evaluation evaluateFromStart(const Series& s) {
+  EvaluationOptions opt;
+  opt.start_delay_s = 0.0;
+  return evaluate(s.est, s.truth, opt);
+}
+
 TEST(MetricsConsistency, HandComputedCase) {
   const Series s = handSeries();
   ASSERT_EQ(s.est.size(), 5u);
-  EvaluationOptions opt;
-  opt.start_delay_s = 0.0;
-  const Evaluation ev = evaluate(s.est, s.truth, opt);
+  const Evaluation ev = evaluateFromStart(s);
   ASSERT_EQ(ev.frames, 4);
   EXPECT_EQ(ev.consistency_frames, 4);
   EXPECT_EQ(ev.consistency_frames_excluded, 0);
@@ -343,9 +348,7 @@ TEST(MetricsConsistency, HandComputedCase) {
 TEST(MetricsConsistency, ZeroSigmaFrameIsExcludedExactly) {
   Series s = handSeries();
   s.est[2].sigma_v_mps.y() = 0.0;  // frame 2 (NEES 10, d outside) leaves the figures
-  EvaluationOptions opt;
-  opt.start_delay_s = 0.0;
-  const Evaluation ev = evaluate(s.est, s.truth, opt);
+  const Evaluation ev = evaluateFromStart(s);
   EXPECT_EQ(ev.frames, 4);
   EXPECT_EQ(ev.consistency_frames, 3);
   EXPECT_EQ(ev.consistency_frames_excluded, 1);
@@ -358,9 +361,7 @@ TEST(MetricsConsistency, ZeroSigmaFrameIsExcludedExactly) {
 TEST(MetricsConsistency, NonFiniteEstimateIsOutsideTheBandAndMakesTheNeesNaN) {
   Series s = handSeries();
   s.est[4].d_m = std::numeric_limits<double>::quiet_NaN();
-  EvaluationOptions opt;
-  opt.start_delay_s = 0.0;
-  const Evaluation ev = evaluate(s.est, s.truth, opt);
+  const Evaluation ev = evaluateFromStart(s);
   EXPECT_TRUE(ev.diverged);
   EXPECT_EQ(ev.consistency_frames, 4);
   EXPECT_DOUBLE_EQ(ev.coverage2_d, 0.5);

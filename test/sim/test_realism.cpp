@@ -19,6 +19,7 @@
 #include "diekf/sim/realism.h"
 #include "diekf/sim/renderer.h"
 #include "diekf/sim/sequence_io.h"
+#include "blob_texture.h"
 #include "diekf/sim/simulator.h"
 #include "test_util.h"
 
@@ -27,26 +28,8 @@ using namespace diekf::sim;
 
 namespace {
 
-constexpr int kTex = 256;
-constexpr double kTexel_m = 0.007;
-constexpr int kBlobI = 100, kBlobJ = 60;
-
-/// Dark tile with one bright Gaussian blob at texel (kBlobI, kBlobJ).
-Texture blobTexture() {
-  std::vector<float> px(kTex * kTex, 20.f);
-  for (int j = 0; j < kTex; ++j)
-    for (int i = 0; i < kTex; ++i) {
-      const double d2 = (i - kBlobI) * (i - kBlobI) + (j - kBlobJ) * (j - kBlobJ);
-      px[j * kTex + i] += static_cast<float>(200.0 * std::exp(-0.5 * d2 / (1.5 * 1.5)));
-    }
-  return Texture(px, kTex, kTex, kTexel_m, kTexel_m);
-}
-
-Eigen::Vector3d blobWorld(const Plane& plane) {
-  Eigen::Vector3d t1, t2;
-  plane.basis(&t1, &t2);
-  return -plane.e_m * plane.n + (kBlobI + 0.5) * kTexel_m * t1 + (kBlobJ + 0.5) * kTexel_m * t2;
-}
+using simtest::blobTexture;
+using simtest::blobWorld;
 
 /// Camera looking straight down (x_C = x_W, y_C = -y_W, z_C = -z_W).
 Eigen::Matrix3d downward() {
@@ -95,7 +78,7 @@ double gradientEnergy(const cv::Mat& img) {
 TEST(RealismRender, RollingShutterShearsASidewaysTranslation) {
   const CameraModel cam = myntEyeSimCamera(0.25);  // 188 x 120
   const Renderer r(cam, 2);
-  const Texture tex = blobTexture();
+  const Texture tex = blobTexture(1.5);
   const Plane plane;
   const Eigen::Vector3d X = blobWorld(plane);
   const double h = 0.5, speed = 1.0, readout = 0.040;  // camera moves along x_W (image u) at 1 m/s

@@ -5,33 +5,15 @@
 
 #include "diekf/sim/renderer.h"
 #include "diekf/sim/sequence_io.h"
+#include "blob_texture.h"
 
 using namespace diekf;
 using namespace diekf::sim;
 
 namespace {
 
-constexpr int kTex = 256;          // texture tile (texels)
-constexpr double kTexel_m = 0.007; // texel size (m)
-constexpr int kBlobI = 100, kBlobJ = 60;
-
-/// Dark tile with one small bright Gaussian blob centred on texel (kBlobI, kBlobJ).
-Texture blobTexture() {
-  std::vector<float> px(kTex * kTex, 20.f);
-  for (int j = 0; j < kTex; ++j)
-    for (int i = 0; i < kTex; ++i) {
-      const double d2 = (i - kBlobI) * (i - kBlobI) + (j - kBlobJ) * (j - kBlobJ);
-      px[j * kTex + i] += static_cast<float>(200.0 * std::exp(-0.5 * d2 / (1.3 * 1.3)));
-    }
-  return Texture(px, kTex, kTex, kTexel_m, kTexel_m);
-}
-
-/// World position of the blob centre on `plane` (texel centres at (i + 0.5) texel).
-Eigen::Vector3d blobWorld(const Plane& plane) {
-  Eigen::Vector3d t1, t2;
-  plane.basis(&t1, &t2);
-  return -plane.e_m * plane.n + (kBlobI + 0.5) * kTexel_m * t1 + (kBlobJ + 0.5) * kTexel_m * t2;
-}
+using simtest::blobTexture;
+using simtest::blobWorld;
 
 /// Camera pose looking down (optical axis -z_W) from `height` above the blob, offset so that the blob appears
 /// at normalised undistorted image coordinates (xn, yn), with an extra tilt.
@@ -63,7 +45,7 @@ Vec2 centroid(const cv::Mat& img, const Vec2& c, int half, double background) {
 }
 
 void checkBlob(const Renderer& r, const Plane& plane, const CameraPose& P, double tol_px) {
-  const Texture tex = blobTexture();
+  const Texture tex = blobTexture(1.3);
   SensorOptions so;
   so.noise = false;
   so.vignetting = 0.0;

@@ -3,6 +3,7 @@
 
 #include <cstdint>
 #include <memory>
+#include <ostream>
 #include <string>
 
 #include <opencv2/core.hpp>
@@ -18,6 +19,11 @@ class Bag;
 
 namespace diekf {
 namespace sim {
+
+/// A double as YAML text: 12 significant digits, always with a decimal point or exponent (so it reads as a float).
+std::string yamlNumber(double v);
+/// The 4 rows of a matrix as a YAML block sequence of flow lists ("  - [a, b, c, d]"), as Kalibr writes T_cam_imu.
+void writeYamlMatrixRows(std::ostream& f, const Eigen::Matrix4d& T);
 
 struct TopicNames {
   std::string image = "/mynteye/left/image_raw";

@@ -4,27 +4,20 @@
 #include <algorithm>
 #include <cmath>
 #include <fstream>
-#include <iomanip>
 #include <random>
-#include <sstream>
 #include <stdexcept>
+
+#include "diekf/sim/sequence_io.h"
 
 namespace diekf {
 namespace sim {
 namespace {
 
-std::string num(double v) {
-  std::ostringstream os;
-  os << std::setprecision(12) << v;
-  std::string s = os.str();
-  if (s.find_first_of(".eEn") == std::string::npos) s += ".0";
-  return s;
-}
+std::string num(double v) { return yamlNumber(v); }
 
 void writeMatrix(std::ostream& f, const char* key, const Eigen::Matrix4d& T) {
   f << key << ":\n";
-  for (int r = 0; r < 4; ++r)
-    f << "  - [" << num(T(r, 0)) << ", " << num(T(r, 1)) << ", " << num(T(r, 2)) << ", " << num(T(r, 3)) << "]\n";
+  writeYamlMatrixRows(f, T);
 }
 
 }  // namespace

@@ -24,7 +24,11 @@ ros::Time toRosTime(std::int64_t ns) {
   return t;
 }
 
-std::string num(double v) {
+std::string num(double v) { return yamlNumber(v); }
+
+}  // namespace
+
+std::string yamlNumber(double v) {
   std::ostringstream os;
   os << std::setprecision(12) << v;
   std::string s = os.str();
@@ -32,7 +36,10 @@ std::string num(double v) {
   return s;
 }
 
-}  // namespace
+void writeYamlMatrixRows(std::ostream& f, const Eigen::Matrix4d& T) {
+  for (int r = 0; r < 4; ++r)
+    f << "  - [" << num(T(r, 0)) << ", " << num(T(r, 1)) << ", " << num(T(r, 2)) << ", " << num(T(r, 3)) << "]\n";
+}
 
 CameraModel myntEyeSimCamera(double scale) {
   CameraModel cam;
@@ -72,9 +79,7 @@ void writeCamchainYaml(const std::string& path, const CameraModel& cam, const st
     << num(cam.distortion_coeffs[2]) << ", " << num(cam.distortion_coeffs[3]) << "]\n";
   f << "  resolution: [" << cam.K.width << ", " << cam.K.height << "]\n";
   f << "  T_cam_imu:\n";
-  const Eigen::Matrix4d T = cam.T_cam_imu.matrix();
-  for (int r = 0; r < 4; ++r)
-    f << "  - [" << num(T(r, 0)) << ", " << num(T(r, 1)) << ", " << num(T(r, 2)) << ", " << num(T(r, 3)) << "]\n";
+  writeYamlMatrixRows(f, cam.T_cam_imu.matrix());
   f << "  timeshift_cam_imu: " << num(cam.timeshift_cam_imu_s) << "\n";
   f << "  rostopic: " << rostopic << "\n";
   if (!f) throw std::runtime_error("error writing '" + path + "'");
