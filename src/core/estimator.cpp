@@ -16,6 +16,7 @@
 #include "diekf/imu_filter.h"
 #include "diekf/photometric_update.h"
 #include "diekf/prediction.h"
+#include "gauss_newton.h"
 
 namespace diekf {
 
@@ -482,10 +483,10 @@ struct Estimator::Impl {
             // Smoothed NIS over about a second: persistently above its mean = the noise model does not fit.
             const double a = 1.0 - std::exp(-dt / 1.0);
             nis_smoothed = nis_smoothed > 0.0 ? nis_smoothed + a * (stats.nis - nis_smoothed) : stats.nis;
-            if (nis_smoothed > params.divergence.max_nis_ratio * internal_obs_dim) {
+            if (nis_smoothed > params.divergence.max_nis_ratio * internal::kObsDim) {
               char why[kMessageCapacity];
               std::snprintf(why, sizeof(why), "innovations too large: smoothed NIS %.3g (expected %d)", nis_smoothed,
-                            internal_obs_dim);
+                            internal::kObsDim);
               noteDegraded(img.t_s, why);
             }
           }
@@ -668,7 +669,6 @@ struct Estimator::Impl {
   static constexpr double kSnapshotSpacingS = 0.25;  // spacing of the kept snapshots, s
   std::array<GoodSnapshot, 12> good_history;  // healthy tracking states, about the last 3 s
   bool warm_started = false;         // the current run started from last_good
-  static constexpr int internal_obs_dim = 8;  // degrees of freedom of the NIS
   double nis_smoothed = 0.0;         // NIS smoothed over about 1 s (0: none yet)
   double degraded_until_s = -HUGE_VAL;  // status degraded up to this image time (IMU clock), s
   char degraded_reason[kMessageCapacity] = "";  // the last failed consistency check (no allocation per frame)

@@ -700,20 +700,19 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
       const ObservedVec b0 = info_scale * sums.b;
       const InnovationSpectrum spectrum(A0, P_obs, b0);
       stats.nis = spectrum.nis(1.0);
-      auto inflationFor = [&](double target) { return spectrum.inflationFor(target); };
       if (adaptive && params_.nis_time_constant_s > 0.0 && std::isfinite(stats.nis) && stats.nis > 0.0) {
         // Innovation-based adaptation: the noise scale at which this frame's NIS would be its mean (8), smoothed
         // in log over nis_time_constant_s and never below 1 (the model of sections 2-3 is the floor). Frames
         // at the gate count at the gate's level only, so that one bad frame cannot inflate the noise for long.
         const double cap = params_.gate_nis > 0.0 ? std::max(params_.gate_nis, 8.0) : HUGE_VAL;
-        const double frame_inflation = inflationFor(8.0 * std::max(1.0, stats.nis / cap));
+        const double frame_inflation = spectrum.inflationFor(8.0 * std::max(1.0, stats.nis / cap));
         const double a = 1.0 - std::exp(-dt_s / params_.nis_time_constant_s);
         const double log_next = std::log(lambda) + a * std::log(std::max(1e-6, frame_inflation));
         pending_nis_scale_ = std::min(1e6, std::max(1.0, std::exp(log_next)));
       }
       if (params_.gate_nis > 0.0 && stats.nis > params_.gate_nis) {
         // Down-weight until the NIS equals the target.
-        stats.gate_inflation = inflationFor(params_.gate_target_nis);
+        stats.gate_inflation = spectrum.inflationFor(params_.gate_target_nis);
         stats.gated = true;
         info_scale /= stats.gate_inflation;
       }
