@@ -78,6 +78,9 @@ struct PhotometricParams {
   double gate_nis = 26.12;                      ///< chi-square(8) gate on the innovation (99.9 %); 0 = off
   double gate_target_nis = 8.0;                 ///< a gated frame is down-weighted until its NIS equals this
   double nis_time_constant_s = 2.0;             ///< smoothing of the innovation-based inflation, s (0 = off)
+  /// Model error of the interval rotation the warp takes from the gyro (docs/noise_model.md, section 6):
+  double rotation_scale_sigma = 0.02;           ///< relative 1-sigma of image rotation vs gyro (focal length, gyro scale)
+  double time_offset_sigma_s = 0.002;           ///< 1-sigma of the camera-IMU time offset error, s
 };
 
 struct FeatureParams {

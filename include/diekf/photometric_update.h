@@ -59,7 +59,10 @@ class PhotometricUpdate {
   /// the floors of the per-pixel variance and of the correlation area. Defaults 1 and 1.
   void setPreprocessNoise(double variance_gain, double correlation_area_px);
   /// Forgets the smoothed noise estimates (the next update starts from its own residuals).
-  void resetNoiseModel() { noise_ = NoiseEstimate(); }
+  void resetNoiseModel() {
+    noise_ = NoiseEstimate();
+    last_rate_valid_ = false;
+  }
 
   /// One linearisation at x (what every Gauss-Newton pass accumulates), without the solve:
   /// A = sum w_p S_p^T S_p (full symmetric 8x8) and b = sum w_p S_p^T r_p over the observed columns
@@ -101,6 +104,8 @@ class PhotometricUpdate {
   double noise_correlation_floor_ = 1.0;
   NoiseEstimate noise_;
   double pending_nis_scale_ = 1.0;  ///< the inflation to keep after the current update
+  Vec3 last_rate_C_ = Vec3::Zero();  ///< rotation rate of the previous update's interval, rad/s (camera frame)
+  bool last_rate_valid_ = false;
 };
 
 }  // namespace diekf

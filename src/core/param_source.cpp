@@ -315,6 +315,10 @@ const std::vector<Entry>& table() {
                      Range{0.0, 1e6, true, false}));
     t.push_back(real("photometric/nis_time_constant_s", DIEKF_FIELD(double, photometric.nis_time_constant_s),
                      between(0.0, 1000.0)));
+    t.push_back(real("photometric/rotation_scale_sigma", DIEKF_FIELD(double, photometric.rotation_scale_sigma),
+                     between(0.0, 1.0)));
+    t.push_back(real("photometric/time_offset_sigma_s", DIEKF_FIELD(double, photometric.time_offset_sigma_s),
+                     between(0.0, 1.0)));
     // feature baseline
     t.push_back(integer("feature/max_corners", DIEKF_FIELD(int, feature.max_corners), between(1, 100000)));
     t.push_back(real("feature/quality_level", DIEKF_FIELD(double, feature.quality_level), Range{0.0, 1.0, true, false}));

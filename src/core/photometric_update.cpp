@@ -633,6 +633,26 @@ struct InnovationSpectrum {
   }
 };
 
+/// Removes from the image's information (A, b) what it says about a per-frame error of the interval rotation
+/// (docs/noise_model.md, section 6). The warp takes the rotation from the gyro; a rotation error theta of the
+/// interval moves the pixels as the b_w columns do with delta b_w = -theta / dt (to first order), so an error
+/// theta ~ N(0, var_theta I), independent per frame, is a nuisance parameter on those columns with the prior
+/// variance var_bw = var_theta / dt^2. Marginalising it (Schur complement) leaves
+///   A' = A - A_.w (A_ww + I / var_bw)^-1 A_w.,   b' = b - A_.w (A_ww + I / var_bw)^-1 b_w,
+/// the information of the image about everything else, with the rotation-like part of the flow discounted.
+void marginalizeRotationError(double var_bw, ObservedInfo* A, ObservedVec* b) {
+  if (!(var_bw > 0.0) || !std::isfinite(var_bw)) return;
+  constexpr int w0 = 5;  // first b_w column of the observed block
+  const Eigen::Matrix<double, 8, 3> A_xw = A->block<8, 3>(0, w0);
+  const Mat3 S = A->block<3, 3>(w0, w0) + (1.0 / var_bw) * Mat3::Identity();
+  const Eigen::LLT<Mat3> llt(S);
+  if (llt.info() != Eigen::Success) return;
+  const Eigen::Matrix<double, 3, 8> G = llt.solve(A_xw.transpose());  // S^-1 A_w.
+  *A -= A_xw * G;
+  *A = (0.5 * (*A + A->transpose())).eval();
+  *b -= G.transpose() * b->segment<3>(w0);
+}
+
 }  // namespace
 
 UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const PreprocessedFrame& cur,
@@ -663,6 +683,17 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   pending_nis_scale_ = adaptive && noise_.valid ? noise_.nis_scale : 1.0;
   const double alpha_ema = params_.noise_time_constant_s > 0.0 ? 1.0 - std::exp(-dt_s / params_.noise_time_constant_s)
                                                                : 1.0;
+
+  // Model error of the gyro's interval rotation (section 6): a relative scale error of its angle and a time
+  // offset error times the change of the rate between consecutive intervals.
+  const Vec3 rate_C = gyro_mean_C - x->b_w;  // rad/s
+  const Vec3 rate_change = last_rate_valid_ ? Vec3(rate_C - last_rate_C_) : Vec3::Zero();
+  const double var_theta =
+      std::pow(params_.rotation_scale_sigma * dt_s, 2) * rate_C.squaredNorm() +
+      std::pow(params_.time_offset_sigma_s, 2) * rate_change.squaredNorm();  // rad^2
+  const double var_bw_equiv = var_theta / (dt_s * dt_s);                        // (rad/s)^2
+  last_rate_C_ = rate_C;
+  last_rate_valid_ = true;
 
   double info_scale = 0.0;  // 1 / (sigma^2 c gamma): fixed at the first pass, used by every pass
   int pass = 0;
@@ -696,8 +727,9 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
       stats.nis_scale = lambda;
       info_scale = 1.0 / (var * corr * lambda);
       // Innovation gate: NIS = b^T (A + A P A)^-1 b ~ chi-square(8) for a consistent filter.
-      const ObservedInfo A0 = info_scale * sums.A;
-      const ObservedVec b0 = info_scale * sums.b;
+      ObservedInfo A0 = info_scale * sums.A;
+      ObservedVec b0 = info_scale * sums.b;
+      marginalizeRotationError(var_bw_equiv, &A0, &b0);
       const InnovationSpectrum spectrum(A0, P_obs, b0);
       stats.nis = spectrum.nis(1.0);
       if (adaptive && params_.nis_time_constant_s > 0.0 && std::isfinite(stats.nis) && stats.nis > 0.0) {
@@ -719,6 +751,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     }
     *A = info_scale * sums.A;
     *b = info_scale * sums.b;
+    marginalizeRotationError(var_bw_equiv, A, b);
     ++pass;
     return true;
   };
