@@ -31,7 +31,7 @@ import time
 from diekf_tools import find_bin_dir, run
 
 # The paper (Zhong & Chirarattananon, RA-L 2020), Table I: distance RMSE (cm) and velocity RMSE (cm/s) for
-# D-IEKF / D-EKF / LK; None = diverged. ALGORITHM.md section 5.
+# D-IEKF / D-EKF / LK; None = diverged. docs/algorithm.md section 5.
 PAPER = {
     1: {"speed": "24 / 83", "texture": "checkerboard", "d": (2.2, 2.3, 4.9), "v": (2.0, 2.0, 1.4)},
     2: {"speed": "21 / 113", "texture": "checkerboard", "d": (3.7, 3.7, 7.3), "v": (1.2, 1.2, 1.8)},
@@ -328,7 +328,7 @@ def main(argv=None):
           "Simulated flights imitate the paper's speeds and textures; they are not its recordings, so the figures "
           "compare behaviour, not identical data; every row is simulated, rows labelled \"realistic\" with the "
           "simulator's realistic camera (`--realism realistic`) and the default estimator. Errors from 3 s after "
-          "the first image update (CONVENTIONS.md section 5). Consistency of the reported uncertainty: "
+          "the first image update (docs/conventions.md section 5). Consistency of the reported uncertainty: "
           "\"within 2σ\" is the fraction of frames (distance) or of frame-axis pairs (velocity) whose error lies "
           "inside the filter's ±2σ, about 95 %% for a consistent filter; NEES is the mean over frames of the squared "
           "normalised distance and velocity errors, about 4 for a consistent filter." % (

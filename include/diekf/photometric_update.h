@@ -1,4 +1,4 @@
-// Iterated photometric update (ALGORITHM.md §3): whole-image residual between the reference and current
+// Iterated photometric update (docs/algorithm.md §3): whole-image residual between the reference and current
 // working images under the continuous homography of the plane, Gauss-Newton gain in information form.
 #pragma once
 

@@ -40,7 +40,7 @@ inline Mat3 skew(const Vec3& v) {
 /// Rotation matrix exp([phi]x) (Rodrigues), exact for all angles, stable near zero.
 Mat3 expSO3(const Vec3& phi);
 
-/// Left Jacobian of SO(3) (the "Gamma" of ALGORITHM.md): d exp(phi + dphi) = exp([Gamma dphi]x) exp(phi).
+/// Left Jacobian of SO(3) (the "Gamma" of docs/algorithm.md §1): d exp(phi + dphi) = exp([Gamma dphi]x) exp(phi).
 Mat3 leftJacobianSO3(const Vec3& phi);
 
 /// One IMU reading: specific force (m/s^2) and angular rate (rad/s), stamp in seconds.

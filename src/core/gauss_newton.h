@@ -1,5 +1,5 @@
 // Internal (not installed): the iterated Gauss-Newton update in information form shared by the photometric
-// and the feature-based update (ALGORITHM.md §3). The measurement model only enters through a callback that
+// and the feature-based update (docs/algorithm.md §3.4). The measurement model only enters through a callback that
 // linearises it at the current iterate and returns the 8x8 observed block of the information matrix and the
 // matching 8-vector, so both updates run exactly the same solve, stopping rule and covariance update.
 #pragma once

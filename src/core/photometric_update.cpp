@@ -12,7 +12,7 @@
 namespace diekf {
 
 // -------------------------------------------------------------------------------------------------------------
-// Warp (ALGORITHM.md §3, without its first-order approximations in time). Over the image interval the camera
+// Warp (docs/algorithm.md §3.2, without its first-order approximations in time). Over the image interval the camera
 // turns at the constant rate w = gyro - b_w and moves at constant velocity; the state (vartheta, mu) refers to
 // the time `lag` before the current image (0: the current image; dt/2: the interval's midpoint, the default
 // of the estimator). With rotations E = exp(dt [w]x) (current -> reference), E_a = exp(lag [w]x) (current ->

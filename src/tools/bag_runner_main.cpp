@@ -1,6 +1,6 @@
 // diekf_bag_runner: runs a recorded bag through the estimator offline, serially and deterministically, and
 // writes estimates.csv (+ groundtruth.csv and evaluation.json when the bag holds ground truth).
-// Usage: diekf_bag_runner --help. Interface: CONVENTIONS.md sections 4-6.
+// Usage: diekf_bag_runner --help. Interface: docs/conventions.md sections 4-6.
 
 #include <chrono>
 #include <cmath>
@@ -141,7 +141,7 @@ double stampOf(const ros::Time& header_stamp, const ros::Time& record_time) {
   return header_stamp.isZero() ? record_time.toSec() : header_stamp.toSec();
 }
 
-/// Any supported encoding -> 8-bit grey (CONVENTIONS.md section 2).
+/// Any supported encoding -> 8-bit grey (docs/conventions.md section 2).
 cv::Mat toGrey(const sensor_msgs::Image& msg) {
   namespace enc = sensor_msgs::image_encodings;
   cv_bridge::CvImageConstPtr cv;
@@ -295,7 +295,7 @@ int run(const RunnerOptions& o) {
 
   diekf::Estimator estimator(camera, params);
   diekf::eval::EstimatesCsvWriter csv((out_dir / "estimates.csv").string());
-  // --frames-csv: per-image update diagnostics (not part of the estimates format of CONVENTIONS.md section 4).
+  // --frames-csv: per-image update diagnostics (not part of the estimates format of docs/conventions.md section 4).
   std::ofstream frames;
   if (o.frames_csv) {
     frames.open(out_dir / "frames.csv");

@@ -1,6 +1,6 @@
 // Test and benchmark helper (header-only, no ROS, no file I/O): renders a smoothly textured plane seen by a
 // pinhole camera, builds PreprocessedFrames from the rendered images without the ImagePreprocessor, and
-// computes the filter's ground-truth quantities (d, mu, vartheta; CONVENTIONS.md §1-2) for a given pose.
+// computes the filter's ground-truth quantities (d, mu, vartheta; docs/conventions.md §1-2) for a given pose.
 //
 // Typical use:
 //   test_util::PlaneTexture tex(7);                       // random-phase sinusoids, fixed seed
@@ -114,7 +114,7 @@ inline CameraPose propagate(const CameraPose& pose, const Vec3& v_W, const Vec3&
   return out;
 }
 
-/// Filter ground truth (CONVENTIONS.md §2): d = n . p_WC + e, mu = -R_WC^T n, vartheta = R_WC^T v_W / d.
+/// Filter ground truth (docs/conventions.md §2): d = n . p_WC + e, mu = -R_WC^T n, vartheta = R_WC^T v_W / d.
 struct PlaneTruth {
   double d_m = 0.0;
   Vec3 mu = Vec3::UnitZ();

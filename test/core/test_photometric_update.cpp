@@ -107,7 +107,7 @@ TEST(WarpToReference, MatchesRigidMotionOverAPlane) {
         const Vec2 expected(K.fx * X_r.x() / X_r.z() + K.cx, K.fy * X_r.y() / X_r.z() + K.cy);
         const Vec2 warped = warpToReference(x, K, w_C, dt, px, py, nullptr, lag);
         EXPECT_LT((warped - expected).norm(), 1e-8) << "lag " << lag << " pixel " << px << ", " << py;
-        if (lag == 0.0) {  // ALGORITHM.md section 3: p_r = p + dt (I - p e_z^T) K ([w]x + vartheta mu^T) K^-1 p
+        if (lag == 0.0) {  // docs/algorithm.md §3.2: p_r = p + dt (I - p e_z^T) K ([w]x + vartheta mu^T) K^-1 p
           const Vec3 q((px - K.cx) / K.fx, (py - K.cy) / K.fy, 1.0);
           const Vec3 m = w_C.cross(q) + x.vartheta * truth.mu.dot(q);
           const Vec2 first(px + dt * (K.fx * m.x() + (K.cx - px) * m.z()),
@@ -141,7 +141,7 @@ TEST(WarpToReference, ZeroMotionIsIdentity) {
 }
 
 // --------------------------------------------------------------------------------------------------------
-// The single-precision pixel loop against a straightforward double-precision evaluation of ALGORITHM.md §3.
+// The single-precision pixel loop against a straightforward double-precision evaluation of docs/algorithm.md §3.3.
 // --------------------------------------------------------------------------------------------------------
 float bilinear(const cv::Mat& m, double x, double y) {
   const int x0 = static_cast<int>(std::floor(x)), y0 = static_cast<int>(std::floor(y));

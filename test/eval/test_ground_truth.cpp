@@ -1,4 +1,4 @@
-// Ground truth of analytic motions (CONVENTIONS.md section 2).
+// Ground truth of analytic motions (docs/conventions.md section 2).
 #include <cmath>
 
 #include <gtest/gtest.h>

@@ -1,4 +1,4 @@
-// estimates.csv / groundtruth.csv / evaluation.json formats (CONVENTIONS.md sections 4 and 5).
+// estimates.csv / groundtruth.csv / evaluation.json formats (docs/conventions.md sections 4 and 5).
 #include <algorithm>
 #include <cmath>
 #include <cstdio>

@@ -1,4 +1,4 @@
-// Metrics of CONVENTIONS.md section 5 on hand-made series.
+// Metrics of docs/conventions.md section 5 on hand-made series.
 #include <cmath>
 #include <limits>
 #include <random>

@@ -1,6 +1,6 @@
 """Shared helpers of the diekf rostests: simulated bag, estimator start-up, bag replay, ground truth.
 
-Ground truth follows CONVENTIONS.md section 2: /mocap/pose is T_W_I, /ground_truth/plane gives (a, b, c, e);
+Ground truth follows docs/conventions.md section 2: /mocap/pose is T_W_I, /ground_truth/plane gives (a, b, c, e);
 p_WC = p_WI + R_WI t_IC, R_WC = R_WI R_IC, d = n . p_WC + e, v = R_WC^T dp_WC/dt (central differences).
 """
 import os

@@ -4,7 +4,7 @@
 A downward camera (pinhole, no distortion, MYNT EYE S size) on a body starting at rest and moving smoothly 0.75-0.95 m above a level,
 band-pass-noise-textured plane (rendered in 2x2 pixel blocks); IMU at 500 Hz from the analytic trajectory (small white noise), mocap at 200 Hz,
 images at 30 Hz. Writes DIR/sequence.bag, DIR/camchain.yaml and DIR/imu.yaml with the topics and conventions of
-CONVENTIONS.md (the same files diekf_simulate writes).
+docs/conventions.md (the same files diekf_simulate writes).
 
 usage: make_test_bag.py --duration S --output DIR
 """

@@ -3,7 +3,7 @@
 nodelet manager; the published distance, velocity and odometry height must converge to the bag's ground truth.
 
 Private parameters: preset (simulator preset), duration_s (bag length, s), settle_s (errors are evaluated from
-this long after the first estimate, s, CONVENTIONS.md section 5 uses 3 s), max_rmse_distance_m,
+this long after the first estimate, s, docs/conventions.md section 5 uses 3 s), max_rmse_distance_m,
 max_rmse_velocity_mps, max_rmse_height_m (tolerances), manager (nodelet manager name).
 """
 import math

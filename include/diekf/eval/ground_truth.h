@@ -1,5 +1,5 @@
 // True values of the filter's quantities from a motion-capture pose stream and a ground plane
-// (CONVENTIONS.md section 2). ROS-free: the bag runner fills the inputs from /mocap/pose and
+// (docs/conventions.md section 2). ROS-free: the bag runner fills the inputs from /mocap/pose and
 // /ground_truth/plane, the tests from analytic motions.
 #pragma once
 

@@ -1,4 +1,4 @@
-// Files of the offline evaluation: estimates.csv (CONVENTIONS.md section 4), groundtruth.csv (same columns as the
+// Files of the offline evaluation: estimates.csv (docs/conventions.md section 4), groundtruth.csv (same columns as the
 // estimates for the true quantities) and evaluation.json (section 5). ROS-free.
 #pragma once
 

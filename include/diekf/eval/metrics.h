@@ -1,4 +1,4 @@
-// The metrics of CONVENTIONS.md section 5, on estimate rows paired with true values. ROS-free.
+// The metrics of docs/conventions.md section 5, on estimate rows paired with true values. ROS-free.
 #pragma once
 
 #include <optional>
@@ -12,7 +12,7 @@
 namespace diekf {
 namespace eval {
 
-/// One row of estimates.csv (CONVENTIONS.md section 4).
+/// One row of estimates.csv (docs/conventions.md section 4).
 struct EstimateRow {
   double t_s = 0.0;                                      ///< image stamp, IMU clock, s
   double d_m = 0.0;                                      ///< distance to the plane, m

@@ -1,4 +1,4 @@
-// Command line of diekf_bag_runner (CONVENTIONS.md section 6), parsed without ROS so that it is unit-testable.
+// Command line of diekf_bag_runner (docs/conventions.md section 6), parsed without ROS so that it is unit-testable.
 #pragma once
 
 #include <stdexcept>

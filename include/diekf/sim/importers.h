@@ -1,4 +1,4 @@
-// Importers from recorded datasets to the project's bag layout (CONVENTIONS.md §2, §3).
+// Importers from recorded datasets to the project's bag layout (docs/conventions.md §2, §3).
 #pragma once
 
 #include <string>

@@ -1,4 +1,4 @@
-// Writing sequences in the project's bag layout (CONVENTIONS.md §2) and Kalibr calibration files (§3).
+// Writing sequences in the project's bag layout (docs/conventions.md §2) and Kalibr calibration files (§3).
 #pragma once
 
 #include <cstdint>

@@ -17,7 +17,7 @@ namespace sim {
 
 constexpr double kGravityMps2 = 9.81;  ///< magnitude of gravity; g_W = (0, 0, -kGravityMps2)
 
-/// Infinite plane {X : n.X + e = 0} with unit normal n pointing to the camera side (CONVENTIONS.md §2).
+/// Infinite plane {X : n.X + e = 0} with unit normal n pointing to the camera side (docs/conventions.md §2).
 struct Plane {
   Eigen::Vector3d n = Eigen::Vector3d::UnitZ();  ///< unit normal in W
   double e_m = 0.0;                              ///< offset (m)
@@ -95,7 +95,7 @@ class Trajectory {
   TrajectoryParams params_;
 };
 
-/// Targets of a preset (ALGORITHM.md §5 for flight1..7).
+/// Targets of a preset (docs/algorithm.md §5 for flight1..7).
 struct PresetSpec {
   std::string name;
   double rms_speed_mps = 0.24;

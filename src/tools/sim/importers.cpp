@@ -424,7 +424,7 @@ ImportSummary runImport(const ImportOptions& opt) {
 std::string importUsage() {
   return "usage: diekf_import --format mynteye-folder|euroc --input DIR --output DIR [--camchain FILE]\n"
          "                    [--imu-yaml FILE] [--lz4]\n"
-         "  -> DIR/sequence.bag (CONVENTIONS.md topics), DIR/camchain.yaml, DIR/imu.yaml\n"
+         "  -> DIR/sequence.bag (docs/conventions.md topics), DIR/camchain.yaml, DIR/imu.yaml\n"
          "mynteye-folder: DIR/imu0.csv (t_us, ax, ay, az, gx, gy, gz; header line allowed) and DIR/left/<t_us>.png;\n"
          "                calibration from --camchain, DIR/camchain.yaml, or typical MYNT EYE S values.\n"
          "euroc:          DIR/mav0/{imu0,cam0}/data.csv, cam0/data/*.png, state_groundtruth_estimate0/data.csv\n"

@@ -171,7 +171,7 @@ SpeedStats Trajectory::stats(double rate_hz) const {
 }
 
 std::vector<PresetSpec> presetSpecs() {
-  // flight1..7: ALGORITHM.md §5 (RMS / max speed); heights within the paper's ~0.4-1.3 m.
+  // flight1..7: docs/algorithm.md §5 (RMS / max speed); heights within the paper's ~0.4-1.3 m.
   std::vector<PresetSpec> v;
   v.push_back({"flight1", 0.24, 0.83, 0.75, 0.25, "checkerboard", true});
   v.push_back({"flight2", 0.21, 1.13, 0.85, 0.30, "checkerboard", true});

@@ -1,6 +1,6 @@
 // End-to-end test of diekf_bag_runner: writes a few seconds of a synthetic hover-and-drift flight (IMU, images of
 // a textured floor, mocap poses, plane) with the rosbag API, runs the runner binary on it and checks its outputs
-// against CONVENTIONS.md sections 4-6; plus the error paths.
+// against docs/conventions.md sections 4-6; plus the error paths.
 #include <sys/wait.h>
 #include <unistd.h>
 
@@ -234,7 +234,7 @@ TEST(BagRunner, SyntheticFlightProducesEstimatesGroundTruthAndEvaluation) {
   EXPECT_NEAR(v[8], 1.0, 1e-9);         // muz
   EXPECT_NEAR(v[11], 1.0, 1e-9);        // gz
 
-  // evaluation.json: every key of CONVENTIONS.md section 5.
+  // evaluation.json: every key of docs/conventions.md section 5.
   std::ifstream json_file(out / "evaluation.json");
   std::stringstream json;
   json << json_file.rdbuf();
