@@ -1,7 +1,8 @@
 # diekf: one-command set-up on a fresh Debian 12 machine.
 #   make demo   -- the main job (see README)
 #   make test   -- build everything and run every test
-# An out-of-tree catkin workspace is created in $(WS) (git-ignored), with src/diekf pointing here.
+# A catkin workspace is created in $(WS), outside this directory, with src/diekf pointing here (`make ws-path`
+# prints it).
 
 SHELL := /bin/bash
 # Debian's python3 first: catkin's helper scripts import Debian's Python modules.
@@ -9,7 +10,20 @@ export PATH := /usr/bin:/bin:/usr/sbin:/sbin:$(PATH)
 export PYTHONNOUSERSITE := 1
 unexport PYTHONPATH PYTHONHOME VIRTUAL_ENV
 
-WS ?= $(CURDIR)/.ws
+# Build trees live outside the package directory: rosrun looks for an executable in the package directory too
+# (find -L), so a workspace inside it would make every executable ambiguous (an interactive "non-unique
+# executable" prompt). Default: the user's cache, one folder per checkout (its name and a hash of its path).
+BUILD_ROOT ?= $(or $(XDG_CACHE_HOME),$(HOME)/.cache)/diekf/$(notdir $(CURDIR))-$(shell printf '%s' '$(CURDIR)' | md5sum | cut -c1-8)
+WS ?= $(BUILD_ROOT)/ws
+SANITIZE_WS ?= $(BUILD_ROOT)/ws-sanitize
+# Workspaces an older Makefile put inside the package directory.
+LEGACY_TREES := $(wildcard $(CURDIR)/.ws $(CURDIR)/.ws-sanitize)
+ifneq ($(LEGACY_TREES),)
+ifeq ($(MAKELEVEL)$(filter clean ws-path,$(MAKECMDGOALS)),0)
+$(warning build trees inside the package directory (from an older Makefile): $(LEGACY_TREES). rosrun finds the \
+  executables there too and asks which one to run; remove them (make clean, or rm -rf))
+endif
+endif
 JOBS ?= 2
 BUILD_TYPE ?= Release
 CMAKE_ARGS ?=
@@ -23,7 +37,7 @@ APT_PACKAGES := build-essential cmake catkin ros-base-dev libnodeletlib-dev libc
   libtf2-geometry-msgs-dev python3-rosbag python3-rostest python3-roslaunch libnodeletlib-tools ros-base-python-dev rosbash valgrind \
   python3-tf2-msgs image-transport-tools clang libclang-rt-14-dev
 
-.PHONY: all deps workspace build test demo benchmark benchmark-core benchmark-callgrind fuzz sanitize soak rviz-check \
+.PHONY: all deps workspace ws-path build test demo benchmark benchmark-core benchmark-callgrind fuzz sanitize soak rviz-check \
   clean
 
 all: build
@@ -37,8 +51,14 @@ deps:
 	fi
 
 workspace:
+	@case "$(abspath $(WS))/" in "$(CURDIR)"/*) \
+	  echo "WS=$(WS) is inside the package directory: rosrun would find every executable twice; use a folder" \
+	    "outside it" >&2; exit 1;; esac
 	@mkdir -p $(WS)/src
 	@ln -sfn $(CURDIR) $(WS)/src/diekf
+
+ws-path:
+	@echo $(abspath $(WS))
 
 build: deps workspace
 	cd $(WS) && catkin_make -DCMAKE_BUILD_TYPE=$(BUILD_TYPE) $(CMAKE_ARGS) -j$(JOBS)
@@ -76,9 +96,9 @@ fuzz: deps
 	cd $(FUZZ_DIR) && ./fuzz_ingest -max_total_time=$(FUZZ_SECONDS) -max_len=4096 -rss_limit_mb=2048 \
 	  -print_final_stats=1 corpus
 
-# The whole test suite under AddressSanitizer + UndefinedBehaviorSanitizer, in its own workspace.
+# The whole test suite under AddressSanitizer + UndefinedBehaviorSanitizer, in its own workspace ($(SANITIZE_WS)).
 sanitize:
-	$(MAKE) test WS=$(CURDIR)/.ws-sanitize BUILD_TYPE=RelWithDebInfo CMAKE_ARGS="-DDIEKF_SANITIZE=ON" \
+	$(MAKE) test WS=$(SANITIZE_WS) BUILD_TYPE=RelWithDebInfo CMAKE_ARGS="-DDIEKF_SANITIZE=ON" \
 	  ASAN_OPTIONS=detect_leaks=0:verify_asan_link_order=0 UBSAN_OPTIONS=print_stacktrace=1
 
 # 30 minutes of simulated flight through diekf_bag_runner: peak RSS and growth (scripts/soak.sh).
@@ -101,5 +121,6 @@ rviz-check: build
 	fi
 	cd $(WS) && source devel/setup.bash && bash $(CURDIR)/scripts/rviz_check.sh $(CURDIR)/results/rviz
 
+# Both workspaces of this checkout, and the ones an older Makefile put inside the package directory.
 clean:
-	rm -rf $(WS)
+	rm -rf $(WS) $(SANITIZE_WS) $(LEGACY_TREES)

@@ -5,8 +5,9 @@
 #   scripts/demo.sh [OUTPUT_DIR]          (make demo: OUTPUT_DIR = demo_output/ in the package)
 #
 # Environment: DIEKF_BIN_DIR (folder with diekf_simulate and diekf_bag_runner; default: the catkin workspace's
-# devel/lib/diekf, workspace from DIEKF_WS or the package's .ws), DEMO_PRESET (flight4), DEMO_DURATION_S (30),
-# DEMO_SEED (1), DEMO_MODE (iekf), DEMO_RUNNER_ARGS (extra runner arguments, e.g. "--width 90").
+# devel/lib/diekf, workspace from DIEKF_WS or the one `make build` uses, see `make ws-path`), DEMO_PRESET
+# (flight4), DEMO_DURATION_S (30), DEMO_SEED (1), DEMO_MODE (iekf), DEMO_RUNNER_ARGS (extra runner arguments,
+# e.g. "--width 90").
 set -euo pipefail
 
 script_dir=$(cd "$(dirname "${BASH_SOURCE[0]}")" && pwd)
@@ -16,7 +17,12 @@ preset=${DEMO_PRESET:-flight4}
 duration_s=${DEMO_DURATION_S:-30}
 seed=${DEMO_SEED:-1}
 mode=${DEMO_MODE:-iekf}
-bin_dir=${DIEKF_BIN_DIR:-${DIEKF_WS:-$pkg_dir/.ws}/devel/lib/diekf}
+if [ -n "${DIEKF_BIN_DIR:-}" ]; then
+  bin_dir=$DIEKF_BIN_DIR
+else
+  ws=${DIEKF_WS:-$(make -s --no-print-directory -C "$pkg_dir" ws-path 2>/dev/null || true)}
+  bin_dir=$ws/devel/lib/diekf
+fi
 
 for tool in diekf_simulate diekf_bag_runner; do
   if [ ! -x "$bin_dir/$tool" ]; then

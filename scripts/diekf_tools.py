@@ -6,15 +6,31 @@ import sys
 
 
 def find_bin_dir(script_name):
-    """Folder holding diekf_simulate and diekf_bag_runner: $DIEKF_BIN_DIR, else $DIEKF_WS/devel/lib/diekf, else the
-    package's own workspace (.ws). Exits with a message naming `script_name` when none has both tools."""
-    pkg_dir = os.path.dirname(os.path.dirname(os.path.abspath(__file__)))
+    """Folder holding diekf_simulate and diekf_bag_runner, the first of: $DIEKF_BIN_DIR, $DIEKF_WS/devel/lib/diekf,
+    this script's own folder (an install space puts the scripts next to the tools), the sourced catkin workspaces
+    (catkin_find), the workspace `make build` uses (`make ws-path`). Exits with a message naming `script_name`
+    when none has both tools."""
+    here = os.path.dirname(os.path.abspath(__file__))
+    pkg_dir = os.path.dirname(here)
     candidates = []
     if os.environ.get("DIEKF_BIN_DIR"):
         candidates.append(os.environ["DIEKF_BIN_DIR"])
     if os.environ.get("DIEKF_WS"):
         candidates.append(os.path.join(os.environ["DIEKF_WS"], "devel", "lib", "diekf"))
-    candidates.append(os.path.join(pkg_dir, ".ws", "devel", "lib", "diekf"))
+    candidates.append(here)
+    try:
+        from catkin.find_in_workspaces import find_in_workspaces
+        candidates += find_in_workspaces(search_dirs=["libexec"], project="diekf")
+    except Exception:  # catkin's Python module missing or no workspace sourced
+        pass
+    if os.path.isfile(os.path.join(pkg_dir, "Makefile")):
+        try:
+            ws = subprocess.run(["make", "-s", "--no-print-directory", "-C", pkg_dir, "ws-path"],
+                                stdout=subprocess.PIPE, stderr=subprocess.DEVNULL, timeout=30).stdout.decode().strip()
+            if ws:
+                candidates.append(os.path.join(ws, "devel", "lib", "diekf"))
+        except (OSError, subprocess.SubprocessError):
+            pass
     for c in candidates:
         if os.path.isfile(os.path.join(c, "diekf_bag_runner")) and os.path.isfile(os.path.join(c, "diekf_simulate")):
             return c

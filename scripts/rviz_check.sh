@@ -30,7 +30,11 @@ else
   SIM=$OUT/sim
   if [ ! -f "$SIM/sequence.bag" ]; then
     echo "rviz_check: simulating $PRESET for $DURATION s into $SIM"
-    rosrun diekf diekf_simulate --preset "$PRESET" --duration "$DURATION" --threads 1 --output "$SIM" \
+    # The sourced workspace's simulator (not rosrun: it also searches the package directory and asks when it
+    # finds more than one file).
+    SIMULATE=$(catkin_find --first-only --libexec diekf diekf_simulate 2>/dev/null || true)
+    [ -x "$SIMULATE" ] || { echo "rviz_check: diekf_simulate not found in the sourced workspace" >&2; exit 2; }
+    "$SIMULATE" --preset "$PRESET" --duration "$DURATION" --threads 1 --output "$SIM" \
       > "$OUT/simulate.log" 2>&1
   fi
 fi

@@ -17,9 +17,24 @@ import rospy
 import yaml
 
 
+def executable(name, package="diekf", required=False):
+    """Path of `package`'s executable `name` in the sourced workspaces, or None: the first workspace of
+    CMAKE_PREFIX_PATH that has it, as catkin resolves it. Not rosrun, which also searches the package's source
+    directory and, when it finds more than one file (a second build tree), stops at an interactive prompt."""
+    from catkin.find_in_workspaces import find_in_workspaces
+    for path in find_in_workspaces(search_dirs=["libexec"], project=package, path=name):
+        if os.path.isfile(path) and os.access(path, os.X_OK):
+            return path
+    if required:
+        raise RuntimeError("no executable %s of package %s in the sourced workspaces" % (name, package))
+    return None
+
+
 def simulator_available():
-    proc = subprocess.run(["rosrun", "diekf", "diekf_simulate", "--help"], stdout=subprocess.DEVNULL,
-                          stderr=subprocess.DEVNULL, timeout=60)
+    exe = executable("diekf_simulate")
+    if exe is None:
+        return False
+    proc = subprocess.run([exe, "--help"], stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL, timeout=60)
     return proc.returncode == 0
 
 
@@ -30,7 +45,7 @@ def simulate(preset, duration_s, seed=1):
     """
     out = tempfile.mkdtemp(prefix="diekf_rostest_")
     if simulator_available():
-        cmd = ["rosrun", "diekf", "diekf_simulate", "--preset", preset, "--duration", str(duration_s),
+        cmd = [executable("diekf_simulate"), "--preset", preset, "--duration", str(duration_s),
                "--seed", str(seed), "--output", out]
     else:
         rospy.logwarn("diekf_simulate is not built: using test/ros/make_test_bag.py instead of preset %s", preset)

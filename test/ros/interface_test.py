@@ -98,7 +98,7 @@ class Interface(unittest.TestCase):
         rospy.Subscriber("/tf_static", TFMessage, self.on_tf(self.tf_static), queue_size=10)
         rospy.Subscriber("/diagnostics", DiagnosticArray, self.on_diagnostics, queue_size=10)
 
-        self.node = util.start(["rosrun", "diekf", "diekf_node", "__name:=diekf"])
+        self.node = util.start([util.executable("diekf_node", required=True), "__name:=diekf"])
         self.assertTrue(util.wait_for(lambda: util.has_subscriber("/mynteye/imu/data_raw") and
                                       util.has_subscriber("/mynteye/left/image_raw"), 20.0),
                         "diekf_node did not subscribe to the MYNT EYE topics")

@@ -66,7 +66,7 @@ class ReplayConvergence(unittest.TestCase):
         rospy.Subscriber(NODELET + "/odometry", Odometry, self.on_odometry, queue_size=1000)
 
         rospy.wait_for_service(manager + "/load_nodelet", timeout=20.0)
-        self.loader = util.start(["rosrun", "nodelet", "nodelet", "load", "diekf/EstimatorNodelet", manager,
+        self.loader = util.start([util.executable("nodelet", "nodelet", required=True), "load", "diekf/EstimatorNodelet", manager,
                                   "__name:=diekf"])
         self.assertTrue(util.wait_for(lambda: util.has_subscriber("/mynteye/imu/data_raw") and
                                       util.has_subscriber("/mynteye/left/image_raw"), 20.0),
