@@ -65,11 +65,18 @@ void requireReadable(const std::string& what, const std::string& path) {
   if (!f) throw RunError("cannot read " + what + " '" + path + "'");
 }
 
-/// The package's default estimator config, located from the build (never a fixed path in the sources).
+/// The package's default estimator config, located from the build (never a fixed path in the sources): in an
+/// install space, share/diekf/config next to this executable's lib/diekf; in a devel space, the source tree's.
 std::string defaultConfigPath() {
+  std::error_code ec;
+  const fs::path self = fs::read_symlink("/proc/self/exe", ec);
+  if (!ec) {
+    const fs::path installed = self.parent_path().parent_path().parent_path() / "share" / "diekf" / "config" /
+                               "estimator.yaml";
+    if (fs::is_regular_file(installed, ec)) return installed.string();
+  }
 #ifdef DIEKF_PACKAGE_DIR
   const fs::path p = fs::path(DIEKF_PACKAGE_DIR) / "config" / "estimator.yaml";
-  std::error_code ec;
   if (fs::is_regular_file(p, ec)) return p.string();
 #endif
   return std::string();
