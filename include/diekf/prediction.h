@@ -1,10 +1,12 @@
-// Prediction: forward-Euler propagation of the state and its covariance over one IMU interval (ALGORITHM.md §2).
+// Prediction: propagation of the state and its covariance over one IMU step (docs/algorithm.md §2).
 //
-// Mean (a = a_m - b_a, w = w_m - b_w, s = mu . vartheta, g0 = gravity magnitude):
-//   alpha'    = alpha (1 + s dt)
-//   vartheta' = vartheta + dt (alpha (a + g0 g) - w x vartheta + s vartheta)
-//   mu'       = exp(-dt (I - mu mu^T) w) mu,   g' = exp(-dt (I - g g^T) w) g
-//   b_a', b_w' unchanged.
+// Mean over a step dt with the mean readings a_m, w_m over it (a = a_m - b_a, w = w_m - b_w, g0 = gravity
+// magnitude, R = exp(-dt [w]x) the turn of world-fixed directions seen from C):
+//   u         = R (vartheta + dt alpha g0 g) + dt alpha (I - dt/2 [w]x) a     (v(t+dt) / d(t), in C(t+dt))
+//   s0 = mu . vartheta,  s1 = (1 + dt s0) (R mu) . u,  kappa = exp(dt (s0 + s1) / 2)   (= d(t) / d(t+dt))
+//   alpha' = kappa alpha,  vartheta' = kappa u,  mu' = R mu,  g' = R g,  b_a', b_w' unchanged.
+// Exact in the rotation and the gravity term for a constant rate, second order in the rest; the step is
+// meant to be fed the mean of the (interpolated) readings over it (meanImuOver), not a sample held over it.
 // Error convention x = x_hat [+] delta (State::boxplus / State::boxminus).
 #pragma once
 
@@ -12,6 +14,12 @@
 #include "diekf/state.h"
 
 namespace diekf {
+
+/// Mean of the linear interpolation between two consecutive filtered samples `prev` and `next` over the
+/// sub-interval [t0_s, t1_s] of [prev.t_s, next.t_s], i.e. its value at the midpoint (t_s set to t1_s). The
+/// prediction step is fed this (the integral of the inputs is then second-order accurate; holding `next` over
+/// the step is first order: a time error of half the step).
+ImuSample meanImuOver(const ImuSample& prev, const ImuSample& next, double t0_s, double t1_s);
 
 /// Number of noise inputs n (see NoiseIdx).
 constexpr int kNoiseDim = 20;

@@ -17,6 +17,7 @@
 #include "diekf/photometric_update.h"
 #include "diekf/prediction.h"
 #include "gauss_newton.h"
+#include "imu_propagation.h"
 
 namespace diekf {
 
@@ -189,56 +190,47 @@ struct Estimator::Impl {
     return true;
   }
 
-  /// Integral of the raw gyro over (t0, t1] with the hold convention of propagateTo, rad.
+  /// Nominal period of the filtered samples, s.
+  double filteredPeriod() const {
+    return std::max(1, params.imu.decimation_factor) / std::max(1e-9, params.imu.input_rate_hz);
+  }
+
+  /// Integral of the filtered gyro over (t0, t1] with the interpolation of propagateTo, rad.
   Vec3 gyroIntegral(double t0, double t1) const {
     Vec3 sum = Vec3::Zero();
-    double t = t0;
-    for (size_t i = 0; i < imu_buffer.size() && t < t1; ++i) {
-      const ImuSample& s = imu_buffer[i];
-      if (s.t_s <= t) continue;
-      const double t_end = std::min(s.t_s, t1);
-      sum += s.gyro_radps * (t_end - t);
-      t = t_end;
-    }
+    internal::forEachImuPiece(imu_buffer, t0, t1, 2.0 * filteredPeriod(),
+                              [&](double a_s, double b_s, const ImuSample& in) { sum += in.gyro_radps * (b_s - a_s); });
     return sum;
   }
 
-  /// Propagates the state from t_state to t_target with the filtered samples, splitting the last interval.
-  /// Sample k (stamp t_k) is held over (t_{k-1}, t_k] (zero-order hold, also across a bridged IMU gap); an
-  /// interval longer than two nominal filtered periods is integrated in steps of at most one period.
-  /// Accumulates the raw gyro integral for the update.
+  /// Propagates the state from t_state to t_target with the filtered samples, split at their stamps. Each step
+  /// is fed the mean of the linear interpolation between the samples around it (internal::forEachImuPiece);
+  /// across a bridged IMU gap the sample after it is held (zero-order hold) and the gap is integrated in steps
+  /// of at most one nominal period. Accumulates the gyro integral for the update.
   void propagateTo(double t_target) {
-    const double nominal_dt_s =
-        std::max(1, params.imu.decimation_factor) / std::max(1e-9, params.imu.input_rate_hz);
-    size_t i = 0;
-    while (i < imu_buffer.size() && t_state_s >= imu_buffer[i].t_s) ++i;
-    while (t_state_s < t_target && i < imu_buffer.size()) {
-      const ImuSample& s = imu_buffer[i];
-      const double t_end = std::min(s.t_s, t_target);
-      const double dt = t_end - t_state_s;
-      if (dt > 0.0) {
-        const bool gap = dt > 2.0 * nominal_dt_s;
-        const int steps = gap ? static_cast<int>(std::ceil(dt / nominal_dt_s)) : 1;
-        const double h = dt / steps;
-        // Across a bridged IMU gap the held sample stands for unknown motion: an unknown acceleration and rate
-        // change, constant over the gap, add variance (sigma T)^2, i.e. a white-noise density sigma^2 T.
-        ImuParams imu = params.imu;
-        if (gap) {
-          imu.accel_noise_density = std::sqrt(imu.accel_noise_density * imu.accel_noise_density +
-                                              params.input.gap_accel_sigma_mps2 * params.input.gap_accel_sigma_mps2 * dt);
-          imu.gyro_noise_density = std::sqrt(imu.gyro_noise_density * imu.gyro_noise_density +
-                                             params.input.gap_gyro_sigma_radps * params.input.gap_gyro_sigma_radps * dt);
-        }
-        for (int k = 0; k < steps; ++k) predict(s.accel_mps2, s.gyro_radps, h, imu, params.process, &x, &P);
-        gyro_integral += s.gyro_radps * dt;
-        gyro_time_s += dt;
-        t_state_s = t_end;
+    const double nominal_dt_s = filteredPeriod();
+    internal::forEachImuPiece(imu_buffer, t_state_s, t_target, 2.0 * nominal_dt_s,
+                              [&](double t0_s, double t1_s, const ImuSample& s) {
+      const double dt = t1_s - t0_s;
+      const bool gap = dt > 2.0 * nominal_dt_s;
+      const int steps = gap ? static_cast<int>(std::ceil(dt / nominal_dt_s)) : 1;
+      const double h = dt / steps;
+      // Across a bridged IMU gap the held sample stands for unknown motion: an unknown acceleration and rate
+      // change, constant over the gap, add variance (sigma T)^2, i.e. a white-noise density sigma^2 T.
+      ImuParams imu = params.imu;
+      if (gap) {
+        imu.accel_noise_density = std::sqrt(imu.accel_noise_density * imu.accel_noise_density +
+                                            params.input.gap_accel_sigma_mps2 * params.input.gap_accel_sigma_mps2 * dt);
+        imu.gyro_noise_density = std::sqrt(imu.gyro_noise_density * imu.gyro_noise_density +
+                                           params.input.gap_gyro_sigma_radps * params.input.gap_gyro_sigma_radps * dt);
       }
-      if (s.t_s <= t_target) ++i;
-    }
+      for (int k = 0; k < steps; ++k) predict(s.accel_mps2, s.gyro_radps, h, imu, params.process, &x, &P);
+      gyro_integral += s.gyro_radps * dt;
+      gyro_time_s += dt;
+    });
     t_state_s = t_target;
-    // Drop samples no longer needed (keep the one that covers t_state onwards).
-    while (imu_buffer.size() > 1 && imu_buffer[0].t_s <= t_state_s) imu_buffer.pop();
+    // Drop samples no longer needed (keep the last one at or before t_state: the next piece interpolates from it).
+    while (imu_buffer.size() > 1 && imu_buffer[1].t_s <= t_state_s) imu_buffer.pop();
   }
 
   void checkDivergence(const UpdateStats& stats, bool image_usable, std::string* reason) {

@@ -5,42 +5,18 @@
 namespace diekf {
 namespace {
 
-/// Unit quaternion of the rotation exp([phi]x).
-Eigen::Quaterniond quaternionExp(const Vec3& phi) {
-  const double angle = phi.norm();
-  if (angle < 1e-12) {
-    // First order: q = (1, phi/2), normalised.
-    return Eigen::Quaterniond(1.0, 0.5 * phi.x(), 0.5 * phi.y(), 0.5 * phi.z()).normalized();
-  }
-  return Eigen::Quaterniond(Eigen::AngleAxisd(angle, phi / angle));
-}
-
-/// One step of a world-fixed direction n seen from a camera rotating at w (rad/s):
-/// n' = exp(dm) n with dm = -dt (I - n n^T) w. The element is moved by rotating its quaternion, so its tangent
-/// basis is transported with it (N(n') = R N(n)).
-/// J_n = d(n'(n [+] d) [-] n')/d d (2x2), J_w = d(n'(w + e) [-] n')/d e (2x3).
-void stepS2(const UnitVector& n, const Vec3& w, double dt, UnitVector* out, Mat2* J_n, Mat23* J_w) {
-  const Vec3 nv = n.vector();
-  const Mat3 P_perp = Mat3::Identity() - nv * nv.transpose();
-  const Vec3 dm = -dt * (P_perp * w);
-  *out = UnitVector::fromQuaternion(quaternionExp(dm) * n.quaternion());
-  if (J_n == nullptr && J_w == nullptr) return;
-  // d(exp(dm + e) n) = -[R n]x Gamma(dm) e to first order; M(n')^T maps an ambient change of n' to its tangent.
-  const Vec3 Rn = out->vector();
-  const Eigen::Matrix<double, 2, 3> Mt_skew_Gamma = out->M().transpose() * skew(Rn) * leftJacobianSO3(dm);
-  if (J_n != nullptr) {
-    const Mat3 R = expSO3(dm);
-    // d dm / d n = dt ((n . w) I + n w^T).
-    const Mat3 ddm_dn = dt * (nv.dot(w) * Mat3::Identity() + nv * w.transpose());
-    *J_n = out->M().transpose() * R * n.M() - Mt_skew_Gamma * ddm_dn * n.M();
-  }
-  if (J_w != nullptr) {
-    // d dm / d w = -dt P_perp.
-    *J_w = dt * Mt_skew_Gamma * P_perp;
-  }
-}
-
 /// Mean and (optionally) Jacobians of one step. F and G are fully overwritten when given.
+///
+/// With the rate w and specific force a held over the step (the caller passes their mean over it), the camera
+/// turns by exp(dt [w]x): every world-fixed direction seen from C is turned by R = exp(-dt [w]x) (exact, no
+/// projection), and the velocity over the old distance is
+///   u = v(t + dt) / d(t) = R (vartheta + dt alpha g0 g) + dt alpha (I - dt/2 [w]x) a,
+/// exact for the gravity term (gravity turns with the frame: its integral is dt R g0 g) and second order for the
+/// specific force (the left Jacobian of -dt w to first order). The distance ratio d(t)/d(t + dt) =
+/// exp(int s), s = mu . vartheta, by the trapezoid rule with the end value from an Euler guess of the new scale:
+///   s0 = mu . vartheta, s1 = (1 + dt s0) (R mu) . u, kappa = exp(dt (s0 + s1) / 2),
+///   alpha' = kappa alpha, vartheta' = kappa u, mu' = R mu, g' = R g (quaternions turned by R, so the tangent
+///   bases are transported: d mu'/d mu = d g'/d g = I).
 void propagate(const State& x, const Vec3& accel_C, const Vec3& gyro_C, double dt, double g0, State* out,
                ErrorCov* F, NoiseJacobian* G) {
   const Vec3 a = accel_C - x.b_a;  // m/s^2
@@ -48,45 +24,78 @@ void propagate(const State& x, const Vec3& accel_C, const Vec3& gyro_C, double d
   const Vec3 mu = x.mu.vector();
   const Vec3 gv = x.g.vector();
   const Vec3& th = x.vartheta;
-  const double s = mu.dot(th);  // 1/s
 
-  const Vec3 acc_term = a + g0 * gv;  // m/s^2
-  out->alpha = x.alpha * (1.0 + s * dt);
-  out->vartheta = th + dt * (x.alpha * acc_term - w.cross(th) + s * th);
+  const Vec3 phi = -dt * w;  // rad
+  const Mat3 R = expSO3(phi);
+  const Eigen::Quaterniond q_R(R);
+  const Vec3 z = th + (dt * x.alpha * g0) * gv;       // 1/s
+  const Vec3 a_mean = a - (0.5 * dt) * w.cross(a);     // m/s^2, specific force turned to the step's end
+  const Vec3 u = R * z + (dt * x.alpha) * a_mean;      // 1/s
+  const Vec3 mu_R = R * mu;
+  const double s0 = mu.dot(th);                        // 1/s
+  const double p = mu_R.dot(u);                        // 1/s
+  const double k0 = 1.0 + dt * s0;
+  const double s1 = k0 * p;                            // 1/s
+  const double kappa = std::exp(0.5 * dt * (s0 + s1));
+
+  out->alpha = kappa * x.alpha;
+  out->vartheta = kappa * u;
+  out->mu = UnitVector::fromQuaternion(q_R * x.mu.quaternion());
+  out->g = UnitVector::fromQuaternion(q_R * x.g.quaternion());
   out->b_a = x.b_a;
   out->b_w = x.b_w;
+  if (F == nullptr && G == nullptr) return;
 
-  const bool jac = (F != nullptr) || (G != nullptr);
-  Mat2 J_mu_mu, J_g_g;
-  Mat23 J_mu_w, J_g_w;
-  stepS2(x.mu, w, dt, &out->mu, jac ? &J_mu_mu : nullptr, jac ? &J_mu_w : nullptr);
-  stepS2(x.g, w, dt, &out->g, jac ? &J_g_g : nullptr, jac ? &J_g_w : nullptr);
-  if (!jac) return;
-
+  // Derivatives with respect to z = [alpha, vartheta, mu (2), g (2), a, w] (14 columns); the biases enter as
+  // -a and -w, the reading noises as +a and +w.
+  constexpr int cA = 0, cT = 1, cMu = 4, cG = 6, cAcc = 8, cW = 11, kCols = 14;
+  using Row = Eigen::Matrix<double, 1, kCols>;
+  using Block = Eigen::Matrix<double, 3, kCols>;
   const Mat32 M_mu = x.mu.M();
   const Mat32 M_g = x.g.M();
-  // d vartheta' / d w (w enters as w x vartheta): dt [vartheta]x.
-  const Mat3 dth_dw = dt * skew(th);
+  const Mat3 Jl = leftJacobianSO3(phi);
+  // d(R v)/d w = dt [R v]x Jl(phi).
+  Block du;
+  du.col(cA) = dt * (g0 * (R * gv) + a_mean);
+  du.block<3, 3>(0, cT) = R;
+  du.block<3, 2>(0, cMu).setZero();
+  du.block<3, 2>(0, cG) = (dt * x.alpha * g0) * (R * M_g);
+  du.block<3, 3>(0, cAcc) = (dt * x.alpha) * (Mat3::Identity() - (0.5 * dt) * skew(w));
+  du.block<3, 3>(0, cW) = dt * skew(R * z) * Jl + (0.5 * dt * dt * x.alpha) * skew(a);
+  Row ds0 = Row::Zero();
+  ds0.segment<3>(cT) = mu.transpose();
+  ds0.segment<2>(cMu) = th.transpose() * M_mu;
+  Row dp = mu_R.transpose() * du;
+  dp.segment<2>(cMu) += u.transpose() * R * M_mu;
+  dp.segment<3>(cW) += u.transpose() * (dt * skew(mu_R) * Jl);
+  const Row ds1 = (dt * p) * ds0 + k0 * dp;
+  const Row dkappa = (0.5 * dt * kappa) * (ds0 + ds1);
+  Row d_alpha = x.alpha * dkappa;
+  d_alpha(cA) += kappa;
+  const Block d_th = u * dkappa + kappa * du;
+  // mu' = exp(phi) mu: a change e of w turns mu' by -dt Jl(phi) e (left), i.e. by -dt N(mu')^T Jl(phi) e in its
+  // tangent coordinates; likewise g'.
+  const Mat23 J_mu_w = -dt * out->mu.N().transpose() * Jl;
+  const Mat23 J_g_w = -dt * out->g.N().transpose() * Jl;
 
   if (F != nullptr) {
     using I = ErrIdx;
     F->setZero();
-    // alpha' = alpha + dt alpha (mu . vartheta)
-    (*F)(I::kAlpha, I::kAlpha) = 1.0 + s * dt;
-    F->block<1, 3>(I::kAlpha, I::kVartheta) = (dt * x.alpha) * mu.transpose();
-    F->block<1, 2>(I::kAlpha, I::kMu) = (dt * x.alpha) * th.transpose() * M_mu;
-    // vartheta'
-    F->block<3, 1>(I::kVartheta, I::kAlpha) = dt * acc_term;
-    F->block<3, 3>(I::kVartheta, I::kVartheta) =
-        Mat3::Identity() + dt * (-skew(w) + s * Mat3::Identity() + th * mu.transpose());
-    F->block<3, 2>(I::kVartheta, I::kMu) = dt * th * (th.transpose() * M_mu);
-    F->block<3, 2>(I::kVartheta, I::kG) = (dt * x.alpha * g0) * M_g;
-    F->block<3, 3>(I::kVartheta, I::kBa) = -(dt * x.alpha) * Mat3::Identity();
-    F->block<3, 3>(I::kVartheta, I::kBw) = -dth_dw;
-    // mu', g' (b_w enters as -w)
-    F->block<2, 2>(I::kMu, I::kMu) = J_mu_mu;
+    F->block<1, 1>(I::kAlpha, I::kAlpha) = d_alpha.segment<1>(cA);
+    F->block<1, 3>(I::kAlpha, I::kVartheta) = d_alpha.segment<3>(cT);
+    F->block<1, 2>(I::kAlpha, I::kMu) = d_alpha.segment<2>(cMu);
+    F->block<1, 2>(I::kAlpha, I::kG) = d_alpha.segment<2>(cG);
+    F->block<1, 3>(I::kAlpha, I::kBa) = -d_alpha.segment<3>(cAcc);
+    F->block<1, 3>(I::kAlpha, I::kBw) = -d_alpha.segment<3>(cW);
+    F->block<3, 1>(I::kVartheta, I::kAlpha) = d_th.col(cA);
+    F->block<3, 3>(I::kVartheta, I::kVartheta) = d_th.block<3, 3>(0, cT);
+    F->block<3, 2>(I::kVartheta, I::kMu) = d_th.block<3, 2>(0, cMu);
+    F->block<3, 2>(I::kVartheta, I::kG) = d_th.block<3, 2>(0, cG);
+    F->block<3, 3>(I::kVartheta, I::kBa) = -d_th.block<3, 3>(0, cAcc);
+    F->block<3, 3>(I::kVartheta, I::kBw) = -d_th.block<3, 3>(0, cW);
+    F->block<2, 2>(I::kMu, I::kMu).setIdentity();
     F->block<2, 3>(I::kMu, I::kBw) = -J_mu_w;
-    F->block<2, 2>(I::kG, I::kG) = J_g_g;
+    F->block<2, 2>(I::kG, I::kG).setIdentity();
     F->block<2, 3>(I::kG, I::kBw) = -J_g_w;
     // biases: random walks
     F->block<3, 3>(I::kBa, I::kBa).setIdentity();
@@ -96,8 +105,10 @@ void propagate(const State& x, const Vec3& accel_C, const Vec3& gyro_C, double d
     using I = ErrIdx;
     using Nz = NoiseIdx;
     G->setZero();
-    G->block<3, 3>(I::kVartheta, Nz::kAccel) = (dt * x.alpha) * Mat3::Identity();
-    G->block<3, 3>(I::kVartheta, Nz::kGyro) = dth_dw;
+    G->block<1, 3>(I::kAlpha, Nz::kAccel) = d_alpha.segment<3>(cAcc);
+    G->block<1, 3>(I::kAlpha, Nz::kGyro) = d_alpha.segment<3>(cW);
+    G->block<3, 3>(I::kVartheta, Nz::kAccel) = d_th.block<3, 3>(0, cAcc);
+    G->block<3, 3>(I::kVartheta, Nz::kGyro) = d_th.block<3, 3>(0, cW);
     G->block<2, 3>(I::kMu, Nz::kGyro) = J_mu_w;
     G->block<2, 3>(I::kG, Nz::kGyro) = J_g_w;
     G->block<3, 3>(I::kBa, Nz::kBaWalk).setIdentity();
@@ -110,6 +121,16 @@ void propagate(const State& x, const Vec3& accel_C, const Vec3& gyro_C, double d
 }
 
 }  // namespace
+
+ImuSample meanImuOver(const ImuSample& prev, const ImuSample& next, double t0_s, double t1_s) {
+  ImuSample out;
+  out.t_s = t1_s;
+  const double span_s = next.t_s - prev.t_s;
+  const double u = span_s > 0.0 ? (0.5 * (t0_s + t1_s) - prev.t_s) / span_s : 1.0;  // unitless
+  out.accel_mps2 = prev.accel_mps2 + u * (next.accel_mps2 - prev.accel_mps2);
+  out.gyro_radps = prev.gyro_radps + u * (next.gyro_radps - prev.gyro_radps);
+  return out;
+}
 
 State predictState(const State& x, const Vec3& accel_C, const Vec3& gyro_C, double dt_s, double gravity_mps2) {
   State out;
@@ -148,9 +169,9 @@ void predict(const Vec3& accel_C, const Vec3& gyro_C, double dt_s, const ImuPara
   propagate(*x, accel_C, gyro_C, dt_s, imu.gravity_mps2, &out, &F, &G);
 
   NoiseVec sigma = discreteNoiseSigmas(imu, process, dt_s);
-  // Model error of the distance dynamics alpha' = alpha (1 + s dt), s = mu . vartheta: a relative random walk
-  // that grows with the relative vertical rate |s| (take-off, landing, fast climbs), where the linearisation
-  // of the bilinear terms is worst. Without it, a prior far from the truth (a take-off from the ground with a
+  // Model error of the distance dynamics d ln(alpha)/dt = s = mu . vartheta: a relative random walk that grows
+  // with the relative vertical rate |s| (take-off, landing, fast climbs), where the linearisation of the
+  // bilinear terms is worst. Without it, a prior far from the truth (a take-off from the ground with a
   // prior of 0.25 m) is locked in with an overconfident sigma (docs/results.md).
   const double rate_sigma = process.alpha_rate_noise_sqrt_s * x->alpha *
                             std::abs(x->mu.vector().dot(x->vartheta)) * std::sqrt(dt_s);  // 1/m
