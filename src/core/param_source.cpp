@@ -3,8 +3,11 @@
 
 #include <yaml-cpp/yaml.h>
 
+#include <algorithm>
 #include <cmath>
 #include <functional>
+#include <iostream>
+#include <set>
 #include <sstream>
 #include <stdexcept>
 
@@ -88,6 +91,28 @@ YAML::Node lookup(const YAML::Node& root, const std::string& key, const std::str
 }
 
 }  // namespace
+
+namespace {
+
+// Leaf keys of a YAML map ("a/b"), in document order.
+void collectLeafKeys(const YAML::Node& map, const std::string& prefix, std::vector<std::string>* out) {
+  for (const auto& kv : map) {
+    const std::string key = prefix + (kv.first.IsScalar() ? kv.first.Scalar() : std::string("?"));
+    if (kv.second.IsMap() && kv.second.size() > 0) {
+      collectLeafKeys(kv.second, key + "/", out);
+    } else {
+      out->push_back(key);
+    }
+  }
+}
+
+}  // namespace
+
+std::vector<std::string> YamlParamSource::keys() const {
+  std::vector<std::string> out;
+  if (impl_->root.IsMap()) collectLeafKeys(impl_->root, "", &out);
+  return out;
+}
 
 bool YamlParamSource::get(const std::string& key, double* value) const {
   const YAML::Node n = lookup(impl_->root, key, path_);
@@ -410,8 +435,79 @@ std::vector<std::string> estimatorParamKeys() {
   return keys;
 }
 
+// ------------------------------------------------------------------------------------------------------------
+// Unknown keys
+// ------------------------------------------------------------------------------------------------------------
+namespace {
+
+// Levenshtein distance (insertions, deletions, substitutions of one character each).
+std::size_t editDistance(const std::string& a, const std::string& b) {
+  std::vector<std::size_t> row(b.size() + 1);
+  for (std::size_t j = 0; j <= b.size(); ++j) row[j] = j;
+  for (std::size_t i = 1; i <= a.size(); ++i) {
+    std::size_t diagonal = row[0];
+    row[0] = i;
+    for (std::size_t j = 1; j <= b.size(); ++j) {
+      const std::size_t substitute = diagonal + (a[i - 1] == b[j - 1] ? 0 : 1);
+      diagonal = row[j];
+      row[j] = std::min({row[j] + 1, row[j - 1] + 1, substitute});
+    }
+  }
+  return row[b.size()];
+}
+
+std::string lastComponent(const std::string& key) {
+  const std::size_t slash = key.rfind('/');
+  return slash == std::string::npos ? key : key.substr(slash + 1);
+}
+
+}  // namespace
+
+std::string UnknownParamKey::message() const {
+  std::string m = origin + ": unknown parameter key '" + key + "' ignored";
+  if (!closest.empty()) m += " (closest known key: '" + closest + "')";
+  return m;
+}
+
+std::vector<UnknownParamKey> unknownParamKeys(const ParamSource& source, const std::vector<std::string>& other_known) {
+  std::vector<std::string> known = estimatorParamKeys();
+  known.insert(known.end(), other_known.begin(), other_known.end());
+  const std::set<std::string> known_set(known.begin(), known.end());
+  std::vector<UnknownParamKey> out;
+  for (const std::string& key : source.keys()) {
+    if (known_set.count(key) > 0) continue;
+    const std::string group = key + "/";
+    const bool is_group = std::any_of(known.begin(), known.end(), [&](const std::string& k) {
+      return k.compare(0, group.size(), group) == 0;
+    });
+    if (is_group) continue;
+    UnknownParamKey u;
+    u.origin = source.origin();
+    u.key = key;
+    std::size_t best = static_cast<std::size_t>(-1);
+    const std::string leaf = lastComponent(key);
+    for (const std::string& k : known) {
+      const std::size_t d = std::min(editDistance(key, k), editDistance(leaf, lastComponent(k)) + 1);
+      if (d < best) {
+        best = d;
+        u.closest = k;
+      }
+    }
+    out.push_back(u);
+  }
+  return out;
+}
+
 void loadEstimatorParams(const ParamSource& source, EstimatorParams* params) {
+  loadEstimatorParams(source, params, [](const std::string& warning) { std::cerr << "warning: " << warning << "\n"; });
+}
+
+void loadEstimatorParams(const ParamSource& source, EstimatorParams* params, const ParamWarningFn& warn,
+                         const std::vector<std::string>& other_known) {
   if (params == nullptr) throw std::invalid_argument("loadEstimatorParams: null params");
+  if (warn) {
+    for (const UnknownParamKey& u : unknownParamKeys(source, other_known)) warn(u.message());
+  }
   EstimatorParams p = *params;
   for (const Entry& e : table()) e.load(source, p);
   checkConsistency(source, p);

@@ -62,7 +62,9 @@ void EstimatorNodelet::onInit() {
         diekf::CameraModel::fromKalibrYaml(settings_.camchain_file, settings_.camera_name));
     // Estimator keys from the private namespace (config/estimator.yaml); the Kalibr IMU file, when given, is the
     // calibration of this very sensor and overrides the noise densities and rate.
-    diekf::loadEstimatorParams(RosParamSource(pnh_), &params_);
+    // Keys of the namespace that neither the estimator nor the nodelet reads (typos) are warned about.
+    const auto warn = [this](const std::string& warning) { NODELET_WARN("diekf: %s", warning.c_str()); };
+    diekf::loadEstimatorParams(RosParamSource(pnh_), &params_, warn, nodeletParamKeys());
     if (!settings_.imu_file.empty()) diekf::loadKalibrImuYaml(settings_.imu_file, &params_.imu);
     estimator_ = std::make_unique<diekf::Estimator>(*camera_, params_);
     odometry_ = std::make_unique<BodyOdometry>(camera_->T_cam_imu, params_.imu.gyro_noise_density,
@@ -91,6 +93,17 @@ void EstimatorNodelet::onInit() {
   NODELET_INFO("diekf: %s, camera '%s' %dx%d from %s; image %s, IMU %s, mode %s", getName().c_str(),
                settings_.camera_name.c_str(), camera_->K.width, camera_->K.height, settings_.camchain_file.c_str(),
                settings_.image_topic.c_str(), settings_.imu_topic.c_str(), diekf::toString(params_.mode));
+}
+
+/// The nodelet's own keys in its private namespace (loadSettings, config/mynteye.yaml), plus those that
+/// image_transport and diagnostic_updater read there.
+std::vector<std::string> EstimatorNodelet::nodeletParamKeys() {
+  return {"camchain_file", "camera_name", "imu_file", "image_topic", "imu_topic", "camera_info_topic",
+          "image_transport", "odom_frame", "base_frame", "camera_frame", "publish_tf", "publish_static_tf",
+          "publish_odometry_imu_rate", "image_queue_size", "imu_queue_size", "expected_imu_rate_hz",
+          "expected_image_rate_hz", "rate_tolerance", "time_jump_reset_s", "late_image_warn_s",
+          "residual_image_gain", "path_max_poses", "gravity_arrow_m", "plane_marker_size_m", "diagnostic_period_s",
+          "diagnostic_period"};
 }
 
 void EstimatorNodelet::loadSettings() {

@@ -2,6 +2,8 @@
 
 #include <stdexcept>
 
+#include <ros/param.h>
+
 namespace diekf_ros {
 
 template <typename T>
@@ -13,6 +15,16 @@ bool RosParamSource::getTyped(const std::string& key, T* value, const char* type
   }
   *value = v;
   return true;
+}
+
+std::vector<std::string> RosParamSource::keys() const {
+  std::vector<std::string> names, out;
+  if (!ros::param::getParamNames(names)) return out;
+  const std::string prefix = nh_.getNamespace() + "/";
+  for (const std::string& n : names) {
+    if (n.size() > prefix.size() && n.compare(0, prefix.size(), prefix) == 0) out.push_back(n.substr(prefix.size()));
+  }
+  return out;
 }
 
 bool RosParamSource::get(const std::string& key, double* value) const { return getTyped(key, value, "number"); }

@@ -315,5 +315,62 @@ TEST(KalibrImu, TopLevelKeysAndErrors) {
   expectError([&] { loadKalibrImuYaml("/nonexistent_diekf_dir/imu.yaml", &imu); }, {"/nonexistent_diekf_dir/imu.yaml"});
 }
 
+// Keys of a parameter file that no parameter reads are ignored with a warning through the callback (file, key,
+// closest known key), before any value is read; known keys and groups are not reported; values still load.
+TEST(EstimatorParams, UnknownKeysWarnWithTheClosestKnownKey) {
+  TempYaml f("unknown", "mode: ekf\nphotometric:\n  max_pases: 5\n  stop_threshold: 0.01\n"
+                        "max_passes: 4\nimu:\n  lowpass_cutof_hz: 30\nfeature:\nnode_setting: x\n");
+  const YamlParamSource src(f.path());
+  EXPECT_EQ(src.keys(), (std::vector<std::string>{"mode", "photometric/max_pases", "photometric/stop_threshold",
+                                                  "max_passes", "imu/lowpass_cutof_hz", "feature", "node_setting"}));
+  std::vector<std::string> warnings;
+  EstimatorParams p;
+  loadEstimatorParams(src, &p, [&](const std::string& w) { warnings.push_back(w); });
+  ASSERT_EQ(warnings.size(), 4u);
+  const std::vector<std::pair<std::string, std::string>> expected = {
+      {"photometric/max_pases", "photometric/max_passes"},
+      {"max_passes", "photometric/max_passes"},  // a key without its group
+      {"imu/lowpass_cutof_hz", "imu/lowpass_cutoff_hz"},
+      {"node_setting", ""}};
+  for (std::size_t i = 0; i < expected.size(); ++i) {
+    EXPECT_NE(warnings[i].find(f.path()), std::string::npos) << warnings[i];
+    EXPECT_NE(warnings[i].find("'" + expected[i].first + "'"), std::string::npos) << warnings[i];
+    if (!expected[i].second.empty()) {
+      EXPECT_NE(warnings[i].find("closest known key: '" + expected[i].second + "'"), std::string::npos)
+          << warnings[i];
+    }
+  }
+  // The known keys were read; the unknown ones changed nothing.
+  EXPECT_EQ(p.mode, UpdateMode::kEkf);
+  EXPECT_EQ(p.photometric.stop_threshold, 0.01);
+  EXPECT_EQ(p.photometric.max_passes, PhotometricParams{}.max_passes);
+  EXPECT_EQ(p.imu.lowpass_cutoff_hz, ImuParams{}.lowpass_cutoff_hz);
+
+  // The same list from unknownParamKeys; a front end's own keys are not reported.
+  const std::vector<UnknownParamKey> unknown = unknownParamKeys(src, {"node_setting"});
+  ASSERT_EQ(unknown.size(), 3u);
+  EXPECT_EQ(unknown[0].origin, f.path());
+  EXPECT_EQ(unknown[0].key, "photometric/max_pases");
+  EXPECT_EQ(unknown[0].closest, "photometric/max_passes");
+  EXPECT_EQ(unknown[2].closest, "imu/lowpass_cutoff_hz");
+  EXPECT_EQ(unknown[0].message(), f.path() + ": unknown parameter key 'photometric/max_pases' ignored (closest "
+                                              "known key: 'photometric/max_passes')");
+  warnings.clear();
+  loadEstimatorParams(src, &p, [&](const std::string& w) { warnings.push_back(w); }, {"node_setting"});
+  EXPECT_EQ(warnings.size(), 3u);
+
+  // A warning is not an error: a bad value still throws, and the shipped config file warns about nothing.
+  warnings.clear();
+  loadEstimatorParams(YamlParamSource(estimatorYaml()), &p, [&](const std::string& w) { warnings.push_back(w); });
+  EXPECT_TRUE(warnings.empty()) << warnings.front();
+  TempYaml bad("unknown_bad", "photometric:\n  max_pases: 5\n  max_passes: 0\n");
+  warnings.clear();
+  expectError([&] { loadEstimatorParams(YamlParamSource(bad.path()), &p, [&](const std::string& w) {
+                      warnings.push_back(w);
+                    }); },
+              {bad.path(), "photometric/max_passes"});
+  EXPECT_EQ(warnings.size(), 1u);
+}
+
 }  // namespace
 }  // namespace diekf

@@ -9,6 +9,7 @@
 #include <mutex>
 #include <string>
 #include <thread>
+#include <vector>
 
 #include <diagnostic_updater/diagnostic_updater.h>
 #include <diagnostic_updater/publisher.h>
@@ -67,6 +68,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
  private:
   void onInit() override;
   void loadSettings();
+  static std::vector<std::string> nodeletParamKeys();
   void setUpOutputs();
   void setUpInputs();
 

@@ -20,6 +20,8 @@ class RosParamSource : public diekf::ParamSource {
   bool get(const std::string& key, std::string* value) const override;
   bool get(const std::string& key, std::vector<double>* value) const override;
   std::string origin() const override { return "ROS namespace " + nh_.getNamespace(); }
+  /// Every parameter under the namespace, relative to it ("photometric/max_passes").
+  std::vector<std::string> keys() const override;
 
  private:
   template <typename T>
