@@ -6,6 +6,8 @@
 #include "diekf/params.h"
 #include "diekf/state.h"
 
+#include <vector>
+
 namespace diekf {
 
 struct UpdateStats {
@@ -26,6 +28,7 @@ struct UpdateStats {
   double nis = 0.0;              ///< normalised innovation squared of the first pass (chi-square(8) if consistent)
   double nis_scale = 1.0;        ///< innovation-based noise inflation used in this update (>= 1)
   double gate_inflation = 1.0;   ///< factor the measurement noise was inflated by at the gate (1: passed)
+  double outlier_fraction = 0.0; ///< share of the valid pixels' weight removed by the outlier weights (0..1)
   bool gated = false;            ///< the innovation failed the gate: the update was down-weighted
 };
 
@@ -62,6 +65,7 @@ class PhotometricUpdate {
   void resetNoiseModel() {
     noise_ = NoiseEstimate();
     last_rate_valid_ = false;
+    weight_map_.release();
   }
 
   /// One linearisation at x (what every Gauss-Newton pass accumulates), without the solve:
@@ -81,8 +85,9 @@ class PhotometricUpdate {
     ObservedVec b = ObservedVec::Zero();    ///< sum w S^T r
     int valid = 0, candidates = 0;
     double sum_r2 = 0.0;
-    double robust_sigma = 0.0;  ///< sqrt(pi/2) mean |r| over the valid pixels
+    double robust_sigma = 0.0;  ///< sqrt(pi/2) mean |r| over the valid pixels (outlier-weighted)
     double correlation = 1.0;   ///< variance of the tile scores over the variance of independent pixels
+    double weight_sum = 0.0;    ///< sum of the outlier weights over the valid pixels (= valid without a map)
   };
   struct NoiseEstimate {
     bool valid = false;
@@ -94,6 +99,8 @@ class PhotometricUpdate {
                  double state_lag_s, const State& x, double huber_sigma, PassSums* out);
   /// Residual image and row scratch for images of `size` (allocates only when the size changes).
   void prepareBuffers(const cv::Size& size);
+  /// Outlier weights for the next image from this update's last residual (docs/noise_model.md, section 10).
+  void updateWeightMap(double variance);
 
   PhotometricParams params_;
   PreprocessParams preprocess_;
@@ -104,6 +111,10 @@ class PhotometricUpdate {
   double noise_correlation_floor_ = 1.0;
   NoiseEstimate noise_;
   double pending_nis_scale_ = 1.0;  ///< the inflation to keep after the current update
+  cv::Mat weight_map_;      ///< CV_32FC1 outlier weights in [0, 1] for the next update (empty: none yet)
+  cv::Mat weight_scratch_;  ///< CV_32FC1 horizontal window means of the squared residual
+  std::vector<double> weight_colsum_;  ///< running column sums of the vertical window
+  bool use_weight_map_ = false;  ///< weight_map_ applies to the sweeps of the current update
   Vec3 last_rate_C_ = Vec3::Zero();  ///< rotation rate of the previous update's interval, rad/s (camera frame)
   bool last_rate_valid_ = false;
 };

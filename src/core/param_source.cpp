@@ -344,6 +344,10 @@ const std::vector<Entry>& table() {
                      between(0.0, 1.0)));
     t.push_back(real("photometric/time_offset_sigma_s", DIEKF_FIELD(double, photometric.time_offset_sigma_s),
                      between(0.0, 1.0)));
+    t.push_back(real("photometric/outlier_threshold_sigma",
+                     DIEKF_FIELD(double, photometric.outlier_threshold_sigma), between(0.0, 1000.0)));
+    t.push_back(real("photometric/outlier_window_fraction",
+                     DIEKF_FIELD(double, photometric.outlier_window_fraction), between(0.0, 1.0)));
     // feature baseline
     t.push_back(integer("feature/max_corners", DIEKF_FIELD(int, feature.max_corners), between(1, 100000)));
     t.push_back(real("feature/quality_level", DIEKF_FIELD(double, feature.quality_level), Range{0.0, 1.0, true, false}));

@@ -157,6 +157,7 @@ struct SweepConfig {
   float huber_abs = 0.0f;     // Huber threshold on |r| in intensity units (0 = off)
   bool gradient_weighting = false;
   int tiles_x = 8, tiles_y = 6;  // tile grid of the score sums (noise model)
+  const cv::Mat* weight_map = nullptr;  // CV_32FC1 per-pixel outlier weights in [0, 1] (image size), or none
 };
 
 constexpr int kMaxTilesPerAxis = 16;
@@ -168,7 +169,8 @@ struct SweepSums {
   int candidates = 0;
   int valid = 0;
   double sum_r2 = 0.0;
-  double sum_abs_r = 0.0;
+  double sum_abs_r = 0.0;  // sum of w_map |r| over valid pixels (w_map = 1 without a weight map)
+  double sum_w = 0.0;      // sum of w_map over valid pixels
   double grad_sum = 0.0;  // sum of |grad I_c| over valid pixels (gradient weighting normalisation)
   double G[8][9] = {};
   double tile_b[kMaxTiles][8];  // written for the tiles in use at the end of sweep()
@@ -185,6 +187,7 @@ struct RowBuffers {
   float* T[9];
   float* valid;
   float* cur[3];  // I_c, dI_c/dx, dI_c/dy at the row's candidates (strided rows only)
+  float* wmap;    // outlier weights at the row's candidates (strided rows only)
 };
 
 /// Gram sums of one block of pairs over a row: G[i][j] += sum_k T_i[k] T_j[k] for i in [I0, I0 + NI), j in
@@ -251,7 +254,7 @@ void accumulateRow(float* const* T, const float* valid, int n_pad, const int* se
 /// lane group), residual, Jacobian row S (2/dt times the true row: gradient sum instead of mean, Jacobian
 /// without dt; the caller rescales), weight; the results go to the row buffers; (2) the row's Gram sums.
 /// The residual r (0 where invalid) is written to `residual`. The weighting options are template parameters.
-template <bool kHuber, bool kGradientWeighting>
+template <bool kHuber, bool kGradientWeighting, bool kWeightMap>
 void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelWarp& wp, const SweepConfig& cfg,
            RowBuffers buf, SweepSums* sums, cv::Mat* residual) {
   using namespace cv;
@@ -306,6 +309,16 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
       Gyc = buf.cur[2];
     }
     float* res_row = residual->ptr<float>(y);
+    const float* Wm = nullptr;
+    if constexpr (kWeightMap) {
+      if (cfg.stride == 1) {
+        Wm = cfg.weight_map->ptr<float>(y) + cfg.border;
+      } else {
+        const float* src = cfg.weight_map->ptr<float>(y);
+        for (int k = 0; k < n_pad; ++k) buf.wmap[k] = src[cfg.border + std::min(k, n - 1) * cfg.stride];
+        Wm = buf.wmap;
+      }
+    }
 
     // Terms constant along the row: q = (qx, qy, 1), Q = H q = qx H_col0 + h_row, etc.
     const float yf = static_cast<float>(y);
@@ -324,6 +337,7 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
     const v_float32x4 qP1 = v_setall_f32(wp.P[1][1] * qy_s + wp.P[2][1]);
 
     v_float32x4 r2 = v_setzero_f32(), rabs = v_setzero_f32(), gsum = v_setzero_f32(), vcount = v_setzero_f32();
+    v_float32x4 wsum = v_setzero_f32();
     v_float32x4 xv = v_load(xs_init);
     for (int k = 0; k < n_pad; k += 4, xv += x_step) {
       const v_float32x4 qx = (xv - cx) * ifx;
@@ -371,6 +385,11 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
                                      v_muladd(gD1, v_setall_f32(wp.a[1]), gD0 * v_setall_f32(wp.a[0])));
       // Weight (0 for invalid pixels); the rows are scaled by sqrt(w).
       v_float32x4 w = v_select(valid, one, zero);
+      v_float32x4 wm = one;  // outlier weight of the pixel (1 without a map)
+      if constexpr (kWeightMap) {
+        wm = v_load(Wm + k);
+        w = w * wm;
+      }
       if constexpr (kGradientWeighting) {
         const v_float32x4 gmag = v_sqrt(v_muladd(gxc, gxc, gyc * gyc));
         gsum = v_muladd(w, gmag, gsum);
@@ -380,7 +399,7 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
         const v_float32x4 ar = v_abs(r);
         w = w * v_select(ar > huber, huber / v_select(ar > huber, ar, one), one);
       }
-      const v_float32x4 sw = (kHuber || kGradientWeighting) ? v_sqrt(w) : w;
+      const v_float32x4 sw = (kHuber || kGradientWeighting || kWeightMap) ? v_sqrt(w) : w;
       const v_float32x4 swj = sw * iz;  // the Jacobian rows carry dp_r/dQ = D_r / Q_z
       const v_float32x4 ssb = swj * s_b, su = swj * u;
       // S' = [vartheta (3), mu (2), b_w (3)] (see PixelWarp); b_w: gD x E q + s_b C2^T gD + u C3 q.
@@ -409,8 +428,14 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
       v_store_aligned(buf.T[7] + k, swj * v_bw[2]);
       v_store_aligned(buf.T[8] + k, sw * r);
       r2 = v_muladd(r, r, r2);
-      rabs += v_abs(r);
       const v_float32x4 valid01 = v_select(valid, one, zero);
+      if constexpr (kWeightMap) {
+        rabs = v_muladd(v_abs(r), wm, rabs);
+        wsum = v_muladd(valid01, wm, wsum);
+      } else {
+        rabs += v_abs(r);
+        wsum += valid01;
+      }
       v_store_aligned(buf.valid + k, valid01);
       vcount += valid01;
       if (cfg.stride == 1) {
@@ -428,6 +453,7 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
     sums->valid += static_cast<int>(v_reduce_sum(vcount));
     sums->sum_r2 += v_reduce_sum(r2);
     sums->sum_abs_r += v_reduce_sum(rabs);
+    sums->sum_w += v_reduce_sum(wsum);
     sums->grad_sum += v_reduce_sum(gsum);
   }
   for (int t = 0; t < tiles_x * tiles_y; ++t) {
@@ -513,14 +539,15 @@ void PhotometricUpdate::prepareBuffers(const cv::Size& size) {
     residual_.setTo(0.0f);  // pixels the sweeps never visit (border, pixel_stride gaps) stay 0
   }
   const int n_pad = (size.width + 3) & ~3;
-  if (scratch_.rows != 13 || scratch_.cols < n_pad) scratch_.create(13, n_pad, CV_32FC1);
+  if (scratch_.rows != 14 || scratch_.cols < n_pad) scratch_.create(14, n_pad, CV_32FC1);
 }
 
 int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& K, const Vec3& gyro_mean_C,
                                   double dt_s, double state_lag_s, const State& x, double huber_sigma,
                                   PassSums* out) {
   *out = PassSums();
-  const SweepConfig cfg = makeConfig(params_, preprocess_, huber_sigma);
+  SweepConfig cfg = makeConfig(params_, preprocess_, huber_sigma);
+  if (use_weight_map_) cfg.weight_map = &weight_map_;
   const PixelWarp wp(x, K, gyro_mean_C, dt_s, state_lag_s);
   if (!wp.ok) return 0;  // the plane model breaks down within the interval: no measurement
   SweepSums sums;
@@ -528,15 +555,24 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
   for (int i = 0; i < 9; ++i) buf.T[i] = scratch_.ptr<float>(i);
   buf.valid = scratch_.ptr<float>(9);
   for (int i = 0; i < 3; ++i) buf.cur[i] = scratch_.ptr<float>(10 + i);
+  buf.wmap = scratch_.ptr<float>(13);
   const bool huber = cfg.huber_abs > 0.0f;
-  if (huber && cfg.gradient_weighting) {
-    sweep<true, true>(ref_packed_, cur, wp, cfg, buf, &sums, &residual_);
-  } else if (huber) {
-    sweep<true, false>(ref_packed_, cur, wp, cfg, buf, &sums, &residual_);
-  } else if (cfg.gradient_weighting) {
-    sweep<false, true>(ref_packed_, cur, wp, cfg, buf, &sums, &residual_);
+  auto run = [&](auto weight_map) {
+    constexpr bool kMap = decltype(weight_map)::value;
+    if (huber && cfg.gradient_weighting) {
+      sweep<true, true, kMap>(ref_packed_, cur, wp, cfg, buf, &sums, &residual_);
+    } else if (huber) {
+      sweep<true, false, kMap>(ref_packed_, cur, wp, cfg, buf, &sums, &residual_);
+    } else if (cfg.gradient_weighting) {
+      sweep<false, true, kMap>(ref_packed_, cur, wp, cfg, buf, &sums, &residual_);
+    } else {
+      sweep<false, false, kMap>(ref_packed_, cur, wp, cfg, buf, &sums, &residual_);
+    }
+  };
+  if (cfg.weight_map != nullptr) {
+    run(std::true_type{});
   } else {
-    sweep<false, false>(ref_packed_, cur, wp, cfg, buf, &sums, &residual_);
+    run(std::false_type{});
   }
 
   // Scale: the sweep's rows are 2/dt times the true S (gradient sum instead of mean, Jacobian without dt);
@@ -560,7 +596,8 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
   out->valid = sums.valid;
   out->candidates = sums.candidates;
   out->sum_r2 = sums.sum_r2;
-  out->robust_sigma = sums.valid > 0 ? std::sqrt(0.5 * 3.14159265358979323846) * sums.sum_abs_r / sums.valid : 0.0;
+  out->weight_sum = sums.sum_w;
+  out->robust_sigma = sums.sum_w > 0.0 ? std::sqrt(0.5 * 3.14159265358979323846) * sums.sum_abs_r / sums.sum_w : 0.0;
 
   // Score correlation (docs/noise_model.md): with independent pixels of variance s^2 the tile scores b_t are
   // independent with covariance s^2 A_t, so sum_t (b_t - f_t b)^T A^-1 (b_t - f_t b) has the expectation
@@ -667,6 +704,9 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   }
   prepareBuffers(cur.intensity.size());  // no-op after the first call at this size
   packReference(ref, &ref_packed_);      // once per update, shared by every pass
+  // Outlier weights from the previous update's residual (section 10), when there is one of this size.
+  use_weight_map_ = params_.outlier_threshold_sigma > 0.0 && !weight_map_.empty() &&
+                    weight_map_.size() == cur.intensity.size();
 
   // Prior covariance of the observed states (for the innovation test of the first pass).
   ObservedInfo P_obs;
@@ -757,7 +797,9 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   };
   const internal::IterationResult it = internal::iterateInformationForm(
       params_.max_passes, params_.stop_threshold, linearize_at, x, P);
+  use_weight_map_ = false;
   stats.applied = it.ok;
+  stats.outlier_fraction = sums.valid > 0 ? std::clamp(1.0 - sums.weight_sum / sums.valid, 0.0, 1.0) : 0.0;
   stats.passes = it.passes;
   stats.last_step_norm = it.last_step_norm;
   // Smoothed noise estimates from the last linearisation (the closest to the converged residual).
@@ -773,7 +815,62 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
       noise_.correlation += alpha_ema * (sums.correlation - noise_.correlation);
     }
   }
+  if (pass > 0 && sums.valid > 0) {
+    const double var = adaptive && noise_.valid ? noise_.variance
+                                                : params_.intensity_noise_sigma * params_.intensity_noise_sigma;
+    updateWeightMap(std::max(var, floor_var));
+  }
   return stats;
+}
+
+void PhotometricUpdate::updateWeightMap(double variance) {
+  const double k = params_.outlier_threshold_sigma;
+  if (!(k > 0.0) || !(variance > 0.0) || !std::isfinite(variance) || residual_.empty()) {
+    weight_map_.release();
+    return;
+  }
+  const int W = residual_.cols, H = residual_.rows;
+  const int half = std::max(1, static_cast<int>(std::lround(0.5 * params_.outlier_window_fraction * W)));
+  weight_scratch_.create(residual_.size(), CV_32FC1);
+  weight_map_.create(residual_.size(), CV_32FC1);
+  // Horizontal window means of r^2 (windows truncated at the image's edges), by running sums.
+  for (int y = 0; y < H; ++y) {
+    const float* r = residual_.ptr<float>(y);
+    float* out = weight_scratch_.ptr<float>(y);
+    double sum = 0.0;
+    int lo = 0, hi = 0;  // window [lo, hi)
+    for (int x = 0; x < W; ++x) {
+      const int want_hi = std::min(W, x + half + 1), want_lo = std::max(0, x - half);
+      for (; hi < want_hi; ++hi) sum += double(r[hi]) * r[hi];
+      for (; lo < want_lo; ++lo) sum -= double(r[lo]) * r[lo];
+      out[x] = static_cast<float>(sum / (hi - lo));
+    }
+  }
+  // Vertical window means, then the weight w = min(1, k^2 sigma^2 / m): 1 while the window's RMS residual is
+  // within k sigma, falling as (k sigma / RMS)^2 beyond (the Cauchy-like tail: strong objects keep almost no
+  // weight, a state error that raises the residual everywhere only softens the weights).
+  const double inv = 1.0 / (k * k * variance);
+  weight_colsum_.resize(static_cast<size_t>(W));  // allocates once per image width
+  std::fill(weight_colsum_.begin(), weight_colsum_.end(), 0.0);
+  double* colsum = weight_colsum_.data();
+  int lo = 0, hi = 0;  // rows [lo, hi) in the column sums
+  for (int y = 0; y < H; ++y) {
+    const int want_hi = std::min(H, y + half + 1), want_lo = std::max(0, y - half);
+    for (; hi < want_hi; ++hi) {
+      const float* row = weight_scratch_.ptr<float>(hi);
+      for (int x = 0; x < W; ++x) colsum[x] += row[x];
+    }
+    for (; lo < want_lo; ++lo) {
+      const float* row = weight_scratch_.ptr<float>(lo);
+      for (int x = 0; x < W; ++x) colsum[x] -= row[x];
+    }
+    const double scale = inv / (hi - lo);
+    float* out = weight_map_.ptr<float>(y);
+    for (int x = 0; x < W; ++x) {
+      const double z = std::max(0.0, colsum[x]) * scale;
+      out[x] = static_cast<float>(1.0 / std::max(1.0, z));
+    }
+  }
 }
 
 }  // namespace diekf
