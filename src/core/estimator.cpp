@@ -95,6 +95,7 @@ struct PendingImage {
 constexpr size_t kImuBufferCapacity = 1024;  // filtered samples (about 10 s at 100 Hz)
 constexpr size_t kResultCapacity = 64;       // unread results kept (oldest dropped): nobody reads, memory bounded
 constexpr size_t kMessageCapacity = 160;     // chars reserved per result message (formatted without allocation)
+constexpr double kReportOutlierFraction = 0.05;  // outlier weight share named in the status message
 
 }  // namespace
 
@@ -506,6 +507,7 @@ struct Estimator::Impl {
     r.noise_correlation = std::isfinite(stats.noise_correlation) ? stats.noise_correlation : 0.0;
     r.gate_inflation = std::isfinite(stats.gate_inflation) ? stats.gate_inflation : 1.0;
     r.nis_scale = std::isfinite(stats.nis_scale) ? stats.nis_scale : 1.0;
+    r.outlier_fraction = std::isfinite(stats.outlier_fraction) ? stats.outlier_fraction : 0.0;
     r.valid_ratio = std::isfinite(stats.valid_ratio) ? stats.valid_ratio : 0.0;
     if (stats.applied) ++updates_since_reset;
 
@@ -569,6 +571,12 @@ struct Estimator::Impl {
     } else {
       r.status = FilterStatus::kTracking;
       std::snprintf(msg, sizeof(msg), "%s", skip_reason.c_str());
+    }
+    if (r.outlier_fraction >= kReportOutlierFraction && r.status != FilterStatus::kReset) {
+      // Objects or clutter not moving with the plane (docs/noise_model.md section 10): say how much is ignored.
+      const size_t used = std::strlen(msg);
+      std::snprintf(msg + used, sizeof(msg) - used, "%soutliers: %.0f %% of the image down-weighted",
+                    used > 0 ? "; " : "", 100.0 * r.outlier_fraction);
     }
     pending_reset_reason.clear();
     if (r.status == FilterStatus::kTracking && stats.applied && bad_frames == 0) rememberGood(img.t_s);

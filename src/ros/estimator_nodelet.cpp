@@ -551,6 +551,7 @@ void EstimatorNodelet::publishResult(const diekf::FrameResult& r) {
     last_noise_sigma_ = r.noise_sigma;
     last_noise_correlation_ = r.noise_correlation;
     if (r.gate_inflation > 1.0) ++gated_updates_;
+    last_outlier_fraction_ = r.outlier_fraction;
     update_ms_sum_ += r.update_ms;
     update_ms_max_ = std::max(update_ms_max_, r.update_ms);
     ++update_count_;
@@ -596,6 +597,7 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
   stat.add("last NIS (chi-square 8 dof: mean 8, 99.9 % below 26.1)", last_nis_);
   stat.add("photometric noise sigma (normalised intensity)", last_noise_sigma_);
   stat.add("pixels per independent measurement", last_noise_correlation_);
+  stat.add("outlier weight removed (share of the image)", last_outlier_fraction_);
   stat.add("gated updates", gated_updates_);
   stat.add("mean update time (ms)", update_count_ > 0 ? update_ms_sum_ / update_count_ : 0.0);
   stat.add("max update time (ms)", update_ms_max_);

@@ -82,10 +82,13 @@ TEST(EvalIo, EstimatesRoundTrip) {
     r.iterations = 0;
     r.status = "initializing";
     w.write(r);
+    r.status = "degraded";  // every status the estimator writes reads back
+    w.write(r);
     w.close();
   }
   const std::vector<EstimateRow> rows = readEstimatesCsv(path);
-  ASSERT_EQ(rows.size(), 2u);
+  ASSERT_EQ(rows.size(), 3u);
+  EXPECT_EQ(rows[2].status, "degraded");
   EXPECT_NEAR(rows[1].t_s, 10.033333333, 1e-9);
   EXPECT_NEAR(rows[0].d_m, 1.2345678, 1e-9);
   EXPECT_NEAR(rows[0].v_mps.z(), 0.003, 1e-12);
@@ -104,6 +107,11 @@ TEST(EvalIo, ReadRejectsWrongHeaderAndBadRows) {
   const std::string bad_row = dir.file("b.csv");
   std::ofstream(bad_row) << estimatesCsvHeader() << "\n" << formatEstimateRow(sampleRow(1.0)) << ",extra\n";
   EXPECT_THROW(readEstimatesCsv(bad_row), std::runtime_error);
+  const std::string bad_status = dir.file("c.csv");
+  EstimateRow unknown = sampleRow(1.0);
+  unknown.status = "lost";
+  std::ofstream(bad_status) << estimatesCsvHeader() << "\n" << formatEstimateRow(unknown) << "\n";
+  EXPECT_THROW(readEstimatesCsv(bad_status), std::runtime_error);
   EXPECT_THROW(readEstimatesCsv(dir.file("missing.csv")), std::runtime_error);
   EXPECT_THROW(EstimatesCsvWriter(dir.file("no/such/dir/x.csv")), std::runtime_error);
 }

@@ -144,7 +144,7 @@ std::vector<EstimateRow> readEstimatesCsv(const std::string& path) {
     r.iterations = static_cast<int>(v[16]);
     r.update_ms = v[17];
     r.status = f[18];
-    if (r.status != "initializing" && r.status != "tracking" && r.status != "reset") {
+    if (r.status != "initializing" && r.status != "tracking" && r.status != "degraded" && r.status != "reset") {
       throw std::runtime_error(where + ": unknown status '" + r.status + "'");
     }
     rows.push_back(r);
