@@ -145,14 +145,14 @@ TEST(RealismRender, ZeroReadoutAndUniformBandsAreBitIdentical) {
   EXPECT_TRUE(sameImage(r.renderBands(gs, plane, tex, 1.1, so, 77), ref));
   // One band per row with the same poses: the same pixels too.
   std::vector<RowBand> rows;
-  for (int v = 0; v < r.height(); ++v) rows.push_back({v, v + 1, sub});
+  for (int v = 0; v < r.height(); ++v) rows.push_back({v, v + 1, sub, {}});
   EXPECT_TRUE(sameImage(r.renderBands(rows, plane, tex, 1.1, so, 77), ref));
   // And a non-zero readout changes the image.
   EXPECT_FALSE(sameImage(
       r.renderBands(rollingShutterBands(pose_at, t, r.height(), 0.016, exposure, n_sub), plane, tex, 1.1, so, 77),
       ref));
   // Bad band layouts are rejected.
-  std::vector<RowBand> gap = {{0, 10, sub}, {11, r.height(), sub}};
+  std::vector<RowBand> gap = {{0, 10, sub, {}}, {11, r.height(), sub, {}}};
   EXPECT_THROW(r.renderBands(gap, plane, tex, 1.0, so, 0), std::invalid_argument);
 }
 
@@ -193,7 +193,7 @@ TEST(RealismRender, DefocusReducesGradientEnergy) {
   P.R_WC = downward();
   P.p_WC = Eigen::Vector3d(0.01, 0.02, 0.5);
   const SensorOptions so = noiseless();
-  const std::vector<RowBand> one = {{0, r.height(), {P}}};
+  const std::vector<RowBand> one = {{0, r.height(), {P}, {}}};
   const cv::Mat sharp = r.renderBands(one, Plane(), tex, 1.0, so, 0);
   EXPECT_TRUE(sameImage(sharp, r.renderImage({P}, Plane(), tex, 1.0, so, 0)));
   RenderEffects fx;
@@ -243,7 +243,7 @@ TEST(RealismRender, NonLambertianDependsOnTheViewpoint) {
     std::vector<float> rad;
     RenderEffects fx;
     fx.specular = s;
-    r.renderRadianceBands({{0, r.height(), {P}}}, plane, tex, &rad, fx);
+    r.renderRadianceBands({{0, r.height(), {P}, {}}}, plane, tex, &rad, fx);
     const int u = static_cast<int>(std::lround(px.x())), v = static_cast<int>(std::lround(px.y()));
     EXPECT_GT(u, 2);
     EXPECT_GT(v, 2);

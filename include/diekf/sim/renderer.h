@@ -10,6 +10,7 @@
 #include <opencv2/core.hpp>
 
 #include "diekf/camera_model.h"
+#include "diekf/sim/clutter.h"
 #include "diekf/sim/realism.h"
 #include "diekf/sim/texture.h"
 #include "diekf/sim/trajectory.h"
@@ -32,21 +33,29 @@ struct SensorOptions {
 
 /// A band of image rows [row0, row1) rendered with its own sub-frame poses (rolling shutter: each band of
 /// rows is exposed at its own time). Bands must cover the image rows in order without gaps or overlap.
+/// `times` (s, one per pose, or empty) place moving objects (RenderEffects::clutter) at each sub-frame's time.
 struct RowBand {
   int row0 = 0, row1 = 0;
   std::vector<CameraPose> poses;
+  std::vector<double> times;
 };
 
 /// Optional image effects of the band renderer (all off by default).
 struct RenderEffects {
   const SpecularPatches* specular = nullptr;  ///< view-dependent glossy ground patches (not owned)
   double defocus_sigma_px = 0.0;              ///< Gaussian blur of the radiance before the sensor (px, this resolution)
+  /// Objects on the ground (movers and boxes, not owned): each ray's nearest hit of the ground and the objects
+  /// is drawn; movers are placed at the band's sub-frame times (RowBand::times, required with movers).
+  const Clutter* clutter = nullptr;
+  /// Output (may be null): per pixel, the fraction of sub-frames that saw a mover / a box.
+  ClutterMask* mask = nullptr;
 };
 
 /// Rolling-shutter bands for an image whose middle row is exposed around `t_mid_s`: row v is centred at
 /// t_mid + rowTimeOffset(v, height, readout_s) and averages `n_sub` sub-frames spread over `exposure_s` around
 /// it (the same sub-frame times as a global-shutter image). `rows_per_band` rows share the pose of their middle
-/// row. With readout_s = 0 the result is one band whose poses are the global-shutter sub-frames.
+/// row. With readout_s = 0 the result is one band whose poses are the global-shutter sub-frames. Each band's
+/// `times` are its sub-frame times.
 std::vector<RowBand> rollingShutterBands(const std::function<CameraPose(double)>& pose_at, double t_mid_s,
                                          int height, double readout_s, double exposure_s, int n_sub,
                                          int rows_per_band = 1);
@@ -101,15 +110,23 @@ class Renderer {
   template <bool kSpecular>
   void renderRowsT(const std::vector<CameraPose>& poses, const Plane& plane, const Texture& tex,
                    const SpecularPatches* spec, float* out, int row0, int row1) const;
+  template <bool kSpecular>
+  void renderRowsClutter(const RowBand& band, const Plane& plane, const Texture& tex, const SpecularPatches* spec,
+                         const Clutter& clutter, float* out, float* mask_mover, float* mask_box, int row0,
+                         int row1) const;
   void renderBandRows(const std::vector<RowBand>& bands, const Plane& plane, const Texture& tex,
-                      const SpecularPatches* spec, float* out, int row0, int row1) const;
+                      const SpecularPatches* spec, float* out, int row0, int row1, const Clutter* clutter = nullptr,
+                      ClutterMask* mask = nullptr) const;
   void checkBands(const std::vector<RowBand>& bands) const;
+  /// With fx.clutter: checks the bands' times, sizes the mask (fx.mask, else `own`) and returns it; else null.
+  ClutterMask* prepareClutter(const std::vector<RowBand>& bands, const RenderEffects& fx, ClutterMask* own) const;
 
   CameraModel cam_;
   int width_ = 0, height_ = 0, threads_ = 1;
   std::vector<RayEntry> rays_;
   std::vector<float> vignette_r2_;  // squared normalised radius from the principal point (corner = 1)
   std::vector<float> noise_table_;  // unit Gaussian samples, reused with random offsets
+  float ray_xmin_ = 0.f, ray_xmax_ = 0.f, ray_ymin_ = 0.f, ray_ymax_ = 0.f;  // extent of the normalised rays
 };
 
 }  // namespace sim

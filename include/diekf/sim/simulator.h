@@ -6,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include "diekf/sim/clutter.h"
 #include "diekf/sim/imu_sim.h"
 #include "diekf/sim/realism.h"
 #include "diekf/sim/renderer.h"
@@ -48,6 +49,7 @@ struct SimulationOptions {
   ImuNoiseParams imu_noise;
   RealismOptions realism;               ///< realistic-camera effects (all off by default)
   std::string realism_preset = "clean"; ///< name written to realism.yaml ("custom" if flags changed a preset)
+  ClutterOptions clutter;               ///< moving objects and boxes on the ground (none by default)
   std::string output_dir;
 };
 
@@ -61,6 +63,9 @@ struct SimulationSummary {
   Vec3 accel_bias0 = Vec3::Zero(), gyro_bias0 = Vec3::Zero();
   double wall_s = 0.0;
   std::string bag_path;
+  int clutter_objects = 0;                  ///< movers' crossings + boxes
+  double mover_coverage_mean = 0.0, mover_coverage_max = 0.0;  ///< fraction of the image, over the frames
+  double box_coverage_mean = 0.0, box_coverage_max = 0.0;
 };
 
 /// Result of command-line parsing.
@@ -76,7 +81,15 @@ Trajectory makeTrajectory(const SimulationOptions& opt);
 /// Builds the camera pose of the IMU state with the camera's extrinsics.
 CameraPose cameraPose(const KinematicState& k, const CameraModel& cam);
 
-/// Runs the simulation; writes output_dir/{sequence.bag, camchain.yaml, imu.yaml, realism.yaml}.
+/// The ground point the camera's optical axis hits at time t (the camera pose from the trajectory).
+Eigen::Vector3d lookAtPoint(const Trajectory& traj, const CameraModel& cam, double t_s);
+
+/// The movers and boxes of the options for this trajectory (empty without --movers/--boxes). Throws when a box
+/// would come within 0.1 m of the camera's lowest height above the ground.
+Clutter makeSimulationClutter(const SimulationOptions& opt, const Trajectory& traj, const CameraModel& cam);
+
+/// Runs the simulation; writes output_dir/{sequence.bag, camchain.yaml, imu.yaml, realism.yaml} and, with
+/// movers or boxes, occlusion.csv (per image: covered fractions) and clutter.yaml (objects and summary).
 /// Progress goes to `progress` (may be null). Throws std::runtime_error with a one-line reason.
 SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* progress);
 

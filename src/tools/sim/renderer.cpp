@@ -75,6 +75,14 @@ Renderer::Renderer(const CameraModel& cam, int threads) : cam_(cam), threads_(st
       const double r2 = ((u - cam.K.cx) * (u - cam.K.cx) + (v - cam.K.cy) * (v - cam.K.cy)) / rmax2;
       vignette_r2_[static_cast<std::size_t>(v) * width_ + u] = static_cast<float>(r2);
     }
+  ray_xmin_ = ray_ymin_ = 1e30f;
+  ray_xmax_ = ray_ymax_ = -1e30f;
+  for (const RayEntry& e : rays_) {
+    ray_xmin_ = std::min(ray_xmin_, e.x);
+    ray_xmax_ = std::max(ray_xmax_, e.x);
+    ray_ymin_ = std::min(ray_ymin_, e.y);
+    ray_ymax_ = std::max(ray_ymax_, e.y);
+  }
   std::mt19937_64 rng(12345);
   std::normal_distribution<float> nd(0.f, 1.f);
   noise_table_.resize(kNoiseTableSize);
@@ -166,6 +174,220 @@ void Renderer::renderRowsT(const std::vector<CameraPose>& poses, const Plane& pl
   }
 }
 
+namespace {
+
+/// One object as seen from one sub-frame pose: the camera centre and the ray rotation in the object frame, and
+/// the object's bounding box in normalised image coordinates (to skip the pixels it cannot cover).
+struct ObjectView {
+  float ox, oy, oz;  // camera centre in O
+  float m[9];        // R_OC (row-major): ray direction in O = m * (x, y, 1)
+  float xmin, xmax, ymin, ymax;
+  float hx, hy, z0, z1;
+  float u0, v0;      // texture coordinates (m) of the corner (-hx, -hy)
+  float isu, isv, igeo, side_gain;
+  const Texture* tex;
+  bool flat, mover;
+};
+
+}  // namespace
+
+ClutterMask* Renderer::prepareClutter(const std::vector<RowBand>& bands, const RenderEffects& fx,
+                                      ClutterMask* own) const {
+  if (!fx.clutter) return nullptr;
+  if (fx.clutter->hasMovers())
+    for (const RowBand& b : bands)
+      if (b.times.size() != b.poses.size())
+        throw std::invalid_argument("renderBands: moving objects need a time per pose (RowBand::times)");
+  ClutterMask* m = fx.mask ? fx.mask : own;
+  m->width = width_;
+  m->height = height_;
+  m->mover.assign(static_cast<std::size_t>(width_) * height_, 0.f);
+  m->box.assign(m->mover.size(), 0.f);
+  return m;
+}
+
+template <bool kSpecular>
+void Renderer::renderRowsClutter(const RowBand& band, const Plane& plane, const Texture& tex,
+                                 const SpecularPatches* spec, const Clutter& clutter, float* out, float* mask_mover,
+                                 float* mask_box, int row0, int row1) const {
+  // The ground exactly as renderRowsT draws it; then every object whose image box holds the pixel is ray cast
+  // and the nearest hit (smallest ray parameter lambda along r = (x, y, 1)) is drawn instead.
+  const std::vector<CameraPose>& poses = band.poses;
+  Eigen::Vector3d t1, t2;
+  plane.basis(&t1, &t2);
+  const Eigen::Vector3d origin = -plane.e_m * plane.n;
+  const float inv_n = 1.0f / static_cast<float>(poses.size());
+  const float miss = tex.mean();
+  const double isu = 1.0 / tex.texelU(), isv = 1.0 / tex.texelV();
+  std::vector<ObjectView> views;
+  views.reserve(clutter.objects().size());
+  for (std::size_t k = 0; k < poses.size(); ++k) {
+    const CameraPose& P = poses[k];
+    const double t_k = band.times.empty() ? 0.0 : band.times[k];
+    const Eigen::Vector3d nC = P.R_WC.transpose() * plane.n;
+    const Eigen::Vector3d aC = P.R_WC.transpose() * t1 * isu, bC = P.R_WC.transpose() * t2 * isv;
+    const double dist = plane.n.dot(P.p_WC) + plane.e_m;
+    const float uc = static_cast<float>(std::fmod(t1.dot(P.p_WC - origin), tex.tileU()) * isu);
+    const float vc = static_cast<float>(std::fmod(t2.dot(P.p_WC - origin), tex.tileV()) * isv);
+    const float nx = static_cast<float>(nC.x()), ny = static_cast<float>(nC.y()), nz = static_cast<float>(nC.z());
+    const float ax = static_cast<float>(aC.x()), ay = static_cast<float>(aC.y()), az = static_cast<float>(aC.z());
+    const float bx = static_cast<float>(bC.x()), by = static_cast<float>(bC.y()), bz = static_cast<float>(bC.z());
+    const float fdist = static_cast<float>(dist), fp_scale = tex.invTexelGeo();
+    const bool above = dist > 0.0;
+    float mu = 0.f, mv = 0.f, t1x = 0.f, t1y = 0.f, t1z = 0.f, t2x = 0.f, t2y = 0.f, t2z = 0.f;
+    float lx = 0.f, ly = 0.f, lz = 0.f, nl2 = 0.f, spec_gain = 0.f;
+    if (kSpecular) {
+      const Eigen::Vector3d t1C = P.R_WC.transpose() * t1, t2C = P.R_WC.transpose() * t2;
+      const Eigen::Vector3d lC = P.R_WC.transpose() * spec->lightW();
+      mu = static_cast<float>(std::fmod(t1.dot(P.p_WC - origin), SpecularPatches::kPeriodM));
+      mv = static_cast<float>(std::fmod(t2.dot(P.p_WC - origin), SpecularPatches::kPeriodM));
+      t1x = static_cast<float>(t1C.x()), t1y = static_cast<float>(t1C.y()), t1z = static_cast<float>(t1C.z());
+      t2x = static_cast<float>(t2C.x()), t2y = static_cast<float>(t2C.y()), t2z = static_cast<float>(t2C.z());
+      lx = static_cast<float>(lC.x()), ly = static_cast<float>(lC.y()), lz = static_cast<float>(lC.z());
+      nl2 = static_cast<float>(2.0 * nC.dot(lC));
+      spec_gain = static_cast<float>(spec->amplitude() * tex.mean());
+    }
+    // The objects this sub-frame can see, at the sub-frame's time.
+    views.clear();
+    for (const SceneObject& ob : clutter.objects()) {
+      const Eigen::Vector3d p_WO = ob.positionAt(t_k);
+      const Eigen::Matrix3d R_CO = P.R_WC.transpose() * ob.R_WO;
+      const Eigen::Vector3d o_C = P.R_WC.transpose() * (p_WO - P.p_WC);
+      ObjectView w;
+      bool any_front = false, all_front = true;
+      double xmin = 1e30, xmax = -1e30, ymin = 1e30, ymax = -1e30;
+      for (int c = 0; c < 8; ++c) {
+        const Eigen::Vector3d X_O((c & 1) ? ob.hx : -ob.hx, (c & 2) ? ob.hy : -ob.hy, (c & 4) ? ob.z1 : ob.z0);
+        const Eigen::Vector3d X = o_C + R_CO * X_O;
+        if (X.z() > 1e-6) {
+          any_front = true;
+          xmin = std::min(xmin, X.x() / X.z());
+          xmax = std::max(xmax, X.x() / X.z());
+          ymin = std::min(ymin, X.y() / X.z());
+          ymax = std::max(ymax, X.y() / X.z());
+        } else {
+          all_front = false;
+        }
+      }
+      if (!any_front) continue;
+      if (!all_front) xmin = ymin = -1e30, xmax = ymax = 1e30;  // partly behind the camera: test every pixel
+      if (xmax < ray_xmin_ || xmin > ray_xmax_ || ymax < ray_ymin_ || ymin > ray_ymax_) continue;
+      const Eigen::Matrix3d R_OC = R_CO.transpose();
+      const Eigen::Vector3d o_O = -R_OC * o_C;  // camera centre in O
+      w.ox = static_cast<float>(o_O.x()), w.oy = static_cast<float>(o_O.y()), w.oz = static_cast<float>(o_O.z());
+      for (int i = 0; i < 9; ++i) w.m[i] = static_cast<float>(R_OC(i / 3, i % 3));
+      w.xmin = static_cast<float>(std::max(xmin, -1e30)), w.xmax = static_cast<float>(std::min(xmax, 1e30));
+      w.ymin = static_cast<float>(std::max(ymin, -1e30)), w.ymax = static_cast<float>(std::min(ymax, 1e30));
+      w.hx = static_cast<float>(ob.hx), w.hy = static_cast<float>(ob.hy);
+      w.z0 = static_cast<float>(ob.z0), w.z1 = static_cast<float>(ob.z1);
+      w.tex = clutter.textures()[ob.texture].get();
+      w.u0 = static_cast<float>(ob.u0_m), w.v0 = static_cast<float>(ob.v0_m);
+      w.isu = static_cast<float>(1.0 / w.tex->texelU()), w.isv = static_cast<float>(1.0 / w.tex->texelV());
+      w.igeo = w.tex->invTexelGeo();
+      w.side_gain = ob.side_gain;
+      w.flat = ob.flat;
+      w.mover = ob.mover;
+      views.push_back(w);
+    }
+    for (int v = row0; v < row1; ++v) {
+      const RayEntry* re = &rays_[static_cast<std::size_t>(v) * width_];
+      float* o = out + static_cast<std::size_t>(v) * width_;
+      float* mm = mask_mover + static_cast<std::size_t>(v) * width_;
+      float* mb = mask_box + static_cast<std::size_t>(v) * width_;
+      for (int u = 0; u < width_; ++u) {
+        const RayEntry& e = re[u];
+        // Nearest object hit, if any.
+        const ObjectView* hit = nullptr;
+        float best = 3.0e38f, cos_hit = 1.f, su = 0.f, sv = 0.f, gain = 1.f;
+        for (const ObjectView& w : views) {
+          if (e.x < w.xmin || e.x > w.xmax || e.y < w.ymin || e.y > w.ymax) continue;
+          const float dx = w.m[0] * e.x + w.m[1] * e.y + w.m[2];
+          const float dy = w.m[3] * e.x + w.m[4] * e.y + w.m[5];
+          const float dz = w.m[6] * e.x + w.m[7] * e.y + w.m[8];
+          if (w.flat) {
+            if (!(dz < -1e-9f)) continue;
+            const float lam = (w.z1 - w.oz) / dz;
+            if (!(lam > 0.f) || lam >= best) continue;
+            const float px = w.ox + lam * dx, py = w.oy + lam * dy;
+            if (px < -w.hx || px > w.hx || py < -w.hy || py > w.hy) continue;
+            best = lam, hit = &w;
+            su = px + w.hx, sv = py + w.hy, cos_hit = -dz * e.inv_norm, gain = 1.f;
+            continue;
+          }
+          // Slab test of the box [-hx, hx] x [-hy, hy] x [z0, z1]; entry face 0 (x), 1 (y) or 2 (z).
+          float tmin = -3.0e38f, tmax = 3.0e38f;
+          int face = -1;
+          const float d3[3] = {dx, dy, dz}, o3[3] = {w.ox, w.oy, w.oz};
+          const float lo[3] = {-w.hx, -w.hy, w.z0}, hi[3] = {w.hx, w.hy, w.z1};
+          bool miss_box = false;
+          for (int a = 0; a < 3 && !miss_box; ++a) {
+            if (std::fabs(d3[a]) < 1e-12f) {
+              miss_box = o3[a] < lo[a] || o3[a] > hi[a];
+              continue;
+            }
+            const float inv = 1.0f / d3[a];
+            float ta = (lo[a] - o3[a]) * inv, tb = (hi[a] - o3[a]) * inv;
+            if (ta > tb) std::swap(ta, tb);
+            if (ta > tmin) tmin = ta, face = a;
+            tmax = std::min(tmax, tb);
+            miss_box = tmin > tmax;
+          }
+          if (miss_box || face < 0 || !(tmin > 0.f) || tmin >= best) continue;
+          const float px = w.ox + tmin * dx, py = w.oy + tmin * dy, pz = w.oz + tmin * dz;
+          best = tmin, hit = &w;
+          if (face == 2) {
+            su = px + w.hx, sv = py + w.hy, cos_hit = std::fabs(dz) * e.inv_norm, gain = 1.f;
+          } else if (face == 0) {
+            su = py + w.hy, sv = pz - w.z0, cos_hit = std::fabs(dx) * e.inv_norm, gain = w.side_gain;
+          } else {
+            su = px + w.hx, sv = pz - w.z0, cos_hit = std::fabs(dy) * e.inv_norm, gain = 0.5f * (1.f + w.side_gain);
+          }
+        }
+        const float dn = nx * e.x + ny * e.y + nz;  // n . r (r = (x, y, 1) in C)
+        float val = miss;
+        bool ground = above && dn < -1e-6f;
+        if (ground && hit && best < -fdist / dn) ground = false;
+        if (hit && !ground) {
+          // The object's face: same footprint rule as the ground (distance x angle / sqrt(cos incidence)).
+          const float fp = best * e.footprint * hit->igeo / std::sqrt(std::max(cos_hit, 1e-3f));
+          val = gain * hit->tex->sampleTexel((hit->u0 + su) * hit->isu, (hit->v0 + sv) * hit->isv, fastLog2(fp));
+        } else if (ground) {
+          const float lambda = -fdist / dn;
+          const float xt = uc + lambda * (ax * e.x + ay * e.y + az);
+          const float yt = vc + lambda * (bx * e.x + by * e.y + bz);
+          const float fp = lambda * e.footprint * fp_scale / std::sqrt(-dn * e.inv_norm);
+          val = tex.sampleTexel(xt, yt, fastLog2(fp));
+          if (kSpecular) {
+            float c = e.inv_norm * (lx * e.x + ly * e.y + lz - dn * nl2);
+            if (c > 0.f) {
+              c *= c;
+              c *= c;
+              c *= c;
+              c *= c;
+              if (c > 1e-4f) {
+                const float pu = mu + lambda * (t1x * e.x + t1y * e.y + t1z);
+                const float pv = mv + lambda * (t2x * e.x + t2y * e.y + t2z);
+                val += spec_gain * c * spec->mask(pu, pv);
+              }
+            }
+          }
+        }
+        const bool seen = hit && !ground;
+        const float wm = seen && hit->mover ? inv_n : 0.f, wb = seen && !hit->mover ? inv_n : 0.f;
+        if (k == 0) {
+          o[u] = val * inv_n;
+          mm[u] = wm;
+          mb[u] = wb;
+        } else {
+          o[u] += val * inv_n;
+          mm[u] += wm;
+          mb[u] += wb;
+        }
+      }
+    }
+  }
+}
+
 void Renderer::checkBands(const std::vector<RowBand>& bands) const {
   int next = 0;
   for (const RowBand& b : bands) {
@@ -177,11 +399,18 @@ void Renderer::checkBands(const std::vector<RowBand>& bands) const {
 }
 
 void Renderer::renderBandRows(const std::vector<RowBand>& bands, const Plane& plane, const Texture& tex,
-                              const SpecularPatches* spec, float* out, int row0, int row1) const {
+                              const SpecularPatches* spec, float* out, int row0, int row1, const Clutter* clutter,
+                              ClutterMask* mask) const {
   for (const RowBand& b : bands) {
     const int r0 = std::max(b.row0, row0), r1 = std::min(b.row1, row1);
     if (r0 >= r1) continue;
-    if (spec)
+    if (clutter) {
+      if (spec)
+        renderRowsClutter<true>(b, plane, tex, spec, *clutter, out, mask->mover.data(), mask->box.data(), r0, r1);
+      else
+        renderRowsClutter<false>(b, plane, tex, nullptr, *clutter, out, mask->mover.data(), mask->box.data(), r0,
+                                 r1);
+    } else if (spec)
       renderRowsT<true>(b.poses, plane, tex, spec, out, r0, r1);
     else
       renderRowsT<false>(b.poses, plane, tex, nullptr, out, r0, r1);
@@ -193,13 +422,16 @@ void Renderer::renderRadianceBands(const std::vector<RowBand>& bands, const Plan
   checkBands(bands);
   out->resize(static_cast<std::size_t>(width_) * height_);
   const SpecularPatches* spec = fx.specular && fx.specular->amplitude() > 0.0 ? fx.specular : nullptr;
+  ClutterMask own_mask;
+  ClutterMask* mask = prepareClutter(bands, fx, &own_mask);
+  const Clutter* clutter = mask ? fx.clutter : nullptr;
   const int n = std::min(threads_, height_);
   std::vector<std::thread> pool;
   for (int i = 1; i < n; ++i) {
     const int r0 = height_ * i / n, r1 = height_ * (i + 1) / n;
-    pool.emplace_back([&, r0, r1] { renderBandRows(bands, plane, tex, spec, out->data(), r0, r1); });
+    pool.emplace_back([&, r0, r1] { renderBandRows(bands, plane, tex, spec, out->data(), r0, r1, clutter, mask); });
   }
-  renderBandRows(bands, plane, tex, spec, out->data(), 0, height_ / std::max(n, 1));
+  renderBandRows(bands, plane, tex, spec, out->data(), 0, height_ / std::max(n, 1), clutter, mask);
   for (auto& t : pool) t.join();
 }
 
@@ -210,6 +442,9 @@ cv::Mat Renderer::renderBands(const std::vector<RowBand>& bands, const Plane& pl
   cv::Mat img(height_, width_, CV_8UC1);
   std::vector<float> rad(static_cast<std::size_t>(width_) * height_);
   const SpecularPatches* spec = fx.specular && fx.specular->amplitude() > 0.0 ? fx.specular : nullptr;
+  ClutterMask own_mask;
+  ClutterMask* mask = prepareClutter(bands, fx, &own_mask);
+  const Clutter* clutter = mask ? fx.clutter : nullptr;
   const bool defocus = fx.defocus_sigma_px > 0.0;
   const int n = std::min(threads_, height_);
   const auto run = [&](const std::function<void(int, int)>& work) {
@@ -220,12 +455,12 @@ cv::Mat Renderer::renderBands(const std::vector<RowBand>& bands, const Plane& pl
   };
   if (!defocus) {
     run([&](int r0, int r1) {
-      renderBandRows(bands, plane, tex, spec, rad.data(), r0, r1);
+      renderBandRows(bands, plane, tex, spec, rad.data(), r0, r1, clutter, mask);
       sensorRows(rad.data(), gain, opt, noise_seed, &img, r0, r1);
     });
     return img;
   }
-  run([&](int r0, int r1) { renderBandRows(bands, plane, tex, spec, rad.data(), r0, r1); });
+  run([&](int r0, int r1) { renderBandRows(bands, plane, tex, spec, rad.data(), r0, r1, clutter, mask); });
   // Defocus: Gaussian point spread on the radiance (before gain, vignetting and noise).
   cv::Mat r(height_, width_, CV_32FC1, rad.data());
   cv::GaussianBlur(r, r, cv::Size(0, 0), fx.defocus_sigma_px, fx.defocus_sigma_px, cv::BORDER_REFLECT);
@@ -238,17 +473,18 @@ std::vector<RowBand> rollingShutterBands(const std::function<CameraPose(double)>
                                          int rows_per_band) {
   if (height <= 0 || n_sub < 1 || rows_per_band < 1) throw std::invalid_argument("rollingShutterBands: bad sizes");
   std::vector<RowBand> bands;
-  const auto subposes = [&](double t, std::vector<CameraPose>* out) {
+  const auto subposes = [&](double t, RowBand* b) {
     for (int j = 0; j < n_sub; ++j) {
       const double ts = n_sub == 1 ? t : t + exposure_s * ((j + 0.5) / n_sub - 0.5);
-      out->push_back(pose_at(ts));
+      b->poses.push_back(pose_at(ts));
+      b->times.push_back(ts);
     }
   };
   if (!(readout_s > 0.0)) {
     RowBand b;
     b.row0 = 0;
     b.row1 = height;
-    subposes(t_mid_s, &b.poses);
+    subposes(t_mid_s, &b);
     bands.push_back(std::move(b));
     return bands;
   }
@@ -259,7 +495,7 @@ std::vector<RowBand> rollingShutterBands(const std::function<CameraPose(double)>
     // Time of the band's middle (row index may be half-integer for an even band).
     const double v_mid = 0.5 * (b.row0 + b.row1 - 1);
     const double dt = height > 1 ? readout_s * (v_mid / (height - 1) - 0.5) : 0.0;
-    subposes(t_mid_s + dt, &b.poses);
+    subposes(t_mid_s + dt, &b);
     bands.push_back(std::move(b));
   }
   return bands;

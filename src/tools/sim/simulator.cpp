@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cmath>
 #include <filesystem>
+#include <fstream>
 #include <iomanip>
 #include <map>
 #include <memory>
@@ -96,6 +97,20 @@ std::string simulateUsage() {
         "  --no-exposure-steps      turns them off (e.g. after --realism realistic)\n"
         "  --non-lambertian F       glossy patches (~20 % of the ground): specular      [0]\n"
         "                           amplitude relative to the texture mean, 0..1\n"
+        "Moving objects and clutter (outliers of the plane; ground truth stays the ground plane;\n"
+        "  DIR/occlusion.csv: covered fraction per image, DIR/clutter.yaml: objects and summary):\n"
+        "  --movers N               flat textured objects moving over the ground, 0..64 [0]\n"
+        "                           each crosses the view once per --mover-interval-s\n"
+        "  --mover-size-m M         length along the motion (m)                         [0.8]\n"
+        "  --mover-aspect A         width / length                                      [0.6]\n"
+        "  --mover-speed-mps V      mean speed over the ground (0.8-1.2 x V each)       [0.5]\n"
+        "  --mover-interval-s S     time between two crossings of one mover (s)         [6]\n"
+        "  --mover-texture T        leaves | grass | dirt | natural | checkerboard |    [leaves]\n"
+        "                           image file (1 m wide)\n"
+        "  --boxes N                static boxes along the flight's ground track, 0..500 [0]\n"
+        "  --box-size-m M           mean side of a box footprint (0.75-1.25 x M)        [0.25]\n"
+        "  --box-height-m M         height of the box tops above the ground (m)         [0.15]\n"
+        "  --box-texture T          texture of tops and sides (as --mover-texture)      [grass]\n"
         "IMU:\n"
         "  --no-vibration           no propeller vibration (on by default)\n"
         "  --no-imu-noise           exact IMU readings (no noise, bias, vibration)\n"
@@ -160,6 +175,12 @@ ParseResult parseSimulateArgs(const std::vector<std::string>& args_in, Simulatio
       {"--extrinsic-rot-error-deg", {&opt->realism.extrinsic_rot_error_deg, -10, 10}},
       {"--defocus-px", {&opt->realism.defocus_px, 0, 10}},
       {"--non-lambertian", {&opt->realism.non_lambertian, 0, 1}},
+      {"--mover-size-m", {&opt->clutter.mover_size_m, 0.02, 10}},
+      {"--mover-aspect", {&opt->clutter.mover_aspect, 0.05, 20}},
+      {"--mover-speed-mps", {&opt->clutter.mover_speed_mps, 0, 20}},
+      {"--mover-interval-s", {&opt->clutter.mover_interval_s, 0.5, 3600}},
+      {"--box-size-m", {&opt->clutter.box_size_m, 0.02, 10}},
+      {"--box-height-m", {&opt->clutter.box_height_m, 0.005, 5}},
   };
   // Realism options given explicitly: they win over a --realism preset wherever they appear.
   const std::map<std::string, double RealismOptions::*> realism_fields = {
@@ -233,6 +254,22 @@ ParseResult parseSimulateArgs(const std::vector<std::string>& args_in, Simulatio
         *error = "--seed needs a non-negative integer, got '" + v + "'";
         return ParseResult::kError;
       }
+    } else if (a == "--mover-texture" || a == "--box-texture") {
+      if (!value(&v)) return ParseResult::kError;
+      if (v.empty()) {
+        *error = "empty " + a;
+        return ParseResult::kError;
+      }
+      (a == "--mover-texture" ? opt->clutter.mover_texture : opt->clutter.box_texture) = v;
+    } else if (a == "--movers" || a == "--boxes") {
+      if (!value(&v)) return ParseResult::kError;
+      std::uint64_t n = 0;
+      const std::uint64_t hi = a == "--movers" ? 64 : 500;
+      if (!parseUint(v, &n) || n > hi) {
+        *error = a + " needs an integer in [0, " + std::to_string(hi) + "], got '" + v + "'";
+        return ParseResult::kError;
+      }
+      (a == "--movers" ? opt->clutter.movers : opt->clutter.boxes) = static_cast<int>(n);
     } else if (a == "--threads" || a == "--max-subframes") {
       if (!value(&v)) return ParseResult::kError;
       std::uint64_t n = 0;
@@ -301,6 +338,85 @@ CameraPose cameraPose(const KinematicState& k, const CameraModel& cam) {
   return P;
 }
 
+Eigen::Vector3d lookAtPoint(const Trajectory& traj, const CameraModel& cam, double t_s) {
+  const CameraPose P = cameraPose(traj.evaluate(t_s), cam);
+  const Plane& plane = traj.params().plane;
+  const Eigen::Vector3d axis = P.R_WC.col(2);
+  const double dn = plane.n.dot(axis), dist = plane.n.dot(P.p_WC) + plane.e_m;
+  // The optical axis points at the ground in every preset; else the point below the camera.
+  const double lambda = dn < -0.05 ? -dist / dn : 0.0;
+  const Eigen::Vector3d X = P.p_WC + lambda * axis;
+  return X - (plane.n.dot(X) + plane.e_m) * plane.n;
+}
+
+Clutter makeSimulationClutter(const SimulationOptions& opt, const Trajectory& traj, const CameraModel& cam) {
+  if (!opt.clutter.any()) return Clutter();
+  const Plane& plane = traj.params().plane;
+  if (opt.clutter.boxes > 0) {
+    double min_h = 1e9;
+    for (double t = 0.0; t <= opt.duration_s; t += 0.02)
+      min_h = std::min(min_h, plane.n.dot(cameraPose(traj.evaluate(t), cam).p_WC) + plane.e_m);
+    if (opt.clutter.box_height_m > min_h - 0.1) {
+      std::ostringstream os;
+      os << "--box-height-m " << opt.clutter.box_height_m << ": the camera comes down to " << std::setprecision(3)
+         << min_h << " m above the ground; boxes must stay at least 0.1 m below it";
+      throw std::runtime_error(os.str());
+    }
+  }
+  return makeClutter(opt.clutter, plane, [&](double t) { return lookAtPoint(traj, cam, t); }, opt.duration_s,
+                     opt.seed);
+}
+
+namespace {
+
+/// Image motion (px over the exposure) of the movers in view at time t, against the ground's `ground_px`.
+double moverBlurPixels(const Clutter& clutter, const CameraPose& P, const CameraModel& cam, double t,
+                       double exposure_s, double ground_px) {
+  double worst = 0.0;
+  for (const SceneObject& o : clutter.objects()) {
+    if (!o.mover) continue;
+    const Eigen::Vector3d X_C = P.R_WC.transpose() * (o.positionAt(t) + o.z1 * o.R_WO.col(2) - P.p_WC);
+    Vec2 px;
+    if (X_C.z() <= 1e-3 || !cam.project(X_C, &px)) continue;
+    const double r = 0.5 * std::hypot(o.hx, o.hy) * cam.K.fx / X_C.z();  // image radius of the object (px)
+    if (px.x() < -r || px.y() < -r || px.x() > cam.K.width + r || px.y() > cam.K.height + r) continue;
+    worst = std::max(worst, ground_px + o.v_W.norm() * exposure_s * cam.K.fx / X_C.z());
+  }
+  return worst;
+}
+
+void writeClutterYaml(const std::string& path, const ClutterOptions& c, const Clutter& clutter,
+                      const SimulationSummary& s, int frames_mover, double mean_mover_when_seen) {
+  std::ofstream f(path);
+  if (!f) throw std::runtime_error("cannot write '" + path + "'");
+  int movers = 0, boxes = 0;
+  for (const SceneObject& o : clutter.objects()) (o.mover ? movers : boxes)++;
+  f << "# Moving objects and boxes on the ground (diekf_simulate, docs/simulator.md). Ground truth: the ground plane.\n";
+  f << "movers: " << c.movers << "\nmover_crossings: " << movers << "\nmover_size_m: " << yamlNumber(c.mover_size_m)
+    << "\nmover_aspect: " << yamlNumber(c.mover_aspect) << "\nmover_speed_mps: " << yamlNumber(c.mover_speed_mps)
+    << "\nmover_interval_s: " << yamlNumber(c.mover_interval_s) << "\nmover_texture: \"" << c.mover_texture << "\"\n";
+  f << "boxes: " << c.boxes << "\nboxes_placed: " << boxes << "\nbox_size_m: " << yamlNumber(c.box_size_m)
+    << "\nbox_height_m: " << yamlNumber(c.box_height_m) << "\nbox_texture: \"" << c.box_texture << "\"\n";
+  f << "# Fractions of the image (pixels x motion-blur sub-frames) whose nearest hit is a mover / a box.\n";
+  f << "frames: " << s.frames_written << "\n";
+  f << "mover_coverage_mean: " << yamlNumber(s.mover_coverage_mean) << "\n";
+  f << "mover_coverage_max: " << yamlNumber(s.mover_coverage_max) << "\n";
+  f << "mover_frames_fraction: " << yamlNumber(s.frames_written ? static_cast<double>(frames_mover) / s.frames_written : 0.0)
+    << "  # images with more than 1 % covered by movers\n";
+  f << "mover_coverage_mean_when_present: " << yamlNumber(mean_mover_when_seen) << "  # over those images\n";
+  f << "box_coverage_mean: " << yamlNumber(s.box_coverage_mean) << "\n";
+  f << "box_coverage_max: " << yamlNumber(s.box_coverage_max) << "\n";
+  f << "objects:  # [mover, t0_s, p0_W x y z, v_W x y z, half length, half width, bottom, top]\n";
+  for (const SceneObject& o : clutter.objects())
+    f << "  - [" << (o.mover ? 1 : 0) << ", " << yamlNumber(o.t0_s) << ", " << yamlNumber(o.p0_W.x()) << ", "
+      << yamlNumber(o.p0_W.y()) << ", " << yamlNumber(o.p0_W.z()) << ", " << yamlNumber(o.v_W.x()) << ", "
+      << yamlNumber(o.v_W.y()) << ", " << yamlNumber(o.v_W.z()) << ", " << yamlNumber(o.hx) << ", "
+      << yamlNumber(o.hy) << ", " << yamlNumber(o.z0) << ", " << yamlNumber(o.z1) << "]\n";
+  if (!f) throw std::runtime_error("error writing '" + path + "'");
+}
+
+}  // namespace
+
 SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* progress) {
   namespace fs = std::filesystem;
   using Clock = std::chrono::steady_clock;
@@ -325,6 +441,10 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
 
   const CameraModel cam = myntEyeSimCamera(opt.scale);  // the true camera: rendering and extrinsics
   const Renderer renderer(cam, opt.threads);
+  // Movers and boxes (their textures are built here, seeded apart from the ground's).
+  if (progress && opt.clutter.any()) *progress << "[diekf_simulate] placing movers and boxes\n";
+  const Clutter clutter = makeSimulationClutter(opt, traj, cam);
+  sum.clutter_objects = static_cast<int>(clutter.objects().size());
   // Realistic camera: what the estimator is told (camchain.yaml, camera_info) may differ from the truth.
   const RealismOptions& real = opt.realism;
   const CameraModel written = writtenCalibration(cam, real);
@@ -336,7 +456,22 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
   effects.specular = specular.get();
   effects.defocus_sigma_px = real.defocus_px * opt.scale;
   const double readout_s = real.rolling_shutter_ms * 1e-3;
-  const bool effects_render = readout_s > 0.0 || specular || effects.defocus_sigma_px > 0.0;
+  const bool with_clutter = opt.clutter.any();
+  ClutterMask mask;
+  if (with_clutter) {
+    effects.clutter = &clutter;
+    effects.mask = &mask;
+  }
+  const bool effects_render = readout_s > 0.0 || specular || effects.defocus_sigma_px > 0.0 || with_clutter;
+  std::ofstream occlusion;
+  if (with_clutter) {
+    const std::string path = (fs::path(opt.output_dir) / "occlusion.csv").string();
+    occlusion.open(path);
+    if (!occlusion) throw std::runtime_error("cannot write '" + path + "'");
+    occlusion << "frame,t_s,stamp_ns,mover_fraction,box_fraction,total_fraction\n";
+  }
+  int frames_mover = 0;
+  double mover_when_seen = 0.0;
   const std::int64_t stamp_offset_ns = std::llround(real.time_offset_ms * 1e6);
   const double stamp_offset_s = static_cast<double>(stamp_offset_ns) * 1e-9;
   TopicNames topics;
@@ -408,7 +543,10 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
     const CameraPose p1 = cameraPose(traj.evaluate(t + 0.5 * exposure_s), cam);
     int n_sub = 1;
     if (exposure_s > 0.0) {
-      const double blur_px = renderer.motionPixels(p0, p1, plane);
+      double blur_px = renderer.motionPixels(p0, p1, plane);
+      if (clutter.hasMovers())  // a mover in view blurs by its own motion too
+        blur_px = std::max(blur_px, moverBlurPixels(clutter, cameraPose(traj.evaluate(t), cam), cam, t, exposure_s,
+                                                    blur_px));
       n_sub = std::clamp(static_cast<int>(std::ceil(blur_px / opt.blur_step_px)), 1, opt.max_subframes);
     }
     subframes_total += n_sub;
@@ -433,6 +571,19 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
     if (opt.camera_info) bag.writeCameraInfo(stamp, written, static_cast<std::uint32_t>(f));
     bag.writeImage(stamp, img, static_cast<std::uint32_t>(f));
     ++sum.frames_written;
+    if (with_clutter) {
+      const double fm = mask.moverFraction(), fb = mask.boxFraction();
+      occlusion << f << "," << yamlNumber(t) << "," << stamp << "," << yamlNumber(fm) << "," << yamlNumber(fb) << ","
+                << yamlNumber(fm + fb) << "\n";
+      sum.mover_coverage_mean += fm;
+      sum.box_coverage_mean += fb;
+      sum.mover_coverage_max = std::max(sum.mover_coverage_max, fm);
+      sum.box_coverage_max = std::max(sum.box_coverage_max, fb);
+      if (fm > 0.01) {
+        ++frames_mover;
+        mover_when_seen += fm;
+      }
+    }
     if (progress && (f % 30 == 29 || f + 1 == n_frames)) {
       const double el = std::chrono::duration<double>(Clock::now() - t_start).count();
       *progress << "\r[diekf_simulate] frame " << (f + 1) << "/" << n_frames << " (" << (100 * (f + 1) / n_frames)
@@ -445,6 +596,21 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
   if (progress && n_frames > 0) *progress << "\n";
   sum.poses = next_pose_idx;
   sum.mean_subframes = sum.frames_written > 0 ? static_cast<double>(subframes_total) / sum.frames_written : 0.0;
+  if (with_clutter) {
+    if (sum.frames_written > 0) {
+      sum.mover_coverage_mean /= sum.frames_written;
+      sum.box_coverage_mean /= sum.frames_written;
+    }
+    occlusion.close();
+    if (!occlusion) throw std::runtime_error("error writing occlusion.csv");
+    writeClutterYaml((fs::path(opt.output_dir) / "clutter.yaml").string(), opt.clutter, clutter, sum, frames_mover,
+                     frames_mover ? mover_when_seen / frames_mover : 0.0);
+    if (progress)
+      *progress << "[diekf_simulate] covered by movers: mean " << std::setprecision(3) << sum.mover_coverage_mean
+                << ", max " << sum.mover_coverage_max << ", " << frames_mover << " images over 1 % (mean "
+                << (frames_mover ? mover_when_seen / frames_mover : 0.0) << "); by boxes: mean "
+                << sum.box_coverage_mean << ", max " << sum.box_coverage_max << std::defaultfloat << "\n";
+  }
   sum.wall_s = std::chrono::duration<double>(Clock::now() - t_start).count();
   return sum;
 }
