@@ -81,8 +81,8 @@ struct PhotometricParams {
   /// Model error of the interval rotation the warp takes from the gyro (docs/noise_model.md, section 6):
   double rotation_scale_sigma = 0.02;           ///< relative 1-sigma of image rotation vs gyro (focal length, gyro scale)
   double time_offset_sigma_s = 0.002;           ///< 1-sigma of the camera-IMU time offset error, s
-  /// Outlier weights (docs/noise_model.md, section 10): a pixel whose neighbourhood's RMS residual (m its mean
-  /// square) exceeds this many noise sigmas is down-weighted, w = min(1, k^2 sigma^2 / m); 0 = off.
+  /// Outlier weights (docs/noise_model.md, section 10): w = 1 / (1 + (m / (k^2 m_ref))^2), m the mean square
+  /// residual of a pixel's neighbourhood, m_ref the larger of the noise variance and the median m; 0 = off.
   double outlier_threshold_sigma = 3.0;
   double outlier_window_fraction = 0.04;        ///< side of the neighbourhood as a fraction of the image width
 };

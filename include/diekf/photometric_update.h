@@ -66,6 +66,7 @@ class PhotometricUpdate {
     noise_ = NoiseEstimate();
     last_rate_valid_ = false;
     weight_map_.release();
+    weight_map_has_outliers_ = false;
   }
 
   /// One linearisation at x (what every Gauss-Newton pass accumulates), without the solve:
@@ -114,7 +115,9 @@ class PhotometricUpdate {
   cv::Mat weight_map_;      ///< CV_32FC1 outlier weights in [0, 1] for the next update (empty: none yet)
   cv::Mat weight_scratch_;  ///< CV_32FC1 horizontal window means of the squared residual
   std::vector<double> weight_colsum_;  ///< running column sums of the vertical window
+  std::vector<float> weight_median_buf_;  ///< window means of every 2nd pixel, for their median
   bool use_weight_map_ = false;  ///< weight_map_ applies to the sweeps of the current update
+  bool weight_map_has_outliers_ = false;  ///< some weight of weight_map_ is below 1
   Vec3 last_rate_C_ = Vec3::Zero();  ///< rotation rate of the previous update's interval, rad/s (camera frame)
   bool last_rate_valid_ = false;
 };

@@ -705,7 +705,8 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   prepareBuffers(cur.intensity.size());  // no-op after the first call at this size
   packReference(ref, &ref_packed_);      // once per update, shared by every pass
   // Outlier weights from the previous update's residual (section 10), when there is one of this size.
-  use_weight_map_ = params_.outlier_threshold_sigma > 0.0 && !weight_map_.empty() &&
+  // A map without any weight below 1 changes nothing: the plain sweep is used (bit for bit, and cheaper).
+  use_weight_map_ = params_.outlier_threshold_sigma > 0.0 && weight_map_has_outliers_ && !weight_map_.empty() &&
                     weight_map_.size() == cur.intensity.size();
 
   // Prior covariance of the observed states (for the innovation test of the first pass).
@@ -825,6 +826,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
 
 void PhotometricUpdate::updateWeightMap(double variance) {
   const double k = params_.outlier_threshold_sigma;
+  weight_map_has_outliers_ = false;
   if (!(k > 0.0) || !(variance > 0.0) || !std::isfinite(variance) || residual_.empty()) {
     weight_map_.release();
     return;
@@ -846,10 +848,7 @@ void PhotometricUpdate::updateWeightMap(double variance) {
       out[x] = static_cast<float>(sum / (hi - lo));
     }
   }
-  // Vertical window means, then the weight w = min(1, k^2 sigma^2 / m): 1 while the window's RMS residual is
-  // within k sigma, falling as (k sigma / RMS)^2 beyond (the Cauchy-like tail: strong objects keep almost no
-  // weight, a state error that raises the residual everywhere only softens the weights).
-  const double inv = 1.0 / (k * k * variance);
+  // Vertical window means into weight_map_ (the weights replace them below).
   weight_colsum_.resize(static_cast<size_t>(W));  // allocates once per image width
   std::fill(weight_colsum_.begin(), weight_colsum_.end(), 0.0);
   double* colsum = weight_colsum_.data();
@@ -864,11 +863,33 @@ void PhotometricUpdate::updateWeightMap(double variance) {
       const float* row = weight_scratch_.ptr<float>(lo);
       for (int x = 0; x < W; ++x) colsum[x] -= row[x];
     }
-    const double scale = inv / (hi - lo);
+    const double inv_n = 1.0 / (hi - lo);
     float* out = weight_map_.ptr<float>(y);
+    for (int x = 0; x < W; ++x) out[x] = static_cast<float>(std::max(0.0, colsum[x]) * inv_n);
+  }
+  // Reference level: the noise variance, or the median window mean if that is larger. Outliers are what stands
+  // out of the bulk of the image; a state error that raises the residual everywhere raises the median with it
+  // and does not switch the well-textured half of the image off (section 10).
+  weight_median_buf_.clear();
+  for (int y = 0; y < H; y += 2) {
+    const float* m = weight_map_.ptr<float>(y);
+    for (int x = 0; x < W; x += 2) weight_median_buf_.push_back(m[x]);  // capacity kept between images
+  }
+  double ref = variance;
+  if (!weight_median_buf_.empty()) {
+    auto mid = weight_median_buf_.begin() + weight_median_buf_.size() / 2;
+    std::nth_element(weight_median_buf_.begin(), mid, weight_median_buf_.end());
+    ref = std::max(ref, static_cast<double>(*mid));
+  }
+  // w = 1 / (1 + (m / (k^2 ref))^2): 0.99 at the reference level, 1/2 where the window's RMS residual is k times
+  // its root, falling as RMS^-4 beyond (a blob of unrelated texture keeps almost nothing).
+  const double inv = 1.0 / (k * k * ref);
+  for (int y = 0; y < H; ++y) {
+    float* w = weight_map_.ptr<float>(y);
     for (int x = 0; x < W; ++x) {
-      const double z = std::max(0.0, colsum[x]) * scale;
-      out[x] = static_cast<float>(1.0 / std::max(1.0, z));
+      const double z = w[x] * inv;
+      w[x] = static_cast<float>(1.0 / (1.0 + z * z));
+      if (z > 0.1) weight_map_has_outliers_ = true;
     }
   }
 }
