@@ -3,8 +3,10 @@
 
 Driver (run by `make test` through rosunit, in the devel environment): installs the already-built build directory
 into a temporary folder (`cmake --install BUILD` with DESTDIR: nothing is rebuilt, nothing is written to the
-workspace's own install prefix), checks the installed layout, then runs this same file with `--inside` in a
-clean environment (env -i) where only the temporary install space's setup.bash is sourced. There it checks that
+workspace's own install prefix), checks the installed layout, removes this build's own devel space from the
+workspaces the install space chains (catkin records the CMAKE_PREFIX_PATH of the configure step, and `make test`
+configures with the devel space sourced; a release build has no devel space), then runs this same file with
+`--inside` in a clean environment (env -i) where only the temporary install space's setup.bash is sourced. There it checks that
 nothing of the devel space or the source tree is visible, that every installed binary finds its libraries,
 that rosrun resolves the executables to the install space, and then, with the installed tools only:
   - simulates a short bag (diekf_simulate),
@@ -20,6 +22,7 @@ import csv
 import json
 import math
 import os
+import re
 import shutil
 import socket
 import subprocess
@@ -82,6 +85,9 @@ class InstallSpace(unittest.TestCase):
         start = time.time()
         cls.install_rc, cls.install_log = run(["cmake", "--install", build_dir], timeout=600, env=env)
         log("cmake --install into %s: exit %d, %.1f s" % (cls.destdir, cls.install_rc, time.time() - start))
+        cls.parents_dropped = None
+        if cls.install_rc == 0:
+            cls.parents_dropped = drop_own_parents(os.path.join(cls.prefix, "_setup_util.py"), forbidden_dirs())
 
     @classmethod
     def tearDownClass(cls):
@@ -110,6 +116,10 @@ class InstallSpace(unittest.TestCase):
         lib = xml.split('library path="', 1)[1].split('"', 1)[0]
         self.assertTrue(os.path.isfile(os.path.join(self.prefix, lib + ".so")), lib)
 
+    def test_1_parents(self):
+        self.assertIsNotNone(self.parents_dropped, "no parent workspace list in the installed _setup_util.py")
+        log("parent workspaces of this build dropped from the install space: %s" % (self.parents_dropped or "none"))
+
     def test_2_works_alone(self):
         self.assertEqual(self.install_rc, 0, self.install_log[-3000:])
         env = {"PATH": "/usr/bin:/bin", "HOME": os.path.join(self.tmp, "home"), "LANG": "C.UTF-8",
@@ -118,7 +128,7 @@ class InstallSpace(unittest.TestCase):
             if k in os.environ:
                 env[k] = os.environ[k]
         os.makedirs(env["HOME"])
-        forbidden = [d for d in (OPTIONS["devel-dir"], OPTIONS["build-dir"], SOURCE_DIR) if d]
+        forbidden = forbidden_dirs()
         script = ('source "$1/setup.bash" && shift && exec python3 "$@"')
         cmd = ["env", "-i"] + ["%s=%s" % kv for kv in env.items()] + [
             "bash", "--noprofile", "--norc", "-c", script, "bash", self.prefix, os.path.abspath(__file__),
@@ -129,6 +139,31 @@ class InstallSpace(unittest.TestCase):
         log("checks in the install space's environment: exit %d, %.1f s\n%s" % (rc, time.time() - start, out))
         self.assertEqual(rc, 0, out[-6000:])
         self.assertIn("ALL INSTALL-SPACE CHECKS PASSED", out)
+
+
+def forbidden_dirs():
+    """This build's devel space, build directory and sources: none may be visible from the install space."""
+    return [d for d in (OPTIONS["devel-dir"], OPTIONS["build-dir"], SOURCE_DIR) if d]
+
+
+def drop_own_parents(setup_util, forbidden):
+    """An install space chains the workspaces that CMAKE_PREFIX_PATH held when the build was configured (catkin
+    bakes them into _setup_util.py). `make test` configures with the devel space sourced, so this build's own
+    devel space is one of them; a release build (e.g. a Debian package) is configured without it. Removes the
+    entries inside `forbidden` from the installed copy; returns them, or None when the list is not found."""
+    pattern = re.compile(r"^(\s*CMAKE_PREFIX_PATH = r')([^']*)('\.split\(';'\))", re.M)
+    with open(setup_util) as f:
+        text = f.read()
+    match = pattern.search(text)
+    if not match:
+        return None
+    entries = [e for e in match.group(2).split(";") if e]
+    dropped = [e for e in entries if any(inside(e, d) for d in forbidden)]
+    kept = [e for e in entries if e not in dropped]
+    text = text[:match.start(2)] + ";".join(kept) + text[match.end(2):]
+    with open(setup_util, "w") as f:
+        f.write(text)
+    return dropped
 
 
 # ------------------------------------------------------------------------------------------------------------
@@ -230,7 +265,7 @@ def inside_main(prefix, work, forbidden):
                 launch.kill()
 
     # 7. A downstream package builds against diekf_core and its message.
-    downstream(work)
+    downstream(work, prefix)
     print("ALL INSTALL-SPACE CHECKS PASSED")
 
 
@@ -310,7 +345,7 @@ int main() {
 """
 
 
-def downstream(work):
+def downstream(work, prefix):
     src = os.path.join(work, "downstream")
     build = os.path.join(src, "build")
     os.makedirs(build)
@@ -318,7 +353,13 @@ def downstream(work):
         f.write(DOWNSTREAM_CMAKE)
     with open(os.path.join(src, "main.cpp"), "w") as f:
         f.write(DOWNSTREAM_MAIN)
-    rc, out = run(["cmake", "-DCMAKE_BUILD_TYPE=Release", src], 300, cwd=build)
+    cmake = ["cmake", "-DCMAKE_BUILD_TYPE=Release"]
+    # A build of the library under the sanitizers (make sanitize) needs a downstream built the same way: the
+    # sanitizer runtime must be the first library of the program.
+    _, ldd_core = run(["ldd", os.path.join(prefix, "lib", "libdiekf_core.so")], 60)
+    if "libasan" in ldd_core:
+        cmake.append("-DCMAKE_CXX_FLAGS=-fsanitize=address,undefined")
+    rc, out = run(cmake + [src], 300, cwd=build)
     check(rc == 0, "downstream cmake:\n" + out[-4000:])
     rc, out = run(["make", "-j1"], 600, cwd=build)
     check(rc == 0, "downstream build:\n" + out[-4000:])
