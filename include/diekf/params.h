@@ -23,6 +23,7 @@ struct InitParams {
   double sigma_g0_rad = 0.1;                    ///< 1-sigma of each tangent axis of g0, rad
   double sigma_ba0_mps2 = 0.1;                  ///< 1-sigma of the initial accelerometer bias, m/s^2
   double sigma_bw0_radps = 0.01;                ///< 1-sigma of the initial gyroscope bias, rad/s
+  double sigma_time_offset_s = 0.01;            ///< 1-sigma of the camera-IMU time offset around the calibration's, s
   double tracking_max_relative_sigma_d = 0.15;  ///< status turns tracking once sigma_d / d falls below this
   bool warm_restart = true;                     ///< automatic restarts start from the last tracked distance
   double warm_restart_max_age_s = 10.0;         ///< ... if it is at most this old, s
@@ -49,6 +50,7 @@ struct ProcessNoiseParams {
   double vartheta_inv_s_per_sqrt_s = 0.05;      ///< random-walk density on vartheta, (1/s)/sqrt(s)
   double mu_rad_per_sqrt_s = 0.005;             ///< random-walk density on the normal, rad/sqrt(s)
   double g_rad_per_sqrt_s = 0.001;              ///< random-walk density on gravity, rad/sqrt(s)
+  double time_offset_s_per_sqrt_s = 1.0e-4;     ///< random-walk density on the camera-IMU time offset, s/sqrt(s)
 };
 
 struct PreprocessParams {
@@ -139,6 +141,8 @@ struct EstimatorParams {
   double max_imu_gap_s = 0.05;                  ///< larger IMU gaps are warned about and re-prime the low-pass, s
   int max_queued_images = 8;                    ///< images waiting for IMU coverage before the oldest is dropped
   bool update_at_interval_midpoint = true;      ///< apply the image update at the middle of the image interval
+  bool estimate_time_offset = true;             ///< the camera-IMU time offset as a filter state (else fixed at 0)
+  double max_time_offset_s = 0.05;              ///< bound of the estimated offset around the calibration's, s
 };
 
 /// "iekf" | "ekf" | "lk" -> mode; throws std::invalid_argument naming the value otherwise.

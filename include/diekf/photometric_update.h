@@ -38,6 +38,21 @@ using WarpJacobian = Eigen::Matrix<double, 2, 8>;
 using ObservedInfo = Eigen::Matrix<double, 8, 8>;
 using ObservedVec = Eigen::Matrix<double, 8, 1>;
 
+/// What the camera-IMU time offset needs of an image pair (docs/algorithm.md section 3.6).
+struct TimeOffsetInput {
+  bool enabled = false;               ///< false: the offset is not observed by this update
+  Vec3 accel_C = Vec3::Zero();        ///< filtered specific force at the state's time (bias not removed), m/s^2
+  Vec3 rate_change_C = Vec3::Zero();  ///< filtered rate at the current image minus at the reference image, rad/s
+  double gravity_mps2 = 9.81;         ///< magnitude of gravity, m/s^2
+};
+
+/// The time offset's Jacobian column as a combination of the observed ones: J_t_d = J_obs m. An image taken
+/// delta later than assumed sees the state of delta later (its rates: d vartheta/dt, the tangent rate of mu) and
+/// the gyro window shifted by delta (mean rate + delta (w_cur - w_ref) / dt, i.e. b_w - delta (w_cur - w_ref) / dt):
+///   m = (alpha (a + g0 g) - w x vartheta + (mu . vartheta) vartheta,  -N(mu)^T w,  -(w_cur - w_ref) / dt)
+/// with a = accel - b_a and w = gyro_mean - b_w. Zero when `in` is not enabled.
+ObservedVec timeOffsetMap(const State& x, const Vec3& gyro_mean_C, const TimeOffsetInput& in, double dt_s);
+
 /// Position in the reference image of current-image pixel (x, y) and its Jacobian w.r.t. the observed error
 /// state [d_vartheta, d_mu, d_b_w]. `gyro_mean_C` is the raw mean gyro over the interval (bias subtracted
 /// inside); the reference image is dt_s before the current one and the state x refers to the time
@@ -52,8 +67,11 @@ class PhotometricUpdate {
   PhotometricUpdate(const PhotometricParams& params, const PreprocessParams& preprocess);
   /// Updates x and P in place from the pair (ref, cur) separated by dt_s; x and P refer to the time
   /// state_lag_s before the current image (see warpToReference).
+  /// With `time_offset` enabled the update also estimates x->t_d_s (its change within the update moves the
+  /// state and the gyro window the warp sees: timeOffsetMap).
   UpdateStats update(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PinholeK& K,
-                     const Vec3& gyro_mean_C, double dt_s, State* x, ErrorCov* P, double state_lag_s = 0.0);
+                     const Vec3& gyro_mean_C, double dt_s, State* x, ErrorCov* P, double state_lag_s = 0.0,
+                     const TimeOffsetInput& time_offset = TimeOffsetInput());
   /// Residual I_c(p) - I_r(p_r) of the last linearisation (the point rms_residual refers to; CV_32FC1, 0
   /// outside the mask and on pixels skipped by pixel_stride).
   const cv::Mat& residualImage() const { return residual_; }

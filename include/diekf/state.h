@@ -1,4 +1,4 @@
-// Filter state x = (alpha, vartheta, mu, g, b_a, b_w), all in the camera frame C, and its manifold operations.
+// Filter state x = (alpha, vartheta, mu, g, b_a, b_w, t_d), all in the camera frame C, and its manifold operations.
 #pragma once
 
 #include "diekf/types.h"
@@ -13,6 +13,9 @@ struct State {
   UnitVector g;                      ///< gravity direction (down)
   Vec3 b_a = Vec3::Zero();           ///< accelerometer bias in C, m/s^2
   Vec3 b_w = Vec3::Zero();           ///< gyroscope bias in C, rad/s
+  /// Camera-IMU time offset on top of the calibration's timeshift_cam_imu, s: an image stamped t_cam was taken
+  /// at IMU time t_cam + timeshift_cam_imu + t_d_s (docs/algorithm.md section 3.6).
+  double t_d_s = 0.0;
 
   /// x [+] delta (vector parts add, S^2 parts use UnitVector::boxplus).
   State boxplus(const ErrorVec& delta) const;

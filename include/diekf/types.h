@@ -15,12 +15,14 @@ using Mat32 = Eigen::Matrix<double, 3, 2>;
 using Mat23 = Eigen::Matrix<double, 2, 3>;
 
 /// Dimension of the error state (tangent space of the filter state).
-constexpr int kErrorDim = 14;
+constexpr int kErrorDim = 15;
+/// The motion states (everything but the camera-IMU time offset): the block published as PlanarState.covariance.
+constexpr int kMotionDim = 14;
 using ErrorVec = Eigen::Matrix<double, kErrorDim, 1>;
 using ErrorCov = Eigen::Matrix<double, kErrorDim, kErrorDim>;
 
-/// Offsets of the blocks in the 14-D error state
-/// [d_alpha, d_vartheta(3), d_mu(2), d_g(2), d_b_a(3), d_b_w(3)].
+/// Offsets of the blocks in the 15-D error state
+/// [d_alpha, d_vartheta(3), d_mu(2), d_g(2), d_b_a(3), d_b_w(3), d_t_d].
 struct ErrIdx {
   static constexpr int kAlpha = 0;
   static constexpr int kVartheta = 1;
@@ -28,6 +30,7 @@ struct ErrIdx {
   static constexpr int kG = 6;
   static constexpr int kBa = 8;
   static constexpr int kBw = 11;
+  static constexpr int kTd = 14;  ///< camera-IMU time offset (docs/algorithm.md section 3.6)
 };
 
 /// Skew-symmetric matrix [v]x with [v]x u = v x u.

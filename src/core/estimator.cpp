@@ -143,7 +143,12 @@ struct Estimator::Impl {
   /// Initial state and covariance from the parameters (gravity from the accelerometer when available).
   void resetFilter() {
     const InitParams& in = params.init;
+    // The time offset is a property of the sensors, not of the flight: a restart keeps a converged estimate
+    // (with the initial 1-sigma around it), otherwise it starts at the calibration's (0 on top of it).
+    const bool keep_t_d = converged && std::isfinite(x.t_d_s);
+    const double t_d_s = keep_t_d ? x.t_d_s : 0.0;
     x = State();
+    x.t_d_s = t_d_s;
     x.alpha = in.alpha0_inv_m;
     x.vartheta = in.vartheta0_inv_s;
     x.mu = UnitVector(in.mu0);
@@ -156,6 +161,7 @@ struct Estimator::Impl {
     P.block<2, 2>(ErrIdx::kG, ErrIdx::kG) = Mat2::Identity() * in.sigma_g0_rad * in.sigma_g0_rad;
     P.block<3, 3>(ErrIdx::kBa, ErrIdx::kBa) = Mat3::Identity() * in.sigma_ba0_mps2 * in.sigma_ba0_mps2;
     P.block<3, 3>(ErrIdx::kBw, ErrIdx::kBw) = Mat3::Identity() * in.sigma_bw0_radps * in.sigma_bw0_radps;
+    P(ErrIdx::kTd, ErrIdx::kTd) = in.sigma_time_offset_s * in.sigma_time_offset_s;
     have_reference = false;
     state_initialized = false;
     gyro_integral = Vec3::Zero();
@@ -202,6 +208,28 @@ struct Estimator::Impl {
     internal::forEachImuPiece(imu_buffer, t0, t1, 2.0 * filteredPeriod(),
                               [&](double a_s, double b_s, const ImuSample& in) { sum += in.gyro_radps * (b_s - a_s); });
     return sum;
+  }
+
+  /// The filtered IMU sample at t_s: linear interpolation between the buffered samples around it (the nearest
+  /// one outside the buffer's span).
+  ImuSample imuAt(double t_s) const {
+    ImuSample out;
+    out.t_s = t_s;
+    if (imu_buffer.empty()) return out;
+    size_t i = 0;
+    while (i < imu_buffer.size() && imu_buffer[i].t_s < t_s) ++i;
+    if (i == 0 || i == imu_buffer.size()) {
+      const ImuSample& s = imu_buffer[i == 0 ? 0 : imu_buffer.size() - 1];
+      out.accel_mps2 = s.accel_mps2;
+      out.gyro_radps = s.gyro_radps;
+      return out;
+    }
+    const ImuSample& a = imu_buffer[i - 1];
+    const ImuSample& b = imu_buffer[i];
+    const double u = b.t_s > a.t_s ? (t_s - a.t_s) / (b.t_s - a.t_s) : 1.0;
+    out.accel_mps2 = a.accel_mps2 + u * (b.accel_mps2 - a.accel_mps2);
+    out.gyro_radps = a.gyro_radps + u * (b.gyro_radps - a.gyro_radps);
+    return out;
   }
 
   /// Propagates the state from t_state to t_target with the filtered samples, split at their stamps. Each step
@@ -443,7 +471,20 @@ struct Estimator::Impl {
         } else {
           const State x_prior = x;
           const ErrorCov P_prior = P;
-          stats = photometric.update(ref, cur, img_pre.workingK(), gyro_mean, dt, &x, &P, state_lag);
+          // The time offset (docs/algorithm.md section 3.6): the state's rates at its time and the change of the
+          // filtered rate over the interval.
+          // Only once the distance has converged: before that the state's rates in m are unknown themselves, and
+          // the offset would absorb the start-up transient (measured: a 15 ms offset estimated at 36 ms within
+          // 0.5 s of a start at 1 m/s, then divergence).
+          TimeOffsetInput toff;
+          toff.enabled = params.estimate_time_offset && converged;
+          if (toff.enabled) {
+            toff.accel_C = imuAt(t_state_s).accel_mps2;
+            toff.rate_change_C = imuAt(img.t_s).gyro_radps - ref_rate_C;
+            toff.gravity_mps2 = params.imu.gravity_mps2;
+          }
+          stats = photometric.update(ref, cur, img_pre.workingK(), gyro_mean, dt, &x, &P, state_lag, toff);
+          x.t_d_s = std::clamp(x.t_d_s, -params.max_time_offset_s, params.max_time_offset_s);
           // alpha's step in prior sigmas: d must never jump by many sigma in one frame.
           const double step_sigma =
               std::abs(x.alpha - x_prior.alpha) / std::sqrt(std::max(1e-300, P_prior(ErrIdx::kAlpha, ErrIdx::kAlpha)));
@@ -491,6 +532,7 @@ struct Estimator::Impl {
     const bool had_reference = have_reference;
     if (usable) {
       last_usable_image_t_s = img.t_s;
+      ref_rate_C = imuAt(img.t_s).gyro_radps;
       gyro_integral.setZero();
       gyro_time_s = 0.0;
       ref_index = 1 - ref_index;
@@ -598,7 +640,11 @@ struct Estimator::Impl {
   void processReady() {
     while (!images.empty()) {
       PendingImage& img = images[0];
-      if (imu_buffer.empty() || imu_buffer.back().t_s < img.t_s) return;
+      // The image's time on the IMU clock with the estimated offset on top of the calibration's
+      // (docs/algorithm.md section 3.6); never before the state's time.
+      double t_img_s = params.estimate_time_offset ? img.t_s + x.t_d_s : img.t_s;
+      if (state_initialized) t_img_s = std::max(t_img_s, t_state_s + 1e-6);
+      if (imu_buffer.empty() || imu_buffer.back().t_s < t_img_s) return;
       if (!state_initialized && img.t_s < imu_buffer[0].t_s) {
         std::ostringstream os;
         os << "image at " << img.t_s << " s older than the IMU data (from " << imu_buffer[0].t_s << " s) dropped";
@@ -606,6 +652,7 @@ struct Estimator::Impl {
         images.pop();
         continue;
       }
+      img.t_s = t_img_s;
       processImage(img);
       images.pop();
     }
@@ -652,6 +699,7 @@ struct Estimator::Impl {
   bool have_reference = false;
   FilterStatus status = FilterStatus::kInitializing;
   Vec3 gyro_integral = Vec3::Zero();      // integral of the raw gyro (C) since the reference image, rad
+  Vec3 ref_rate_C = Vec3::Zero();         // filtered rate at the reference image, rad/s
   double gyro_time_s = 0.0;               // time covered by gyro_integral, s
   int bad_frames = 0;
   int updates_since_reset = 0;

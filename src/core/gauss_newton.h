@@ -4,6 +4,8 @@
 // matching 8-vector, so both updates run exactly the same solve, stopping rule and covariance update.
 #pragma once
 
+#include <type_traits>
+
 #include <Eigen/Cholesky>
 #include <Eigen/Core>
 
@@ -35,6 +37,9 @@ struct IterationResult {
 /// `linearize(const State& x_j, ObsMat* A, ObsVec* b) -> bool` must fill the UPPER triangle of
 /// A = sum w S^T S and b = sum w S^T r (r = z - h(x_j), dr/d delta = -S) at x_j, and return false to abort
 /// (too few measurements); it may leave the strictly lower triangle of A undefined.
+/// A callback with a fourth argument `ObsVec* m` (zeroed before the call) may also say how the time offset
+/// enters: its Jacobian column is S m (a combination of the observed columns, docs/algorithm.md section 3.6),
+/// so the measurement rows over the error state are S H with H = [selection of the observed columns | m].
 ///
 /// Per pass: Lambda = L^T P^-1 L, delta = (A + Lambda)^-1 (b - L^T P^-1 e), e = x_j [-] x^-,
 /// x_{j+1} = x_j [+] delta; stop at |delta| < stop_threshold or after max_passes.
@@ -57,6 +62,7 @@ IterationResult iterateInformationForm(int max_passes, double stop_threshold, Li
   State x_j = x_prior;
   ObsMat A;
   ObsVec b;
+  ObsVec m;
   ErrorCov info;
   ErrorVec rhs;
   Eigen::LDLT<ErrorCov> info_ldlt(kErrorDim);
@@ -65,9 +71,14 @@ IterationResult iterateInformationForm(int max_passes, double stop_threshold, Li
   for (int pass = 0; pass < passes; ++pass) {
     A.setZero();
     b.setZero();
-    if (!linearize(static_cast<const State&>(x_j), &A, &b)) return result;
+    m.setZero();
+    if constexpr (std::is_invocable_v<LinearizeFn&, const State&, ObsMat*, ObsVec*, ObsVec*>) {
+      if (!linearize(static_cast<const State&>(x_j), &A, &b, &m)) return result;
+    } else {
+      if (!linearize(static_cast<const State&>(x_j), &A, &b)) return result;
+    }
     A.template triangularView<Eigen::StrictlyLower>() = A.transpose();
-    if (!A.allFinite() || !b.allFinite()) return result;
+    if (!A.allFinite() || !b.allFinite() || !m.allFinite()) return result;
 
     // Prior term. On the first pass e = 0 and L = I.
     if (pass == 0) {
@@ -84,6 +95,16 @@ IterationResult iterateInformationForm(int max_passes, double stop_threshold, Li
     for (int r = 0; r < kObsDim; ++r) {
       rhs(kObsToErr[r]) += b(r);
       for (int c = 0; c < kObsDim; ++c) info(kObsToErr[r], kObsToErr[c]) += A(r, c);
+    }
+    // The time-offset column S m: H^T A H adds A m to its cross terms and m^T A m to its diagonal.
+    if (!m.isZero(0.0)) {
+      const ObsVec Am = A * m;
+      for (int r = 0; r < kObsDim; ++r) {
+        info(kObsToErr[r], ErrIdx::kTd) += Am(r);
+        info(ErrIdx::kTd, kObsToErr[r]) += Am(r);
+      }
+      info(ErrIdx::kTd, ErrIdx::kTd) += m.dot(Am);
+      rhs(ErrIdx::kTd) += m.dot(b);
     }
 
     info_ldlt.compute(info);

@@ -282,6 +282,7 @@ const std::vector<Entry>& table() {
     t.push_back(real("init/sigma_g0_rad", DIEKF_FIELD(double, init.sigma_g0_rad), positive(M_PI)));
     t.push_back(real("init/sigma_ba0_mps2", DIEKF_FIELD(double, init.sigma_ba0_mps2), positive()));
     t.push_back(real("init/sigma_bw0_radps", DIEKF_FIELD(double, init.sigma_bw0_radps), positive()));
+    t.push_back(real("init/sigma_time_offset_s", DIEKF_FIELD(double, init.sigma_time_offset_s), positive(1.0)));
     t.push_back(real("init/tracking_max_relative_sigma_d", DIEKF_FIELD(double, init.tracking_max_relative_sigma_d),
                      positive()));
     t.push_back(flag("init/warm_restart", DIEKF_FIELD(bool, init.warm_restart)));
@@ -309,6 +310,8 @@ const std::vector<Entry>& table() {
                      DIEKF_FIELD(double, process.vartheta_inv_s_per_sqrt_s), nonNegative()));
     t.push_back(real("process/mu_rad_per_sqrt_s", DIEKF_FIELD(double, process.mu_rad_per_sqrt_s), nonNegative()));
     t.push_back(real("process/g_rad_per_sqrt_s", DIEKF_FIELD(double, process.g_rad_per_sqrt_s), nonNegative()));
+    t.push_back(real("process/time_offset_s_per_sqrt_s", DIEKF_FIELD(double, process.time_offset_s_per_sqrt_s),
+                     nonNegative()));
     // preprocess
     t.push_back(integer("preprocess/working_width_px", DIEKF_FIELD(int, preprocess.working_width_px),
                         between(3, 4096)));
@@ -392,6 +395,8 @@ const std::vector<Entry>& table() {
     t.push_back(real("max_imu_gap_s", DIEKF_FIELD(double, max_imu_gap_s), positive()));
     t.push_back(integer("max_queued_images", DIEKF_FIELD(int, max_queued_images), between(1, 10000)));
     t.push_back(flag("update_at_interval_midpoint", DIEKF_FIELD(bool, update_at_interval_midpoint)));
+    t.push_back(flag("estimate_time_offset", DIEKF_FIELD(bool, estimate_time_offset)));
+    t.push_back(real("max_time_offset_s", DIEKF_FIELD(double, max_time_offset_s), between(0.0, 1.0)));
     return t;
   }();
   return entries;

@@ -73,6 +73,18 @@ struct IntervalWarp {
 };
 }  // namespace
 
+ObservedVec timeOffsetMap(const State& x, const Vec3& gyro_mean_C, const TimeOffsetInput& in, double dt_s) {
+  ObservedVec m = ObservedVec::Zero();
+  if (!in.enabled || !(dt_s > 0.0)) return m;
+  const Vec3 a = in.accel_C - x.b_a;    // m/s^2
+  const Vec3 w = gyro_mean_C - x.b_w;   // rad/s
+  const Vec3& th = x.vartheta;
+  m.segment<3>(0) = x.alpha * (a + in.gravity_mps2 * x.g.vector()) - w.cross(th) + x.mu.vector().dot(th) * th;
+  m.segment<2>(3) = -x.mu.N().transpose() * w;
+  m.segment<3>(5) = -in.rate_change_C / dt_s;
+  return m;
+}
+
 Vec2 warpToReference(const State& x, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s, double px,
                      double py, WarpJacobian* J, double state_lag_s) {
   const IntervalWarp iw(x, gyro_mean_C, dt_s, state_lag_s);
@@ -694,7 +706,7 @@ void marginalizeRotationError(double var_bw, ObservedInfo* A, ObservedVec* b) {
 
 UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const PreprocessedFrame& cur,
                                       const PinholeK& K, const Vec3& gyro_mean_C, double dt_s, State* x,
-                                      ErrorCov* P, double state_lag_s) {
+                                      ErrorCov* P, double state_lag_s, const TimeOffsetInput& time_offset) {
   UpdateStats stats;
   const SweepConfig cfg = makeConfig(params_, preprocess_, params_.intensity_noise_sigma);
   if (x == nullptr || P == nullptr || !framesUsable(ref, cur, cfg.border) || !(dt_s > 0.0) ||
@@ -709,10 +721,18 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   use_weight_map_ = params_.outlier_threshold_sigma > 0.0 && weight_map_has_outliers_ && !weight_map_.empty() &&
                     weight_map_.size() == cur.intensity.size();
 
-  // Prior covariance of the observed states (for the innovation test of the first pass).
+  // Prior covariance of what the image observes, H P H^T with H = [observed columns | m] (the time offset
+  // enters as the combination m of the observed columns; for the innovation test of the first pass).
+  const double t_d_prior_s = x->t_d_s;
+  const ObservedVec m_prior = timeOffsetMap(*x, gyro_mean_C, time_offset, dt_s);
   ObservedInfo P_obs;
-  for (int r = 0; r < internal::kObsDim; ++r)
+  ObservedVec P_obs_td;
+  for (int r = 0; r < internal::kObsDim; ++r) {
+    P_obs_td(r) = (*P)(internal::kObsToErr[r], ErrIdx::kTd);
     for (int c = 0; c < internal::kObsDim; ++c) P_obs(r, c) = (*P)(internal::kObsToErr[r], internal::kObsToErr[c]);
+  }
+  P_obs += m_prior * P_obs_td.transpose() + P_obs_td * m_prior.transpose() +
+           (*P)(ErrIdx::kTd, ErrIdx::kTd) * m_prior * m_prior.transpose();
 
   const bool adaptive = params_.adaptive_noise;
   // Per-pixel noise the Huber threshold refers to: the smoothed estimate once there is one.
@@ -740,8 +760,17 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   int pass = 0;
   PassSums sums;
   // Every pass writes the residual image; the RMS and the valid ratio are those of the last linearisation.
-  auto linearize_at = [&](const State& x_j, internal::ObsMat* A, internal::ObsVec* b) {
-    const int valid = accumulate(cur, K, gyro_mean_C, dt_s, state_lag_s, x_j, huber_sigma, &sums);
+  auto linearize_at = [&](const State& x_j, internal::ObsMat* A, internal::ObsVec* b, internal::ObsVec* m) {
+    // A time offset changed by e within the update: the image sees the state and the gyro window of e later.
+    *m = timeOffsetMap(x_j, gyro_mean_C, time_offset, dt_s);
+    const double e_s = x_j.t_d_s - t_d_prior_s;
+    State x_seen = x_j;
+    if (e_s != 0.0) {
+      x_seen.vartheta += e_s * m->segment<3>(0);
+      x_seen.mu = x_j.mu.boxplus(e_s * m->segment<2>(3));
+      x_seen.b_w += e_s * m->segment<3>(5);
+    }
+    const int valid = accumulate(cur, K, gyro_mean_C, dt_s, state_lag_s, x_seen, huber_sigma, &sums);
     stats.valid_ratio = sums.candidates > 0 ? static_cast<double>(valid) / sums.candidates : 0.0;
     stats.rms_residual = valid > 0 ? std::sqrt(sums.sum_r2 / valid) : 0.0;
     stats.residual_sigma = sums.robust_sigma;

@@ -44,6 +44,7 @@ void propagate(const State& x, const Vec3& accel_C, const Vec3& gyro_C, double d
   out->g = UnitVector::fromQuaternion(q_R * x.g.quaternion());
   out->b_a = x.b_a;
   out->b_w = x.b_w;
+  out->t_d_s = x.t_d_s;
   if (F == nullptr && G == nullptr) return;
 
   // Derivatives with respect to z = [alpha, vartheta, mu (2), g (2), a, w] (14 columns); the biases enter as
@@ -100,6 +101,7 @@ void propagate(const State& x, const Vec3& accel_C, const Vec3& gyro_C, double d
     // biases: random walks
     F->block<3, 3>(I::kBa, I::kBa).setIdentity();
     F->block<3, 3>(I::kBw, I::kBw).setIdentity();
+    (*F)(I::kTd, I::kTd) = 1.0;  // the time offset: a (slow) random walk
   }
   if (G != nullptr) {
     using I = ErrIdx;
@@ -177,7 +179,7 @@ void predict(const Vec3& accel_C, const Vec3& gyro_C, double dt_s, const ImuPara
                             std::abs(x->mu.vector().dot(x->vartheta)) * std::sqrt(dt_s);  // 1/m
   sigma(NoiseIdx::kAlpha) = std::hypot(sigma(NoiseIdx::kAlpha), rate_sigma);
   *x = out;
-  // Exploit the structure: the bias rows of F are [0 I] and the bias rows of G only hold the random-walk
+  // Exploit the structure: the bias and time-offset rows of F are [0 I] and the bias rows of G only hold the random-walk
   // identities (whose columns are zero in the other rows). With F_top the first 8 rows of F and X = F_top P:
   //   P'_top,top = X F_top^T + G_top Q G_top^T,  P'_top,bias = X_bias,  P'_bias,bias = P_bias,bias + Q_walk.
   constexpr int kTop = ErrIdx::kBa;  // alpha, vartheta, mu, g
@@ -194,6 +196,7 @@ void predict(const Vec3& accel_C, const Vec3& gyro_C, double dt_s, const ImuPara
   Pn.bottomRightCorner<kBias, kBias>() = P->bottomRightCorner<kBias, kBias>();
   Pn.diagonal().segment<3>(ErrIdx::kBa) += sigma.segment<3>(NoiseIdx::kBaWalk).cwiseAbs2();
   Pn.diagonal().segment<3>(ErrIdx::kBw) += sigma.segment<3>(NoiseIdx::kBwWalk).cwiseAbs2();
+  Pn(ErrIdx::kTd, ErrIdx::kTd) += process.time_offset_s_per_sqrt_s * process.time_offset_s_per_sqrt_s * dt_s;
   *P = 0.5 * (Pn + Pn.transpose());
 }
 

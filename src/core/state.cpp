@@ -12,6 +12,7 @@ State State::boxplus(const ErrorVec& delta) const {
   out.g = g.boxplus(delta.segment<2>(ErrIdx::kG));
   out.b_a = b_a + delta.segment<3>(ErrIdx::kBa);
   out.b_w = b_w + delta.segment<3>(ErrIdx::kBw);
+  out.t_d_s = t_d_s + delta(ErrIdx::kTd);
   return out;
 }
 
@@ -23,6 +24,7 @@ ErrorVec State::boxminus(const State& other) const {
   e.segment<2>(ErrIdx::kG) = g.boxminus(other.g);
   e.segment<3>(ErrIdx::kBa) = b_a - other.b_a;
   e.segment<3>(ErrIdx::kBw) = b_w - other.b_w;
+  e(ErrIdx::kTd) = t_d_s - other.t_d_s;
   return e;
 }
 
@@ -35,7 +37,7 @@ ErrorCov State::boxminusJacobian(const State& ref) const {
 
 bool State::allFinite() const {
   return std::isfinite(alpha) && vartheta.allFinite() && mu.quaternion().coeffs().allFinite() &&
-         g.quaternion().coeffs().allFinite() && b_a.allFinite() && b_w.allFinite();
+         g.quaternion().coeffs().allFinite() && b_a.allFinite() && b_w.allFinite() && std::isfinite(t_d_s);
 }
 
 }  // namespace diekf

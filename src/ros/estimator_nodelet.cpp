@@ -545,6 +545,8 @@ void EstimatorNodelet::publishResult(const diekf::FrameResult& r) {
   last_message_ = r.message;
   last_distance_m_ = state.distance;
   last_height_m_ = state.height;
+  last_time_offset_ms_ = 1e3 * state.time_offset;
+  last_sigma_time_offset_ms_ = 1e3 * state.sigma_time_offset;
   if (r.update_applied) {
     last_update_ms_ = r.update_ms;
     last_nis_ = r.nis;
@@ -603,6 +605,8 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
   stat.add("max update time (ms)", update_ms_max_);
   stat.add("distance (m)", last_distance_m_);
   stat.add("height (m)", last_height_m_);
+  stat.add("camera-IMU time offset on top of the calibration's (ms)", last_time_offset_ms_);
+  stat.add("camera-IMU time offset 1-sigma (ms)", last_sigma_time_offset_ms_);
 }
 
 }  // namespace diekf_ros

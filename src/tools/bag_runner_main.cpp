@@ -307,7 +307,7 @@ int run(const RunnerOptions& o) {
   if (o.frames_csv) {
     frames.open(out_dir / "frames.csv");
     if (!frames) throw RunError("cannot write " + (out_dir / "frames.csv").string());
-    frames << "t,applied,passes,photometric_rms,valid_ratio,nis,noise_sigma,noise_correlation,nis_scale,gate_inflation,outlier_fraction,"
+    frames << "t,applied,passes,photometric_rms,valid_ratio,nis,noise_sigma,noise_correlation,nis_scale,gate_inflation,outlier_fraction,time_offset_ms,sigma_time_offset_ms,"
               "status,message\n";
     frames.precision(12);
   }
@@ -324,7 +324,9 @@ int run(const RunnerOptions& o) {
         frames << result.t_s << ',' << (result.update_applied ? 1 : 0) << ',' << result.passes << ','
                << result.photometric_rms << ',' << result.valid_ratio << ',' << result.nis << ','
                << result.noise_sigma << ',' << result.noise_correlation << ',' << result.nis_scale << ',' << result.gate_inflation << ','
-               << result.outlier_fraction << ',' << diekf::toString(result.status) << ',' << msg << '\n';
+               << result.outlier_fraction << ',' << 1e3 * result.state.t_d_s << ','
+               << 1e3 * std::sqrt(std::max(0.0, result.covariance(diekf::ErrIdx::kTd, diekf::ErrIdx::kTd))) << ','
+               << diekf::toString(result.status) << ',' << msg << '\n';
       }
       if (keep_rows) {
         rows.push_back(toRow(result));
