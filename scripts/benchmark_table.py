@@ -10,7 +10,9 @@ default estimator as an extra row labelled "realistic"; a simulator without that
 message. With --clutter (the default), one flight (--clutter-flight, flight4) is simulated twice more, once with a
 moving object crossing the view and once with boxes standing on the ground (docs/simulator.md, "Moving objects and
 clutter"), and run through the default estimator: a table with the covered fraction of the image next to the
-errors, and the same flight without them. Every table also gives the consistency of the reported uncertainty: the fractions of the distance and
+errors, and the same flight without them. With --timing (the default), one flight (--timing-flight, flight7) is
+simulated with a camera-IMU time offset of 10 and 20 ms unknown to the camchain and with a 16 ms rolling shutter,
+each run through the default estimator (the offset also not estimated, the line delay also given). Every table also gives the consistency of the reported uncertainty: the fractions of the distance and
 velocity errors inside the filter's 2-sigma (95 % for a consistent filter) and the mean NEES (4 if consistent).
 Prints Markdown tables side by side with the paper's figures and writes, under --output:
   benchmark.md     the tables
@@ -21,6 +23,7 @@ Sequences are simulated into runs/NAME/sequence/ and deleted after their runs un
     benchmark_table.py [--output DIR] [--duration S] [--flights 1,2,...] [--modes iekf,ekf,lk]
                        [--inclines 0,10,20,30] [--seed N] [--runner-args "..."] [--keep-bags] [--plots]
                        [--realistic | --no-realistic] [--clutter | --no-clutter] [--clutter-flight K]
+                       [--timing | --no-timing] [--timing-flight K]
 """
 
 import argparse
@@ -323,6 +326,69 @@ def table_clutter(results, k):
     return "\n".join(lines)
 
 
+# The timing rows (issue 16): (label, diekf_simulate options, extra diekf_bag_runner options). A camera-IMU time
+# offset that the camchain does not know, estimated online and not, and a 16 ms rolling-shutter readout with and
+# without the line delay (the simulator's, from realism.yaml) given to the estimator.
+TIMING_RUNS = [
+    ("time offset 10 ms", ["--time-offset-ms", "10"], []),
+    ("time offset 20 ms", ["--time-offset-ms", "20"], []),
+    ("time offset 20 ms, not estimated", ["--time-offset-ms", "20"], ["--set", "estimate_time_offset=false"]),
+    ("rolling shutter 16 ms, line delay unknown", ["--rolling-shutter-ms", "16"], []),
+    ("rolling shutter 16 ms, line delay known", ["--rolling-shutter-ms", "16"], ["line_delay"]),
+]
+
+
+def run_timing(bin_dir, args, k, label, sim_opts, run_opts, runs_dir, sim_extra, runner_args, results):
+    """Simulates flight k with a timing error and runs the default estimator (results["timingK/label"]). The
+    sequence is shared by the rows with the same simulator options. Returns False when the simulator does not know
+    the options."""
+    name = "flight%d_%s" % (k, "_".join(o.strip("-") for o in sim_opts))
+    seq_dir = os.path.join(runs_dir, name, "sequence")
+    bag = os.path.join(seq_dir, "sequence.bag")
+    if not os.path.isfile(bag):
+        if not simulate(bin_dir, "flight%d" % k, args.duration, args.seed, seq_dir, sim_opts + sim_extra,
+                        required=False):
+            log_path = os.path.join(seq_dir, "simulate.log")
+            if simulator_rejected(log_path, sim_opts[0]):
+                print("benchmark_table.py: this diekf_simulate has no %s option; skipping the timing rows" %
+                      sim_opts[0], flush=True)
+                return False
+            print("benchmark_table.py: timing simulation %s failed, see %s; row skipped" % (name, log_path), flush=True)
+            return True
+    extra = list(run_opts)
+    if "line_delay" in extra:
+        line_time = read_simple_yaml(os.path.join(seq_dir, "realism.yaml")).get("rolling_shutter_line_time_s", 0.0)
+        extra = ["--set", "line_delay_s=%.6g" % line_time]
+    tag = label.replace(" ", "_").replace(",", "")
+    ev = run_estimator(bin_dir, seq_dir, None, name, os.path.join(runs_dir, name, tag),
+                       list(runner_args) + extra, args.plots)
+    ev["timing"] = {"simulator": " ".join(sim_opts), "runner": " ".join(extra)}
+    results["timing%d/%s" % (k, label)] = ev
+    return True
+
+
+def table_timing_rows(results, k):
+    """One row per timing run of flight k, and the flight without timing errors (its iekf run) for comparison."""
+    lines = ["| flight | case (diekf_simulate options; estimator options) | distance RMSE (cm) | velocity RMSE (cm/s) | "
+             "d within 2σ (%) | v within 2σ (%) | NEES mean |",
+             "|---|---|---|---|---|---|---|"]
+    rows = [("clean", results.get("flight%d/iekf" % k))]
+    rows += [(label, results.get("timing%d/%s" % (k, label))) for label, _, _ in TIMING_RUNS]
+    for label, ev in rows:
+        if ev is None:
+            continue
+        if ev.get("failed"):
+            lines.append("| %d | %s | failed | | | | |" % (k, label))
+            continue
+        t = ev.get("timing", {})
+        case = label if label == "clean" else "%s (`%s`%s)" % (
+            label, t.get("simulator", ""), "; `%s`" % t["runner"] if t.get("runner") else "")
+        lines.append("| %d | %s | %s | %s | %s | %s | %s |" % (
+            k, case, cm(ev.get("rmse_distance_m")), cm(ev.get("rmse_velocity_mps")), pct(ev.get("coverage2_d")),
+            pct(ev.get("coverage2_v")), num(ev.get("nees_mean"))))
+    return "\n".join(lines)
+
+
 def parse_list(text, cast):
     return [cast(x) for x in text.split(",") if x.strip()] if text else []
 
@@ -354,6 +420,10 @@ def main(argv=None):
                              "the default estimator on them (two extra flights) [on]")
     parser.add_argument("--no-clutter", dest="clutter", action="store_false", help="skip the clutter rows")
     parser.add_argument("--clutter-flight", type=int, default=4, help="the flight of the clutter rows [4]")
+    parser.add_argument("--timing", dest="timing", action="store_true", default=True,
+                        help="time-offset and rolling-shutter rows on --timing-flight (default)")
+    parser.add_argument("--no-timing", dest="timing", action="store_false", help="skip the timing rows")
+    parser.add_argument("--timing-flight", type=int, default=7, help="the flight of the timing rows [7]")
     args = parser.parse_args(argv)
     if args.reuse_bags:
         args.keep_bags = True
@@ -406,6 +476,22 @@ def main(argv=None):
                                results):
                 break
 
+    if args.timing:
+        if args.timing_flight not in PAPER:
+            sys.exit("benchmark_table.py: --timing-flight is 1..7, got %d" % args.timing_flight)
+        print("Timing: flight%d with a time offset and a rolling shutter, default estimator" % args.timing_flight,
+              flush=True)
+        for label, sim_opts, run_opts in TIMING_RUNS:
+            if not run_timing(bin_dir, args, args.timing_flight, label, sim_opts, run_opts, runs_dir, sim_extra,
+                              runner_args, results):
+                break
+        if not args.keep_bags:
+            for label, sim_opts, _ in TIMING_RUNS:
+                bag = os.path.join(runs_dir, "flight%d_%s" % (args.timing_flight, "_".join(
+                    o.strip("-") for o in sim_opts)), "sequence", "sequence.bag")
+                if os.path.isfile(bag):
+                    os.remove(bag)
+
     incline_duration = args.incline_duration or args.duration
     if inclines:
         print("Inclined planes: %s deg, %s, %g s each" % (",".join("%g" % a for a in inclines),
@@ -451,6 +537,13 @@ def main(argv=None):
                "image whose nearest surface is a mover or a box (occlusion.csv / clutter.yaml of the simulation); "
                "\"while present\": over the images more than 1 % covered by the mover. Default estimator; the "
                "clean row is the flight's D-IEKF run of Table I.", "", table_clutter(results, args.clutter_flight), ""]
+    if args.timing and any(key.startswith("timing") for key in results):
+        md += ["## Timing: camera-IMU time offset and rolling shutter (flight%d)" % args.timing_flight, "",
+               "Issue 16: images taken later than their stamps say by an offset the camchain does not know "
+               "(`timeshift_cam_imu` 0), estimated online (docs/algorithm.md section 3.6) and not; a rolling shutter "
+               "reading the frame out in 16 ms (stamp at the middle row), with the line delay unknown and given to "
+               "the estimator (`line_delay_s`, section 3.7). Default estimator otherwise; the clean row is the "
+               "flight's D-IEKF run of Table I.", "", table_timing_rows(results, args.timing_flight), ""]
     text = "\n".join(md)
     print()
     print(text)

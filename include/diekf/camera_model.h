@@ -24,6 +24,7 @@ class CameraModel {
   Vec4 distortion_coeffs = Vec4::Zero();                ///< radtan: k1 k2 r1 r2; equidistant: k1..k4
   Eigen::Isometry3d T_cam_imu = Eigen::Isometry3d::Identity();  ///< p_C = T_cam_imu p_I
   double timeshift_cam_imu_s = 0.0;                     ///< t_imu = t_cam + timeshift
+  double line_delay_s = 0.0;  ///< rolling shutter: readout time per image row, s (camchain key line_delay_s; 0 = global)
   std::string rostopic;                                 ///< image topic named in the calibration
 
   /// Normalised undistorted coordinates (x/z, y/z) -> distorted normalised coordinates.

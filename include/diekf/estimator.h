@@ -23,7 +23,8 @@ const char* toString(FilterStatus status);
 
 /// What happened at one image.
 struct FrameResult {
-  double t_s = 0.0;                  ///< image stamp on the IMU clock, s
+  double t_s = 0.0;                  ///< the image's time on the IMU clock (stamp + timeshift + stamp convention + estimated offset), s
+  double stamp_s = 0.0;              ///< the image's stamp as given to addImage, s
   State state;                       ///< posterior state
   ErrorCov covariance = ErrorCov::Zero();
   FilterStatus status = FilterStatus::kInitializing;

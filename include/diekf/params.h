@@ -128,6 +128,9 @@ struct InputParams {
   double gap_gyro_sigma_radps = 0.5;            ///< unknown rate change during a bridged IMU gap, 1-sigma, rad/s
 };
 
+/// What an image's stamp marks (EstimatorParams::image_stamp).
+enum class ImageStamp { kMiddle, kStart, kEnd };
+
 struct EstimatorParams {
   UpdateMode mode = UpdateMode::kIterated;
   InitParams init;
@@ -143,7 +146,21 @@ struct EstimatorParams {
   bool update_at_interval_midpoint = true;      ///< apply the image update at the middle of the image interval
   bool estimate_time_offset = true;             ///< the camera-IMU time offset as a filter state (else fixed at 0)
   double max_time_offset_s = 0.05;              ///< bound of the estimated offset around the calibration's, s
+  double time_offset_start_s = 2.0;             ///< converged this long before the offset is estimated, s
+  /// Rolling shutter: readout time per raw image row, s; 0 = the camchain's line_delay_s (0 there: global shutter).
+  double line_delay_s = 0.0;
+  /// What the image stamp marks: the middle of the exposure of the middle row (the estimator's image time),
+  /// the start of the first row's exposure, or the end of the last row's.
+  ImageStamp image_stamp = ImageStamp::kMiddle;
+  double exposure_time_s = 0.0;                 ///< exposure time for image_stamp start/end, s
 };
+
+/// "middle" | "start" | "end" -> ImageStamp; throws std::invalid_argument naming the value otherwise.
+ImageStamp parseImageStamp(const std::string& name);
+const char* toString(ImageStamp stamp);
+/// Seconds to add to an image stamp for the capture time of the middle of the middle row's exposure, given the
+/// convention, the exposure time and the whole frame's readout time (rows times line delay).
+double imageStampShift(ImageStamp stamp, double exposure_time_s, double readout_s);
 
 /// "iekf" | "ekf" | "lk" -> mode; throws std::invalid_argument naming the value otherwise.
 UpdateMode parseUpdateMode(const std::string& name);

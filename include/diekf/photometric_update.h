@@ -38,20 +38,32 @@ using WarpJacobian = Eigen::Matrix<double, 2, 8>;
 using ObservedInfo = Eigen::Matrix<double, 8, 8>;
 using ObservedVec = Eigen::Matrix<double, 8, 1>;
 
-/// What the camera-IMU time offset needs of an image pair (docs/algorithm.md section 3.6).
-struct TimeOffsetInput {
-  bool enabled = false;               ///< false: the offset is not observed by this update
+/// The timing of an image pair beyond its stamps (docs/algorithm.md sections 3.6 and 3.7): what the camera-IMU
+/// time offset and the rolling shutter need.
+struct ImageTiming {
+  bool estimate_offset = false;       ///< the update estimates x.t_d_s (its column: timeOffsetMap)
+  bool rates_valid = false;           ///< accel_C and rate_change_C are filled (stateRateMap is not zero)
   Vec3 accel_C = Vec3::Zero();        ///< filtered specific force at the state's time (bias not removed), m/s^2
   Vec3 rate_change_C = Vec3::Zero();  ///< filtered rate at the current image minus at the reference image, rad/s
   double gravity_mps2 = 9.81;         ///< magnitude of gravity, m/s^2
+  /// Rolling shutter: capture time per working-image row, s (0: global shutter); working row `zero_row` is
+  /// captured at the image's time, row y at line_delay_s (y - zero_row) after it.
+  double line_delay_s = 0.0;
+  double zero_row = 0.0;              ///< working-image row captured at the image's time, px
 };
 
-/// The time offset's Jacobian column as a combination of the observed ones: J_t_d = J_obs m. An image taken
-/// delta later than assumed sees the state of delta later (its rates: d vartheta/dt, the tangent rate of mu) and
-/// the gyro window shifted by delta (mean rate + delta (w_cur - w_ref) / dt, i.e. b_w - delta (w_cur - w_ref) / dt):
+/// The rate of what the warp sees when the pair is taken later: an image pair taken delta later than assumed
+/// sees the state of delta later (its rates: d vartheta/dt, the tangent rate of mu) and the gyro window shifted
+/// by delta (mean rate + delta (w_cur - w_ref) / dt, i.e. b_w - delta (w_cur - w_ref) / dt):
 ///   m = (alpha (a + g0 g) - w x vartheta + (mu . vartheta) vartheta,  -N(mu)^T w,  -(w_cur - w_ref) / dt)
-/// with a = accel - b_a and w = gyro_mean - b_w. Zero when `in` is not enabled.
-ObservedVec timeOffsetMap(const State& x, const Vec3& gyro_mean_C, const TimeOffsetInput& in, double dt_s);
+/// with a = accel - b_a and w = gyro_mean - b_w; over [d_vartheta, d_mu, d_b_w]. Zero unless in.rates_valid.
+ObservedVec stateRateMap(const State& x, const Vec3& gyro_mean_C, const ImageTiming& in, double dt_s);
+/// The time offset's Jacobian column as a combination of the observed ones, J_t_d = J_obs m: stateRateMap
+/// when in.estimate_offset, else zero.
+ObservedVec timeOffsetMap(const State& x, const Vec3& gyro_mean_C, const ImageTiming& in, double dt_s);
+/// x as the warp sees it delta_s later along m (stateRateMap): vartheta + delta m_vartheta, mu [+] delta m_mu,
+/// b_w + delta m_bw.
+State shiftedAlong(const State& x, const ObservedVec& m, double delta_s);
 
 /// Position in the reference image of current-image pixel (x, y) and its Jacobian w.r.t. the observed error
 /// state [d_vartheta, d_mu, d_b_w]. `gyro_mean_C` is the raw mean gyro over the interval (bias subtracted
@@ -67,11 +79,12 @@ class PhotometricUpdate {
   PhotometricUpdate(const PhotometricParams& params, const PreprocessParams& preprocess);
   /// Updates x and P in place from the pair (ref, cur) separated by dt_s; x and P refer to the time
   /// state_lag_s before the current image (see warpToReference).
-  /// With `time_offset` enabled the update also estimates x->t_d_s (its change within the update moves the
-  /// state and the gyro window the warp sees: timeOffsetMap).
+  /// With `timing.estimate_offset` the update also estimates x->t_d_s (its change within the update moves the
+  /// state and the gyro window the warp sees: timeOffsetMap); with `timing.line_delay_s` each row of the current
+  /// image is warped with the motion at its own capture time (rolling shutter, docs/algorithm.md section 3.7).
   UpdateStats update(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PinholeK& K,
                      const Vec3& gyro_mean_C, double dt_s, State* x, ErrorCov* P, double state_lag_s = 0.0,
-                     const TimeOffsetInput& time_offset = TimeOffsetInput());
+                     const ImageTiming& timing = ImageTiming());
   /// Residual I_c(p) - I_r(p_r) of the last linearisation (the point rms_residual refers to; CV_32FC1, 0
   /// outside the mask and on pixels skipped by pixel_stride).
   const cv::Mat& residualImage() const { return residual_; }
@@ -114,8 +127,10 @@ class PhotometricUpdate {
     double correlation = 1.0;  ///< pixels per independent measurement
     double nis_scale = 1.0;    ///< innovation-based inflation (>= 1): E[NIS] = 8 when consistent
   };
+  /// `m_rows` (stateRateMap) and `timing` only for a rolling shutter (timing.line_delay_s > 0).
   int accumulate(const PreprocessedFrame& cur, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s,
-                 double state_lag_s, const State& x, double huber_sigma, PassSums* out);
+                 double state_lag_s, const State& x, double huber_sigma, PassSums* out,
+                 const ObservedVec* m_rows = nullptr, const ImageTiming* timing = nullptr);
   /// Residual image and row scratch for images of `size` (allocates only when the size changes).
   void prepareBuffers(const cv::Size& size);
   /// Outlier weights for the next image from this update's last residual (docs/noise_model.md, section 10).

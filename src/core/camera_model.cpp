@@ -15,6 +15,7 @@
 
 #include <Eigen/SVD>
 
+#include <algorithm>
 #include <cmath>
 #include <sstream>
 #include <stdexcept>
@@ -183,6 +184,15 @@ CameraModel CameraModel::fromKalibrYaml(const std::string& path, const std::stri
 
   if (c["timeshift_cam_imu"] && !c["timeshift_cam_imu"].IsNull()) {
     m.timeshift_cam_imu_s = readNumber(c["timeshift_cam_imu"], path, p + "timeshift_cam_imu");
+  }
+  if (c["line_delay_s"] && !c["line_delay_s"].IsNull()) {
+    m.line_delay_s = readNumber(c["line_delay_s"], path, p + "line_delay_s");
+    if (!(m.line_delay_s >= 0.0) || !(m.line_delay_s * std::max(1, m.K.height) < 0.2)) {
+      std::ostringstream os;
+      os << "must be a readout time per row in seconds, >= 0 and under 0.2 s for the whole frame (got "
+         << m.line_delay_s << ")";
+      fail(path, p + "line_delay_s", os.str());
+    }
   }
   if (c["rostopic"] && !c["rostopic"].IsNull()) {
     m.rostopic = readString(c["rostopic"], path, p + "rostopic");

@@ -88,7 +88,8 @@ class Ring {
 };
 
 struct PendingImage {
-  double t_s = 0.0;  // IMU clock
+  double t_s = 0.0;      // IMU clock
+  double stamp_s = 0.0;  // the stamp it was given (camera clock)
   cv::Mat gray;      // CV_8UC1 at calibration resolution (reused buffer)
 };
 
@@ -118,6 +119,16 @@ struct Estimator::Impl {
     }
     results.clear();
     photometric.setPreprocessNoise(img_pre.noiseVarianceGain(), img_pre.noiseCorrelationAreaPx());
+    // Rolling shutter (docs/algorithm.md section 3.7): the raw row of a working row from the focal lengths
+    // (distortion neglected: a first-order time per row), the stamp at the middle raw row.
+    const double line_delay_raw_s = p.line_delay_s > 0.0 ? p.line_delay_s : cam.line_delay_s;
+    const PinholeK& Kw = img_pre.workingK();
+    if (line_delay_raw_s > 0.0 && Kw.fy > 0.0 && cam.K.fy > 0.0) {
+      const double raw_per_working_row = cam.K.fy / Kw.fy;
+      working_line_delay_s = line_delay_raw_s * raw_per_working_row;
+      working_zero_row = Kw.cy - (cam.K.cy - 0.5 * (cam.K.height - 1)) / raw_per_working_row;
+    }
+    stamp_shift_s = imageStampShift(p.image_stamp, p.exposure_time_s, line_delay_raw_s * cam.K.height);
     resetFilter();
   }
 
@@ -169,6 +180,7 @@ struct Estimator::Impl {
     bad_frames = 0;
     updates_since_reset = 0;
     converged = false;
+    converged_since_s = HUGE_VAL;
     skip_reason.clear();
     warm_started = false;
     photometric.resetNoiseModel();
@@ -411,6 +423,7 @@ struct Estimator::Impl {
     const auto t0 = std::chrono::steady_clock::now();
     FrameResult r;
     r.t_s = img.t_s;
+    r.stamp_s = img.stamp_s;
     std::string restart_reason;  // set when the filter restarts at this image before any update
     char msg[kMessageCapacity] = "";  // the result's message, formatted without allocation
 
@@ -473,17 +486,25 @@ struct Estimator::Impl {
           const ErrorCov P_prior = P;
           // The time offset (docs/algorithm.md section 3.6): the state's rates at its time and the change of the
           // filtered rate over the interval.
-          // Only once the distance has converged: before that the state's rates in m are unknown themselves, and
-          // the offset would absorb the start-up transient (measured: a 15 ms offset estimated at 36 ms within
-          // 0.5 s of a start at 1 m/s, then divergence).
-          TimeOffsetInput toff;
-          toff.enabled = params.estimate_time_offset && converged;
-          if (toff.enabled) {
-            toff.accel_C = imuAt(t_state_s).accel_mps2;
-            toff.rate_change_C = imuAt(img.t_s).gyro_radps - ref_rate_C;
-            toff.gravity_mps2 = params.imu.gravity_mps2;
+          // Only once the distance has converged and time_offset_start_s later (and not from frames the
+          // innovation test flags: PhotometricUpdate): before that the state's rates in m are unknown themselves,
+          // and the offset absorbed the start-up transient (a 15 ms offset was estimated at 36 ms within 0.5 s of
+          // a start at 1 m/s, then divergence; on a clean fast flight a dash just after convergence moved it to
+          // -37 ms, truth 0). Not while degraded was tried too: realistic flights are often degraded (exposure
+          // steps), and a wrong offset keeps the status degraded, so it was never corrected (5 sigma off).
+          // A rolling shutter (section 3.7) needs the same rates for its rows' times.
+          ImageTiming timing;
+          timing.estimate_offset = params.estimate_time_offset && converged &&
+                                   img.t_s - converged_since_s >= params.time_offset_start_s;
+          timing.line_delay_s = working_line_delay_s;
+          timing.zero_row = working_zero_row;
+          timing.rates_valid = timing.estimate_offset || timing.line_delay_s > 0.0;
+          if (timing.rates_valid) {
+            timing.accel_C = imuAt(t_state_s).accel_mps2;
+            timing.rate_change_C = imuAt(img.t_s).gyro_radps - ref_rate_C;
+            timing.gravity_mps2 = params.imu.gravity_mps2;
           }
-          stats = photometric.update(ref, cur, img_pre.workingK(), gyro_mean, dt, &x, &P, state_lag, toff);
+          stats = photometric.update(ref, cur, img_pre.workingK(), gyro_mean, dt, &x, &P, state_lag, timing);
           x.t_d_s = std::clamp(x.t_d_s, -params.max_time_offset_s, params.max_time_offset_s);
           // alpha's step in prior sigmas: d must never jump by many sigma in one frame.
           const double step_sigma =
@@ -590,6 +611,7 @@ struct Estimator::Impl {
     } else if (!converged) {
       const double relative_sigma_d = std::sqrt(std::max(0.0, P(0, 0))) / x.alpha;  // sigma_d / d
       converged = updates_since_reset > 0 && relative_sigma_d < params.init.tracking_max_relative_sigma_d;
+      if (converged) converged_since_s = img.t_s;
       r.status = converged ? FilterStatus::kTracking : FilterStatus::kInitializing;
       if (!usable) {
         std::snprintf(msg, sizeof(msg), "%s", usable_why.c_str());
@@ -700,6 +722,10 @@ struct Estimator::Impl {
   FilterStatus status = FilterStatus::kInitializing;
   Vec3 gyro_integral = Vec3::Zero();      // integral of the raw gyro (C) since the reference image, rad
   Vec3 ref_rate_C = Vec3::Zero();         // filtered rate at the reference image, rad/s
+  double converged_since_s = HUGE_VAL;    // image time at which the current run converged, s
+  double working_line_delay_s = 0.0;      // rolling shutter: capture time per working row, s (0: global shutter)
+  double working_zero_row = 0.0;          // working row captured at the image's time, px
+  double stamp_shift_s = 0.0;             // image stamp -> capture time of the middle row's mid-exposure, s
   double gyro_time_s = 0.0;               // time covered by gyro_integral, s
   int bad_frames = 0;
   int updates_since_reset = 0;
@@ -793,7 +819,7 @@ bool Estimator::addImu(const ImuSample& raw) {
 bool Estimator::addImage(double t_cam_s, const cv::Mat& image) {
   Impl& m = *impl_;
   try {
-    const double t_s = t_cam_s + m.camera.timeshift_cam_imu_s;
+    const double t_s = t_cam_s + m.camera.timeshift_cam_imu_s + m.stamp_shift_s;
     if (!std::isfinite(t_s)) {
       m.warn("image with a non-finite stamp rejected");
       return false;
@@ -826,6 +852,7 @@ bool Estimator::addImage(double t_cam_s, const cv::Mat& image) {
     if (m.images.full()) m.warn("image queue full (no IMU data covering the images): oldest image dropped");
     PendingImage& slot = m.images.emplaceSlot();
     slot.t_s = t_s;
+    slot.stamp_s = t_cam_s;
     if (channels == 1 && depth == CV_8U) {
       image.copyTo(slot.gray);
     } else if (channels == 1) {

@@ -252,6 +252,14 @@ Entry vec3(const std::string& key, std::function<Vec3&(EstimatorParams&)> field,
           }};
 }
 
+ImageStamp stampFromName(const std::string& origin, const std::string& key, const std::string& name) {
+  try {
+    return parseImageStamp(name);
+  } catch (const std::invalid_argument& e) {
+    failKey(origin, key, e.what());
+  }
+}
+
 UpdateMode modeFromName(const std::string& origin, const std::string& key, const std::string& name) {
   try {
     return parseUpdateMode(name);
@@ -397,6 +405,13 @@ const std::vector<Entry>& table() {
     t.push_back(flag("update_at_interval_midpoint", DIEKF_FIELD(bool, update_at_interval_midpoint)));
     t.push_back(flag("estimate_time_offset", DIEKF_FIELD(bool, estimate_time_offset)));
     t.push_back(real("max_time_offset_s", DIEKF_FIELD(double, max_time_offset_s), between(0.0, 1.0)));
+    t.push_back(real("time_offset_start_s", DIEKF_FIELD(double, time_offset_start_s), between(0.0, 1e4)));
+    t.push_back(real("line_delay_s", DIEKF_FIELD(double, line_delay_s), between(0.0, 1e-3)));
+    t.push_back({"image_stamp", [](const ParamSource& s, EstimatorParams& p) {
+                   std::string name;
+                   if (s.get("image_stamp", &name)) p.image_stamp = stampFromName(s.origin(), "image_stamp", name);
+                 }});
+    t.push_back(real("exposure_time_s", DIEKF_FIELD(double, exposure_time_s), between(0.0, 1.0)));
     return t;
   }();
   return entries;

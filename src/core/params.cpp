@@ -23,4 +23,37 @@ const char* toString(UpdateMode mode) {
   return "unknown";
 }
 
+ImageStamp parseImageStamp(const std::string& name) {
+  if (name == "middle") return ImageStamp::kMiddle;
+  if (name == "start") return ImageStamp::kStart;
+  if (name == "end") return ImageStamp::kEnd;
+  throw std::invalid_argument("unknown image stamp convention '" + name + "' (expected middle, start or end)");
+}
+
+const char* toString(ImageStamp stamp) {
+  switch (stamp) {
+    case ImageStamp::kMiddle:
+      return "middle";
+    case ImageStamp::kStart:
+      return "start";
+    case ImageStamp::kEnd:
+      return "end";
+  }
+  return "unknown";
+}
+
+double imageStampShift(ImageStamp stamp, double exposure_time_s, double readout_s) {
+  // The middle row's mid-exposure is half an exposure and half a readout after the first row's start.
+  const double half = 0.5 * (exposure_time_s + readout_s);
+  switch (stamp) {
+    case ImageStamp::kMiddle:
+      return 0.0;
+    case ImageStamp::kStart:
+      return half;
+    case ImageStamp::kEnd:
+      return -half;
+  }
+  return 0.0;
+}
+
 }  // namespace diekf

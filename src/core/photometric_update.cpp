@@ -73,9 +73,9 @@ struct IntervalWarp {
 };
 }  // namespace
 
-ObservedVec timeOffsetMap(const State& x, const Vec3& gyro_mean_C, const TimeOffsetInput& in, double dt_s) {
+ObservedVec stateRateMap(const State& x, const Vec3& gyro_mean_C, const ImageTiming& in, double dt_s) {
   ObservedVec m = ObservedVec::Zero();
-  if (!in.enabled || !(dt_s > 0.0)) return m;
+  if (!in.rates_valid || !(dt_s > 0.0)) return m;
   const Vec3 a = in.accel_C - x.b_a;    // m/s^2
   const Vec3 w = gyro_mean_C - x.b_w;   // rad/s
   const Vec3& th = x.vartheta;
@@ -83,6 +83,19 @@ ObservedVec timeOffsetMap(const State& x, const Vec3& gyro_mean_C, const TimeOff
   m.segment<2>(3) = -x.mu.N().transpose() * w;
   m.segment<3>(5) = -in.rate_change_C / dt_s;
   return m;
+}
+
+ObservedVec timeOffsetMap(const State& x, const Vec3& gyro_mean_C, const ImageTiming& in, double dt_s) {
+  return in.estimate_offset ? stateRateMap(x, gyro_mean_C, in, dt_s) : ObservedVec::Zero();
+}
+
+State shiftedAlong(const State& x, const ObservedVec& m, double delta_s) {
+  State out = x;
+  if (delta_s == 0.0) return out;
+  out.vartheta += delta_s * m.segment<3>(0);
+  out.mu = x.mu.boxplus(delta_s * m.segment<2>(3));
+  out.b_w += delta_s * m.segment<3>(5);
+  return out;
 }
 
 Vec2 warpToReference(const State& x, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s, double px,
@@ -121,6 +134,7 @@ namespace {
 struct PixelWarp {
   float fx, fy, cx, cy, ifx, ify;
   float H[3][3];   // reference ray Q = H q, unitless
+  float Hm[3][3] = {};  // rolling shutter: dH/dtau for a pair taken tau later (stateRateMap), 1/s; 0 otherwise
   float E[3][3];   // rotation current -> reference
   float C2[3][3];  // b_w row: s_b C2^T gD
   float C3[3][3];  // b_w row: (gD . a) C3 q
@@ -130,7 +144,8 @@ struct PixelWarp {
   ObservedInfo T;  // S = (dt / 2) S' T (double, applied to the sums)
   bool ok = false;
 
-  PixelWarp(const State& x, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s, double state_lag_s) {
+  PixelWarp(const State& x, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s, double state_lag_s,
+            const ObservedVec* m_rows = nullptr) {
     fx = static_cast<float>(K.fx);
     fy = static_cast<float>(K.fy);
     cx = static_cast<float>(K.cx);
@@ -155,6 +170,19 @@ struct PixelWarp {
       P[r][0] = static_cast<float>(iw.P(r, 0));
       P[r][1] = static_cast<float>(iw.P(r, 1));
     }
+    if (m_rows != nullptr && ok) {
+      // Central difference in time along m: the warp of a row captured tau after the image's time is
+      // H + tau Hm (first order in tau; the readout of a frame is a few ms).
+      const double h = 1e-4;  // s
+      const IntervalWarp ip(shiftedAlong(x, *m_rows, h), gyro_mean_C, dt_s, state_lag_s);
+      const IntervalWarp im(shiftedAlong(x, *m_rows, -h), gyro_mean_C, dt_s, state_lag_s);
+      if (ip.ok && im.ok) {
+        const Mat3 dH = (ip.H - im.H) / (2.0 * h);
+        if (dH.allFinite())
+          for (int r = 0; r < 3; ++r)
+            for (int col = 0; col < 3; ++col) Hm[r][col] = static_cast<float>(dH(r, col));
+      }
+    }
     T.setZero();
     const double inv_kappa = ok ? 1.0 / iw.kappa : 0.0;
     T.block<3, 3>(0, 0) = inv_kappa * iw.N;
@@ -170,6 +198,11 @@ struct SweepConfig {
   bool gradient_weighting = false;
   int tiles_x = 8, tiles_y = 6;  // tile grid of the score sums (noise model)
   const cv::Mat* weight_map = nullptr;  // CV_32FC1 per-pixel outlier weights in [0, 1] (image size), or none
+  // Rolling shutter (docs/algorithm.md section 3.7): row y of the current image is captured line_delay_s
+  // (y - zero_row) after the image's time; 0 = global shutter.
+  float line_delay_s = 0.0f;
+  float zero_row = 0.0f;
+  float line_delay_over_dt = 0.0f;  // line_delay_s / dt: the pair's interval grows by this times (y - y_r)
 };
 
 constexpr int kMaxTilesPerAxis = 16;
@@ -332,12 +365,21 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
       }
     }
 
-    // Terms constant along the row: q = (qx, qy, 1), Q = H q = qx H_col0 + h_row, etc.
+    // Terms constant along the row: q = (qx, qy, 1), Q = H q = qx H_col0 + h_row, etc. With a rolling shutter
+    // the row's warp is that of a pair taken tau = line_delay (y - zero_row) later: H + tau Hm (exactly H for
+    // a global shutter, where tau = 0).
     const float yf = static_cast<float>(y);
     const float qy_s = (yf - wp.cy) * wp.ify;
-    const v_float32x4 h0 = v_setall_f32(wp.H[0][1] * qy_s + wp.H[0][2]);
-    const v_float32x4 h1 = v_setall_f32(wp.H[1][1] * qy_s + wp.H[1][2]);
-    const v_float32x4 h2 = v_setall_f32(wp.H[2][1] * qy_s + wp.H[2][2]);
+    const float tau = cfg.line_delay_s * (yf - cfg.zero_row);  // s
+    float Hr[3][3];
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) Hr[i][j] = wp.H[i][j] + tau * wp.Hm[i][j];
+    const v_float32x4 H00 = v_setall_f32(Hr[0][0]), H10 = v_setall_f32(Hr[1][0]), H20 = v_setall_f32(Hr[2][0]);
+    const v_float32x4 h0 = v_setall_f32(Hr[0][1] * qy_s + Hr[0][2]);
+    const v_float32x4 h1 = v_setall_f32(Hr[1][1] * qy_s + Hr[1][2]);
+    const v_float32x4 h2 = v_setall_f32(Hr[2][1] * qy_s + Hr[2][2]);
+    const bool rolling = cfg.line_delay_over_dt != 0.0f;
+    const v_float32x4 rs_k = v_setall_f32(cfg.line_delay_over_dt), yv = v_setall_f32(yf);
     const v_float32x4 e0 = v_setall_f32(wp.E[0][1] * qy_s + wp.E[0][2]);
     const v_float32x4 e1 = v_setall_f32(wp.E[1][1] * qy_s + wp.E[1][2]);
     const v_float32x4 e2 = v_setall_f32(wp.E[2][1] * qy_s + wp.E[2][2]);
@@ -353,13 +395,20 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
     v_float32x4 xv = v_load(xs_init);
     for (int k = 0; k < n_pad; k += 4, xv += x_step) {
       const v_float32x4 qx = (xv - cx) * ifx;
-      const v_float32x4 Qx = v_muladd(v_setall_f32(wp.H[0][0]), qx, h0);
-      const v_float32x4 Qy = v_muladd(v_setall_f32(wp.H[1][0]), qx, h1);
-      const v_float32x4 Qz = v_muladd(v_setall_f32(wp.H[2][0]), qx, h2);
+      const v_float32x4 Qx = v_muladd(H00, qx, h0);
+      const v_float32x4 Qy = v_muladd(H10, qx, h1);
+      const v_float32x4 Qz = v_muladd(H20, qx, h2);
       const v_float32x4 in_front = Qz > min_depth;
       const v_float32x4 iz = one / v_select(in_front, Qz, one);
-      const v_float32x4 rx = v_muladd(fx, Qx * iz, cx);
-      const v_float32x4 ry = v_muladd(fy, Qy * iz, cy);
+      v_float32x4 rx = v_muladd(fx, Qx * iz, cx);
+      v_float32x4 ry = v_muladd(fy, Qy * iz, cy);
+      if (rolling) {
+        // The reference pixel's row was read out line_delay (y - y_r) earlier than row y: the pair's
+        // interval is longer by that, and the flow p_r - p with it (first order).
+        const v_float32x4 eps = rs_k * (yv - ry);
+        rx = v_muladd(eps, rx - xv, rx);
+        ry = v_muladd(eps, ry - yv, ry);
+      }
       // Comparisons are false for NaN: such pixels are invalid.
       v_float32x4 valid = in_front & (rx >= rx_lo) & (rx < rx_hi) & (ry >= ry_lo) & (ry < ry_hi);
       if (k + 4 > n) {
@@ -556,11 +605,17 @@ void PhotometricUpdate::prepareBuffers(const cv::Size& size) {
 
 int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& K, const Vec3& gyro_mean_C,
                                   double dt_s, double state_lag_s, const State& x, double huber_sigma,
-                                  PassSums* out) {
+                                  PassSums* out, const ObservedVec* m_rows, const ImageTiming* timing) {
   *out = PassSums();
   SweepConfig cfg = makeConfig(params_, preprocess_, huber_sigma);
   if (use_weight_map_) cfg.weight_map = &weight_map_;
-  const PixelWarp wp(x, K, gyro_mean_C, dt_s, state_lag_s);
+  const bool rolling = m_rows != nullptr && timing != nullptr && timing->line_delay_s > 0.0 && dt_s > 0.0;
+  if (rolling) {
+    cfg.line_delay_s = static_cast<float>(timing->line_delay_s);
+    cfg.zero_row = static_cast<float>(timing->zero_row);
+    cfg.line_delay_over_dt = static_cast<float>(timing->line_delay_s / dt_s);
+  }
+  const PixelWarp wp(x, K, gyro_mean_C, dt_s, state_lag_s, rolling ? m_rows : nullptr);
   if (!wp.ok) return 0;  // the plane model breaks down within the interval: no measurement
   SweepSums sums;
   RowBuffers buf;
@@ -706,7 +761,7 @@ void marginalizeRotationError(double var_bw, ObservedInfo* A, ObservedVec* b) {
 
 UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const PreprocessedFrame& cur,
                                       const PinholeK& K, const Vec3& gyro_mean_C, double dt_s, State* x,
-                                      ErrorCov* P, double state_lag_s, const TimeOffsetInput& time_offset) {
+                                      ErrorCov* P, double state_lag_s, const ImageTiming& timing) {
   UpdateStats stats;
   const SweepConfig cfg = makeConfig(params_, preprocess_, params_.intensity_noise_sigma);
   if (x == nullptr || P == nullptr || !framesUsable(ref, cur, cfg.border) || !(dt_s > 0.0) ||
@@ -724,7 +779,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   // Prior covariance of what the image observes, H P H^T with H = [observed columns | m] (the time offset
   // enters as the combination m of the observed columns; for the innovation test of the first pass).
   const double t_d_prior_s = x->t_d_s;
-  const ObservedVec m_prior = timeOffsetMap(*x, gyro_mean_C, time_offset, dt_s);
+  const ObservedVec m_prior = timeOffsetMap(*x, gyro_mean_C, timing, dt_s);
   ObservedInfo P_obs;
   ObservedVec P_obs_td;
   for (int r = 0; r < internal::kObsDim; ++r) {
@@ -762,15 +817,12 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   // Every pass writes the residual image; the RMS and the valid ratio are those of the last linearisation.
   auto linearize_at = [&](const State& x_j, internal::ObsMat* A, internal::ObsVec* b, internal::ObsVec* m) {
     // A time offset changed by e within the update: the image sees the state and the gyro window of e later.
-    *m = timeOffsetMap(x_j, gyro_mean_C, time_offset, dt_s);
-    const double e_s = x_j.t_d_s - t_d_prior_s;
-    State x_seen = x_j;
-    if (e_s != 0.0) {
-      x_seen.vartheta += e_s * m->segment<3>(0);
-      x_seen.mu = x_j.mu.boxplus(e_s * m->segment<2>(3));
-      x_seen.b_w += e_s * m->segment<3>(5);
-    }
-    const int valid = accumulate(cur, K, gyro_mean_C, dt_s, state_lag_s, x_seen, huber_sigma, &sums);
+    *m = timeOffsetMap(x_j, gyro_mean_C, timing, dt_s);
+    const State x_seen = shiftedAlong(x_j, *m, x_j.t_d_s - t_d_prior_s);
+    const bool rolling = timing.line_delay_s > 0.0 && timing.rates_valid;
+    const ObservedVec m_rows = rolling ? stateRateMap(x_seen, gyro_mean_C, timing, dt_s) : ObservedVec::Zero();
+    const int valid = accumulate(cur, K, gyro_mean_C, dt_s, state_lag_s, x_seen, huber_sigma, &sums,
+                                 rolling ? &m_rows : nullptr, rolling ? &timing : nullptr);
     stats.valid_ratio = sums.candidates > 0 ? static_cast<double>(valid) / sums.candidates : 0.0;
     stats.rms_residual = valid > 0 ? std::sqrt(sums.sum_r2 / valid) : 0.0;
     stats.residual_sigma = sums.robust_sigma;
@@ -819,6 +871,9 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
         info_scale /= stats.gate_inflation;
       }
     }
+    // A frame the innovation test flags does not move the time offset: the offset is a slow property of the
+    // sensors, and a wrong frame's innovation projected on m would be taken for it.
+    if (stats.gated) m->setZero();
     *A = info_scale * sums.A;
     *b = info_scale * sums.b;
     marginalizeRotationError(var_bw_equiv, A, b);

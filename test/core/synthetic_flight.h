@@ -111,6 +111,26 @@ inline void renderFlightImage(const SyntheticFlight& f, const CameraModel& cam, 
   renderLevelPlane(cam, R_WI * R_IC, f.position(t) + R_WI * r_I, out);
 }
 
+/// The view of a rolling-shutter camera: row v is captured at t + line_delay_s (v - (rows - 1) / 2), i.e. the
+/// stamp t is the middle row's time; each row is rendered with the pose of its own time.
+inline void renderFlightImageRollingShutter(const SyntheticFlight& f, const CameraModel& cam, double t,
+                                            double line_delay_s, cv::Mat* out) {
+  const Mat3 R_IC = cam.R_CI().transpose();
+  const Vec3 r_I = -R_IC * cam.t_CI();
+  out->create(cam.K.height, cam.K.width, CV_8UC1);
+  cv::Mat row_image;
+  CameraModel row_cam = cam;
+  for (int v = 0; v < cam.K.height; ++v) {
+    const double tv = t + line_delay_s * (v - 0.5 * (cam.K.height - 1));
+    const Mat3 R_WI = f.R_WI(tv);
+    // Render only row v: a one-row camera whose principal point is shifted by v.
+    row_cam.K.height = 1;
+    row_cam.K.cy = cam.K.cy - v;
+    renderLevelPlane(row_cam, R_WI * R_IC, f.position(tv) + R_WI * r_I, &row_image);
+    row_image.copyTo(out->row(v));
+  }
+}
+
 struct FlightTruth {
   double d_m;  ///< camera-to-plane distance, m
   Vec3 v_C;    ///< camera velocity in C, m/s

@@ -103,7 +103,22 @@ TEST(CameraModel, ParsesOptionalKeysAndOtherCam) {
   EXPECT_EQ(c1.distortion, DistortionModel::kEquidistant);
   EXPECT_DOUBLE_EQ(c1.timeshift_cam_imu_s, 0.0);  // optional, default 0
   EXPECT_TRUE(c1.rostopic.empty());
+  EXPECT_DOUBLE_EQ(c1.line_delay_s, 0.0);  // optional: global shutter
   std::remove(path.c_str());
+}
+
+TEST(CameraModel, ParsesTheRollingShutterLineDelay) {
+  const std::string path = writeTemp(
+      "linedelay", replaceLine(kGoodCam, "timeshift_cam_imu: 0.0025", "timeshift_cam_imu: 0.0025\n  line_delay_s: 3.3e-5"));
+  EXPECT_DOUBLE_EQ(CameraModel::fromKalibrYaml(path).line_delay_s, 3.3e-5);
+  std::remove(path.c_str());
+  // A negative delay, or one whose frame readout takes 0.2 s or more, names the key.
+  expectErrorNaming("negdelay",
+                    replaceLine(kGoodCam, "timeshift_cam_imu: 0.0025", "timeshift_cam_imu: 0.0025\n  line_delay_s: -1e-5"),
+                    "cam0/line_delay_s");
+  expectErrorNaming("longdelay",
+                    replaceLine(kGoodCam, "timeshift_cam_imu: 0.0025", "timeshift_cam_imu: 0.0025\n  line_delay_s: 0.001"),
+                    "cam0/line_delay_s");
 }
 
 TEST(CameraModel, ErrorsNameFileAndKey) {

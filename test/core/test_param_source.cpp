@@ -106,7 +106,9 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          a.max_imu_gap_s == b.max_imu_gap_s &&
          a.max_queued_images == b.max_queued_images &&
          a.update_at_interval_midpoint == b.update_at_interval_midpoint &&
-         a.estimate_time_offset == b.estimate_time_offset && a.max_time_offset_s == b.max_time_offset_s;
+         a.estimate_time_offset == b.estimate_time_offset && a.max_time_offset_s == b.max_time_offset_s &&
+         a.time_offset_start_s == b.time_offset_start_s && a.line_delay_s == b.line_delay_s &&
+         a.image_stamp == b.image_stamp && a.exposure_time_s == b.exposure_time_s;
 }
 
 // Leaf keys ("a/b") of a YAML map.
@@ -200,6 +202,8 @@ TEST(EstimatorParams, ConfigFileHasExactlyTheTableKeys) {
 // A non-default valid value for every key, derived from its default in the config file.
 std::string perturbed(const std::string& key, const YAML::Node& def) {
   if (key == "mode") return "lk";
+  if (key == "image_stamp") return "start";
+  if (key == "line_delay_s") return "3.3e-05";  // s per row: a 16 ms readout of 480 rows
   if (def.IsSequence()) return "[0.1, 0.2, 0.9]";
   const std::string s = def.Scalar();
   if (s == "true") return "false";

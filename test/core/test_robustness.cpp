@@ -102,9 +102,10 @@ class Harness {
     FrameResult r;
     while (est.popResult(&r)) {
       r.t_s -= clock_offset_s;  // back to flight time, for the truth
+      r.stamp_s -= clock_offset_s;
       if (std::getenv("DIEKF_ROBUSTNESS_TRACE") != nullptr) {
         const FlightTruth truth = test_util::flightTruth(flight, testCamera(), r.t_s);
-        std::printf("t %.3f %-12s d %.3f/%.3f |dv| %.3f rms %.3f resets %d %s\n", r.t_s, toString(r.status),
+        std::printf("t %.3f %-12s td %.2f ms d %.3f/%.3f |dv| %.3f rms %.3f resets %d %s\n", r.t_s, toString(r.status), 1e3 * r.state.t_d_s,
                     r.distance_m(), truth.d_m, (r.velocity_mps() - truth.v_C).norm(), r.photometric_rms, r.resets,
                     r.message.c_str());
       }
@@ -116,7 +117,8 @@ class Harness {
   std::vector<FrameResult> between(double t0, double t1, size_t from = 0) const {
     std::vector<FrameResult> out;
     for (size_t i = from; i < results.size(); ++i) {
-      if (results[i].t_s >= t0 && results[i].t_s < t1) out.push_back(results[i]);
+      // By stamp: the result's time includes the estimated camera-IMU time offset.
+      if (results[i].stamp_s >= t0 && results[i].stamp_s < t1) out.push_back(results[i]);
     }
     return out;
   }
