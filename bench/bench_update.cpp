@@ -36,7 +36,7 @@ diekf::State startState(const TwoViewScene& s) {
 
 diekf::ErrorCov priorCov() {
   diekf::ErrorVec sd;
-  sd << 0.5, 0.5, 0.5, 0.5, 0.1, 0.1, 0.05, 0.05, 0.1, 0.1, 0.1, 0.01, 0.01, 0.01, 0.005;
+  sd << 0.5, 0.5, 0.5, 0.5, 0.1, 0.1, 0.05, 0.05, 0.1, 0.1, 0.1, 0.01, 0.01, 0.01, 0.005, 0.005;
   return sd.array().square().matrix().asDiagonal();
 }
 

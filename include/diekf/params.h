@@ -24,6 +24,7 @@ struct InitParams {
   double sigma_ba0_mps2 = 0.1;                  ///< 1-sigma of the initial accelerometer bias, m/s^2
   double sigma_bw0_radps = 0.01;                ///< 1-sigma of the initial gyroscope bias, rad/s
   double sigma_time_offset_s = 0.01;            ///< 1-sigma of the camera-IMU time offset around the calibration's, s
+  double sigma_readout_s = 0.01;                ///< 1-sigma of the rolling-shutter readout around the configured, s
   double tracking_max_relative_sigma_d = 0.15;  ///< status turns tracking once sigma_d / d falls below this
   bool warm_restart = true;                     ///< automatic restarts start from the last tracked distance
   double warm_restart_max_age_s = 10.0;         ///< ... if it is at most this old, s
@@ -51,6 +52,7 @@ struct ProcessNoiseParams {
   double mu_rad_per_sqrt_s = 0.005;             ///< random-walk density on the normal, rad/sqrt(s)
   double g_rad_per_sqrt_s = 0.001;              ///< random-walk density on gravity, rad/sqrt(s)
   double time_offset_s_per_sqrt_s = 1.0e-4;     ///< random-walk density on the camera-IMU time offset, s/sqrt(s)
+  double readout_s_per_sqrt_s = 1.0e-5;         ///< random-walk density on the rolling-shutter readout, s/sqrt(s)
 };
 
 struct PreprocessParams {
@@ -147,6 +149,8 @@ struct EstimatorParams {
   bool estimate_time_offset = true;             ///< the camera-IMU time offset as a filter state (else fixed at 0)
   double max_time_offset_s = 0.05;              ///< bound of the estimated offset around the calibration's, s
   double time_offset_start_s = 2.0;             ///< converged this long before the offset is estimated, s
+  bool estimate_readout = true;                 ///< the rolling-shutter readout time as a filter state
+  double max_readout_s = 0.05;                  ///< bound of the estimated readout (either sign), s
   /// Rolling shutter: readout time per raw image row, s; 0 = the camchain's line_delay_s (0 there: global shutter).
   double line_delay_s = 0.0;
   /// What the image stamp marks: the middle of the exposure of the middle row (the estimator's image time),

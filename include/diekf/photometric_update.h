@@ -2,6 +2,7 @@
 // working images under the continuous homography of the plane, Gauss-Newton gain in information form.
 #pragma once
 
+#include "diekf/camera_model.h"
 #include "diekf/image_preprocessor.h"
 #include "diekf/params.h"
 #include "diekf/state.h"
@@ -46,10 +47,12 @@ struct ImageTiming {
   Vec3 accel_C = Vec3::Zero();        ///< filtered specific force at the state's time (bias not removed), m/s^2
   Vec3 rate_change_C = Vec3::Zero();  ///< filtered rate at the current image minus at the reference image, rad/s
   double gravity_mps2 = 9.81;         ///< magnitude of gravity, m/s^2
-  /// Rolling shutter: capture time per working-image row, s (0: global shutter); working row `zero_row` is
-  /// captured at the image's time, row y at line_delay_s (y - zero_row) after it.
-  double line_delay_s = 0.0;
-  double zero_row = 0.0;              ///< working-image row captured at the image's time, px
+  /// Rolling shutter: working row y is captured readout row_weight[y] after the image's time, with the readout
+  /// time (first to last raw row) of the state (State::readout_s; 0: global shutter); row_weight[y] is the
+  /// row's mean raw row minus the middle one, over (raw rows - 1) (readoutRowWeights). Null: no rolling shutter.
+  const float* row_weight = nullptr;
+  int rows = 0;                       ///< length of row_weight (the working image's height)
+  bool estimate_readout = false;      ///< the update estimates x.readout_s
 };
 
 /// The rate of what the warp sees when the pair is taken later: an image pair taken delta later than assumed
@@ -61,6 +64,11 @@ ObservedVec stateRateMap(const State& x, const Vec3& gyro_mean_C, const ImageTim
 /// The time offset's Jacobian column as a combination of the observed ones, J_t_d = J_obs m: stateRateMap
 /// when in.estimate_offset, else zero.
 ObservedVec timeOffsetMap(const State& x, const Vec3& gyro_mean_C, const ImageTiming& in, double dt_s);
+/// Per working-image row y (rows of the working image of intrinsics K_working, from the camera `cam`): the
+/// mean over the row's pixels of their raw (distorted) row, minus the middle raw row, over (raw rows - 1): the
+/// row's capture time per second of rolling-shutter readout (docs/algorithm.md section 3.7).
+std::vector<float> readoutRowWeights(const CameraModel& cam, const PinholeK& K_working);
+
 /// x as the warp sees it delta_s later along m (stateRateMap): vartheta + delta m_vartheta, mu [+] delta m_mu,
 /// b_w + delta m_bw.
 State shiftedAlong(const State& x, const ObservedVec& m, double delta_s);
@@ -120,6 +128,12 @@ class PhotometricUpdate {
     double robust_sigma = 0.0;  ///< sqrt(pi/2) mean |r| over the valid pixels (outlier-weighted)
     double correlation = 1.0;   ///< variance of the tile scores over the variance of independent pixels
     double weight_sum = 0.0;    ///< sum of the outlier weights over the valid pixels (= valid without a map)
+    // Rolling-shutter readout (when estimated): row moments with w_y = ImageTiming::row_weight[y], the row's
+    // capture time per second of readout.
+    bool has_moments = false;
+    ObservedInfo A1 = ObservedInfo::Zero();  ///< sum w_y S^T S
+    ObservedInfo A2 = ObservedInfo::Zero();  ///< sum w_y^2 S^T S
+    ObservedVec b1 = ObservedVec::Zero();    ///< sum w_y S^T r
   };
   struct NoiseEstimate {
     bool valid = false;
@@ -127,10 +141,10 @@ class PhotometricUpdate {
     double correlation = 1.0;  ///< pixels per independent measurement
     double nis_scale = 1.0;    ///< innovation-based inflation (>= 1): E[NIS] = 8 when consistent
   };
-  /// `m_rows` (stateRateMap) and `timing` only for a rolling shutter (timing.line_delay_s > 0).
+  /// `m_rows` (stateRateMap), `timing` and the readout time `readout_s` only for a rolling shutter.
   int accumulate(const PreprocessedFrame& cur, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s,
                  double state_lag_s, const State& x, double huber_sigma, PassSums* out,
-                 const ObservedVec* m_rows = nullptr, const ImageTiming* timing = nullptr);
+                 const ObservedVec* m_rows = nullptr, const ImageTiming* timing = nullptr, double readout_s = 0.0);
   /// Residual image and row scratch for images of `size` (allocates only when the size changes).
   void prepareBuffers(const cv::Size& size);
   /// Outlier weights for the next image from this update's last residual (docs/noise_model.md, section 10).

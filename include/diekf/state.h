@@ -1,4 +1,4 @@
-// Filter state x = (alpha, vartheta, mu, g, b_a, b_w, t_d), all in the camera frame C, and its manifold operations.
+// Filter state x = (alpha, vartheta, mu, g, b_a, b_w, t_d, readout), in the camera frame C, and its manifold operations.
 #pragma once
 
 #include "diekf/types.h"
@@ -16,6 +16,9 @@ struct State {
   /// Camera-IMU time offset on top of the calibration's timeshift_cam_imu, s: an image stamped t_cam was taken
   /// at IMU time t_cam + timeshift_cam_imu + t_d_s (docs/algorithm.md section 3.6).
   double t_d_s = 0.0;
+  /// Rolling-shutter readout time of a frame, first to last raw row, s (0: global shutter; docs/algorithm.md
+  /// section 3.7).
+  double readout_s = 0.0;
 
   /// x [+] delta (vector parts add, S^2 parts use UnitVector::boxplus).
   State boxplus(const ErrorVec& delta) const;

@@ -15,14 +15,15 @@ using Mat32 = Eigen::Matrix<double, 3, 2>;
 using Mat23 = Eigen::Matrix<double, 2, 3>;
 
 /// Dimension of the error state (tangent space of the filter state).
-constexpr int kErrorDim = 15;
-/// The motion states (everything but the camera-IMU time offset): the block published as PlanarState.covariance.
+constexpr int kErrorDim = 16;
+/// The motion states (everything but the image timing: time offset, readout): the block published as
+/// PlanarState.covariance.
 constexpr int kMotionDim = 14;
 using ErrorVec = Eigen::Matrix<double, kErrorDim, 1>;
 using ErrorCov = Eigen::Matrix<double, kErrorDim, kErrorDim>;
 
-/// Offsets of the blocks in the 15-D error state
-/// [d_alpha, d_vartheta(3), d_mu(2), d_g(2), d_b_a(3), d_b_w(3), d_t_d].
+/// Offsets of the blocks in the 16-D error state
+/// [d_alpha, d_vartheta(3), d_mu(2), d_g(2), d_b_a(3), d_b_w(3), d_t_d, d_readout].
 struct ErrIdx {
   static constexpr int kAlpha = 0;
   static constexpr int kVartheta = 1;
@@ -31,6 +32,7 @@ struct ErrIdx {
   static constexpr int kBa = 8;
   static constexpr int kBw = 11;
   static constexpr int kTd = 14;  ///< camera-IMU time offset (docs/algorithm.md section 3.6)
+  static constexpr int kRo = 15;  ///< rolling-shutter readout time of a frame (docs/algorithm.md section 3.7)
 };
 
 /// Skew-symmetric matrix [v]x with [v]x u = v x u.

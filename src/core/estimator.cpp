@@ -119,16 +119,12 @@ struct Estimator::Impl {
     }
     results.clear();
     photometric.setPreprocessNoise(img_pre.noiseVarianceGain(), img_pre.noiseCorrelationAreaPx());
-    // Rolling shutter (docs/algorithm.md section 3.7): the raw row of a working row from the focal lengths
-    // (distortion neglected: a first-order time per row), the stamp at the middle raw row.
+    // Rolling shutter (docs/algorithm.md section 3.7): each working row's mean raw row through the distortion,
+    // the stamp at the middle raw row.
     const double line_delay_raw_s = p.line_delay_s > 0.0 ? p.line_delay_s : cam.line_delay_s;
-    const PinholeK& Kw = img_pre.workingK();
-    if (line_delay_raw_s > 0.0 && Kw.fy > 0.0 && cam.K.fy > 0.0) {
-      const double raw_per_working_row = cam.K.fy / Kw.fy;
-      working_line_delay_s = line_delay_raw_s * raw_per_working_row;
-      working_zero_row = Kw.cy - (cam.K.cy - 0.5 * (cam.K.height - 1)) / raw_per_working_row;
-    }
-    stamp_shift_s = imageStampShift(p.image_stamp, p.exposure_time_s, line_delay_raw_s * cam.K.height);
+    configured_readout_s = line_delay_raw_s * std::max(0, cam.K.height - 1);
+    readout_row_weight = readoutRowWeights(cam, img_pre.workingK());
+    stamp_shift_s = imageStampShift(p.image_stamp, p.exposure_time_s, configured_readout_s);
     resetFilter();
   }
 
@@ -158,8 +154,11 @@ struct Estimator::Impl {
     // (with the initial 1-sigma around it), otherwise it starts at the calibration's (0 on top of it).
     const bool keep_t_d = converged && std::isfinite(x.t_d_s);
     const double t_d_s = keep_t_d ? x.t_d_s : 0.0;
+    const bool keep_readout = converged && params.estimate_readout && std::isfinite(x.readout_s);
+    const double readout_s = keep_readout ? x.readout_s : configured_readout_s;
     x = State();
     x.t_d_s = t_d_s;
+    x.readout_s = readout_s;
     x.alpha = in.alpha0_inv_m;
     x.vartheta = in.vartheta0_inv_s;
     x.mu = UnitVector(in.mu0);
@@ -173,6 +172,7 @@ struct Estimator::Impl {
     P.block<3, 3>(ErrIdx::kBa, ErrIdx::kBa) = Mat3::Identity() * in.sigma_ba0_mps2 * in.sigma_ba0_mps2;
     P.block<3, 3>(ErrIdx::kBw, ErrIdx::kBw) = Mat3::Identity() * in.sigma_bw0_radps * in.sigma_bw0_radps;
     P(ErrIdx::kTd, ErrIdx::kTd) = in.sigma_time_offset_s * in.sigma_time_offset_s;
+    P(ErrIdx::kRo, ErrIdx::kRo) = in.sigma_readout_s * in.sigma_readout_s;
     have_reference = false;
     state_initialized = false;
     gyro_integral = Vec3::Zero();
@@ -494,11 +494,12 @@ struct Estimator::Impl {
           // steps), and a wrong offset keeps the status degraded, so it was never corrected (5 sigma off).
           // A rolling shutter (section 3.7) needs the same rates for its rows' times.
           ImageTiming timing;
-          timing.estimate_offset = params.estimate_time_offset && converged &&
-                                   img.t_s - converged_since_s >= params.time_offset_start_s;
-          timing.line_delay_s = working_line_delay_s;
-          timing.zero_row = working_zero_row;
-          timing.rates_valid = timing.estimate_offset || timing.line_delay_s > 0.0;
+          const bool settled = converged && img.t_s - converged_since_s >= params.time_offset_start_s;
+          timing.estimate_offset = params.estimate_time_offset && settled;
+          timing.row_weight = readout_row_weight.data();
+          timing.rows = static_cast<int>(readout_row_weight.size());
+          timing.estimate_readout = params.estimate_readout && settled;
+          timing.rates_valid = timing.estimate_offset || timing.estimate_readout || x.readout_s != 0.0;
           if (timing.rates_valid) {
             timing.accel_C = imuAt(t_state_s).accel_mps2;
             timing.rate_change_C = imuAt(img.t_s).gyro_radps - ref_rate_C;
@@ -506,6 +507,7 @@ struct Estimator::Impl {
           }
           stats = photometric.update(ref, cur, img_pre.workingK(), gyro_mean, dt, &x, &P, state_lag, timing);
           x.t_d_s = std::clamp(x.t_d_s, -params.max_time_offset_s, params.max_time_offset_s);
+          x.readout_s = std::clamp(x.readout_s, -params.max_readout_s, params.max_readout_s);
           // alpha's step in prior sigmas: d must never jump by many sigma in one frame.
           const double step_sigma =
               std::abs(x.alpha - x_prior.alpha) / std::sqrt(std::max(1e-300, P_prior(ErrIdx::kAlpha, ErrIdx::kAlpha)));
@@ -723,8 +725,8 @@ struct Estimator::Impl {
   Vec3 gyro_integral = Vec3::Zero();      // integral of the raw gyro (C) since the reference image, rad
   Vec3 ref_rate_C = Vec3::Zero();         // filtered rate at the reference image, rad/s
   double converged_since_s = HUGE_VAL;    // image time at which the current run converged, s
-  double working_line_delay_s = 0.0;      // rolling shutter: capture time per working row, s (0: global shutter)
-  double working_zero_row = 0.0;          // working row captured at the image's time, px
+  double configured_readout_s = 0.0;      // rolling shutter: line delay x (rows - 1) from the parameters, s
+  std::vector<float> readout_row_weight;  // per working row: its capture time per second of readout
   double stamp_shift_s = 0.0;             // image stamp -> capture time of the middle row's mid-exposure, s
   double gyro_time_s = 0.0;               // time covered by gyro_integral, s
   int bad_frames = 0;

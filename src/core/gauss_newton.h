@@ -25,6 +25,16 @@ constexpr int kObsToErr[kObsDim] = {ErrIdx::kVartheta,     ErrIdx::kVartheta + 1
                                     ErrIdx::kMu,           ErrIdx::kMu + 1,       ErrIdx::kBw,
                                     ErrIdx::kBw + 1,       ErrIdx::kBw + 2};
 
+/// A further error-state column that is not a fixed combination of the observed ones (the rolling-shutter
+/// readout: w_y S m, weighted per image row): its cross information with the observed columns, its own
+/// information and its right-hand side (docs/algorithm.md section 3.7).
+struct ExtraColumn {
+  bool active = false;
+  ObsVec cross = ObsVec::Zero();
+  double diag = 0.0;
+  double rhs = 0.0;
+};
+
 /// Outcome of an iterated update.
 struct IterationResult {
   bool ok = false;              ///< false: nothing was changed (linearisation refused or non-finite system)
@@ -40,6 +50,7 @@ struct IterationResult {
 /// A callback with a fourth argument `ObsVec* m` (zeroed before the call) may also say how the time offset
 /// enters: its Jacobian column is S m (a combination of the observed columns, docs/algorithm.md section 3.6),
 /// so the measurement rows over the error state are S H with H = [selection of the observed columns | m].
+/// A callback with a fifth argument `ExtraColumn* readout` may add the rolling-shutter readout's column.
 ///
 /// Per pass: Lambda = L^T P^-1 L, delta = (A + Lambda)^-1 (b - L^T P^-1 e), e = x_j [-] x^-,
 /// x_{j+1} = x_j [+] delta; stop at |delta| < stop_threshold or after max_passes.
@@ -63,6 +74,7 @@ IterationResult iterateInformationForm(int max_passes, double stop_threshold, Li
   ObsMat A;
   ObsVec b;
   ObsVec m;
+  ExtraColumn readout;
   ErrorCov info;
   ErrorVec rhs;
   Eigen::LDLT<ErrorCov> info_ldlt(kErrorDim);
@@ -72,7 +84,10 @@ IterationResult iterateInformationForm(int max_passes, double stop_threshold, Li
     A.setZero();
     b.setZero();
     m.setZero();
-    if constexpr (std::is_invocable_v<LinearizeFn&, const State&, ObsMat*, ObsVec*, ObsVec*>) {
+    readout = ExtraColumn();
+    if constexpr (std::is_invocable_v<LinearizeFn&, const State&, ObsMat*, ObsVec*, ObsVec*, ExtraColumn*>) {
+      if (!linearize(static_cast<const State&>(x_j), &A, &b, &m, &readout)) return result;
+    } else if constexpr (std::is_invocable_v<LinearizeFn&, const State&, ObsMat*, ObsVec*, ObsVec*>) {
       if (!linearize(static_cast<const State&>(x_j), &A, &b, &m)) return result;
     } else {
       if (!linearize(static_cast<const State&>(x_j), &A, &b)) return result;
@@ -105,6 +120,18 @@ IterationResult iterateInformationForm(int max_passes, double stop_threshold, Li
       }
       info(ErrIdx::kTd, ErrIdx::kTd) += m.dot(Am);
       rhs(ErrIdx::kTd) += m.dot(b);
+    }
+    // The readout's column (ExtraColumn): with the observed columns, with the time offset's S m, and its own.
+    if (readout.active && readout.cross.allFinite() && std::isfinite(readout.diag) && std::isfinite(readout.rhs)) {
+      for (int r = 0; r < kObsDim; ++r) {
+        info(kObsToErr[r], ErrIdx::kRo) += readout.cross(r);
+        info(ErrIdx::kRo, kObsToErr[r]) += readout.cross(r);
+      }
+      const double td_ro = m.dot(readout.cross);
+      info(ErrIdx::kTd, ErrIdx::kRo) += td_ro;
+      info(ErrIdx::kRo, ErrIdx::kTd) += td_ro;
+      info(ErrIdx::kRo, ErrIdx::kRo) += readout.diag;
+      rhs(ErrIdx::kRo) += readout.rhs;
     }
 
     info_ldlt.compute(info);

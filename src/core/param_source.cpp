@@ -291,6 +291,7 @@ const std::vector<Entry>& table() {
     t.push_back(real("init/sigma_ba0_mps2", DIEKF_FIELD(double, init.sigma_ba0_mps2), positive()));
     t.push_back(real("init/sigma_bw0_radps", DIEKF_FIELD(double, init.sigma_bw0_radps), positive()));
     t.push_back(real("init/sigma_time_offset_s", DIEKF_FIELD(double, init.sigma_time_offset_s), positive(1.0)));
+    t.push_back(real("init/sigma_readout_s", DIEKF_FIELD(double, init.sigma_readout_s), positive(1.0)));
     t.push_back(real("init/tracking_max_relative_sigma_d", DIEKF_FIELD(double, init.tracking_max_relative_sigma_d),
                      positive()));
     t.push_back(flag("init/warm_restart", DIEKF_FIELD(bool, init.warm_restart)));
@@ -319,6 +320,8 @@ const std::vector<Entry>& table() {
     t.push_back(real("process/mu_rad_per_sqrt_s", DIEKF_FIELD(double, process.mu_rad_per_sqrt_s), nonNegative()));
     t.push_back(real("process/g_rad_per_sqrt_s", DIEKF_FIELD(double, process.g_rad_per_sqrt_s), nonNegative()));
     t.push_back(real("process/time_offset_s_per_sqrt_s", DIEKF_FIELD(double, process.time_offset_s_per_sqrt_s),
+                     nonNegative()));
+    t.push_back(real("process/readout_s_per_sqrt_s", DIEKF_FIELD(double, process.readout_s_per_sqrt_s),
                      nonNegative()));
     // preprocess
     t.push_back(integer("preprocess/working_width_px", DIEKF_FIELD(int, preprocess.working_width_px),
@@ -406,6 +409,8 @@ const std::vector<Entry>& table() {
     t.push_back(flag("estimate_time_offset", DIEKF_FIELD(bool, estimate_time_offset)));
     t.push_back(real("max_time_offset_s", DIEKF_FIELD(double, max_time_offset_s), between(0.0, 1.0)));
     t.push_back(real("time_offset_start_s", DIEKF_FIELD(double, time_offset_start_s), between(0.0, 1e4)));
+    t.push_back(flag("estimate_readout", DIEKF_FIELD(bool, estimate_readout)));
+    t.push_back(real("max_readout_s", DIEKF_FIELD(double, max_readout_s), between(0.0, 1.0)));
     t.push_back(real("line_delay_s", DIEKF_FIELD(double, line_delay_s), between(0.0, 1e-3)));
     t.push_back({"image_stamp", [](const ParamSource& s, EstimatorParams& p) {
                    std::string name;

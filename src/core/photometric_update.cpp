@@ -89,6 +89,28 @@ ObservedVec timeOffsetMap(const State& x, const Vec3& gyro_mean_C, const ImageTi
   return in.estimate_offset ? stateRateMap(x, gyro_mean_C, in, dt_s) : ObservedVec::Zero();
 }
 
+std::vector<float> readoutRowWeights(const CameraModel& cam, const PinholeK& K_working) {
+  std::vector<float> w(static_cast<size_t>(std::max(0, K_working.height)), 0.0f);
+  if (cam.K.height < 2 || !(K_working.fx > 0.0) || !(K_working.fy > 0.0)) return w;
+  const double v_mid = 0.5 * (cam.K.height - 1), span = cam.K.height - 1;
+  for (int y = 0; y < K_working.height; ++y) {
+    double sum = 0.0;
+    int n = 0;
+    for (int x = 0; x < K_working.width; ++x) {
+      const Vec2 xn((x - K_working.cx) / K_working.fx, (y - K_working.cy) / K_working.fy);
+      const Vec2 xd = cam.distort(xn);
+      const double v = cam.K.fy * xd.y() + cam.K.cy;  // raw row of the working pixel
+      if (!std::isfinite(v) || v < -0.5 || v > cam.K.height - 0.5) continue;
+      sum += v;
+      ++n;
+    }
+    // Rows without a pixel inside the raw image (none in practice): the pinhole row.
+    const double v = n > 0 ? sum / n : cam.K.cy + (y - K_working.cy) * cam.K.fy / K_working.fy;
+    w[static_cast<size_t>(y)] = static_cast<float>((v - v_mid) / span);
+  }
+  return w;
+}
+
 State shiftedAlong(const State& x, const ObservedVec& m, double delta_s) {
   State out = x;
   if (delta_s == 0.0) return out;
@@ -198,11 +220,12 @@ struct SweepConfig {
   bool gradient_weighting = false;
   int tiles_x = 8, tiles_y = 6;  // tile grid of the score sums (noise model)
   const cv::Mat* weight_map = nullptr;  // CV_32FC1 per-pixel outlier weights in [0, 1] (image size), or none
-  // Rolling shutter (docs/algorithm.md section 3.7): row y of the current image is captured line_delay_s
-  // (y - zero_row) after the image's time; 0 = global shutter.
-  float line_delay_s = 0.0f;
-  float zero_row = 0.0f;
-  float line_delay_over_dt = 0.0f;  // line_delay_s / dt: the pair's interval grows by this times (y - y_r)
+  // Rolling shutter (docs/algorithm.md section 3.7): row y of the current image is captured readout_s
+  // row_weight[y] after the image's time; null = global shutter.
+  const float* row_weight = nullptr;
+  float readout_s = 0.0f;
+  float readout_over_dt = 0.0f;  // readout / dt: the pair's interval grows by this times w(y) - w(y_r)
+  bool row_moments = false;      // also accumulate SweepSums::G1, G2 (the readout's information)
 };
 
 constexpr int kMaxTilesPerAxis = 16;
@@ -218,6 +241,10 @@ struct SweepSums {
   double sum_w = 0.0;      // sum of w_map over valid pixels
   double grad_sum = 0.0;  // sum of |grad I_c| over valid pixels (gradient weighting normalisation)
   double G[8][9] = {};
+  // Row moments for the rolling-shutter readout (SweepConfig::row_moments): sum_y w_y G_y and sum_y w_y^2 G_y
+  // over the rows' Gram sums G_y, w_y = readout_weight_per_row (y - zero_row).
+  double G1[8][9] = {};
+  double G2[8][9] = {};
   double tile_b[kMaxTiles][8];  // written for the tiles in use at the end of sweep()
   double tile_n[kMaxTiles];
   // Per-tile lane sums during the sweep (score of the 8 columns, valid count), reduced into tile_b / tile_n at
@@ -259,7 +286,8 @@ void gramBlock(float* const* T, int n_pad, double (*G)[9]) {
 /// Score sums b_i += sum T_i t of one row (reduced to double per row, like the Gram sums), and per
 /// tile-column segment [seg[c], seg[c+1]) (multiples of 4) the lane sums added to the tiles of row `tile_row`
 /// with their valid counts (float lanes: a tile's sums only feed the noise statistics).
-void scoreRow(float* const* T, const float* valid, const int* seg, int tiles_x, int tile_row, SweepSums* sums) {
+void scoreRow(float* const* T, const float* valid, const int* seg, int tiles_x, int tile_row, SweepSums* sums,
+              double (*G)[9]) {
   using namespace cv;
   v_float32x4 row[8];
   for (int i = 0; i < 8; ++i) row[i] = v_setzero_f32();
@@ -280,18 +308,19 @@ void scoreRow(float* const* T, const float* valid, const int* seg, int tiles_x, 
     }
     v_store_aligned(tile[8], v_load_aligned(tile[8]) + cnt);
   }
-  for (int i = 0; i < 8; ++i) sums->G[i][8] += v_reduce_sum(row[i]);
+  for (int i = 0; i < 8; ++i) G[i][8] += v_reduce_sum(row[i]);
 }
 
 /// Gram sums of one row over [T_0..T_7 | t]: A_ij += sum T_i T_j (i <= j < 8) in blocks of at most 10
 /// accumulators (4 lanes each) so that nothing spills, and the score sums per tile (scoreRow).
+/// The row's Gram sums go to G (zeroed by the caller), its tile scores to sums.
 void accumulateRow(float* const* T, const float* valid, int n_pad, const int* seg, int tiles_x, int tile_row,
-                   SweepSums* sums) {
-  gramBlock<0, 4, 0, 4, true>(T, n_pad, sums->G);
-  gramBlock<4, 4, 4, 4, true>(T, n_pad, sums->G);
-  gramBlock<0, 4, 4, 2, false>(T, n_pad, sums->G);
-  gramBlock<0, 4, 6, 2, false>(T, n_pad, sums->G);
-  scoreRow(T, valid, seg, tiles_x, tile_row, sums);
+                   SweepSums* sums, double (*G)[9]) {
+  gramBlock<0, 4, 0, 4, true>(T, n_pad, G);
+  gramBlock<4, 4, 4, 4, true>(T, n_pad, G);
+  gramBlock<0, 4, 4, 2, false>(T, n_pad, G);
+  gramBlock<0, 4, 6, 2, false>(T, n_pad, G);
+  scoreRow(T, valid, seg, tiles_x, tile_row, sums, G);
 }
 
 /// One linearisation sweep over the current image against the packed reference (I, dI/dx, dI/dy, 0 per
@@ -370,7 +399,7 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
     // a global shutter, where tau = 0).
     const float yf = static_cast<float>(y);
     const float qy_s = (yf - wp.cy) * wp.ify;
-    const float tau = cfg.line_delay_s * (yf - cfg.zero_row);  // s
+    const float tau = cfg.row_weight != nullptr ? cfg.readout_s * cfg.row_weight[y] : 0.0f;  // s
     float Hr[3][3];
     for (int i = 0; i < 3; ++i)
       for (int j = 0; j < 3; ++j) Hr[i][j] = wp.H[i][j] + tau * wp.Hm[i][j];
@@ -378,8 +407,11 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
     const v_float32x4 h0 = v_setall_f32(Hr[0][1] * qy_s + Hr[0][2]);
     const v_float32x4 h1 = v_setall_f32(Hr[1][1] * qy_s + Hr[1][2]);
     const v_float32x4 h2 = v_setall_f32(Hr[2][1] * qy_s + Hr[2][2]);
-    const bool rolling = cfg.line_delay_over_dt != 0.0f;
-    const v_float32x4 rs_k = v_setall_f32(cfg.line_delay_over_dt), yv = v_setall_f32(yf);
+    const bool rolling = cfg.row_weight != nullptr && cfg.readout_over_dt != 0.0f;
+    // Local slope of the row weights (per working row), for the reference pixel's own row time.
+    const float slope = rolling ? 0.5f * (cfg.row_weight[std::min(y + 1, H - 1)] - cfg.row_weight[std::max(y - 1, 0)])
+                                : 0.0f;
+    const v_float32x4 rs_k = v_setall_f32(cfg.readout_over_dt * slope), yv = v_setall_f32(yf);
     const v_float32x4 e0 = v_setall_f32(wp.E[0][1] * qy_s + wp.E[0][2]);
     const v_float32x4 e1 = v_setall_f32(wp.E[1][1] * qy_s + wp.E[1][2]);
     const v_float32x4 e2 = v_setall_f32(wp.E[2][1] * qy_s + wp.E[2][2]);
@@ -509,7 +541,18 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
       }
     }
     const int tile_row = std::min(tiles_y - 1, ((y - cfg.border) * tiles_y) / rows_used);
-    accumulateRow(buf.T, buf.valid, n_pad, seg, tiles_x, tile_row, sums);
+    double Grow[8][9] = {};
+    accumulateRow(buf.T, buf.valid, n_pad, seg, tiles_x, tile_row, sums, Grow);
+    for (int i = 0; i < 8; ++i)
+      for (int j = i; j < 9; ++j) sums->G[i][j] += Grow[i][j];
+    if (cfg.row_moments) {
+      const double w = cfg.row_weight[y];
+      for (int i = 0; i < 8; ++i)
+        for (int j = i; j < 9; ++j) {
+          sums->G1[i][j] += w * Grow[i][j];
+          sums->G2[i][j] += w * w * Grow[i][j];
+        }
+    }
     sums->candidates += n;
     sums->valid += static_cast<int>(v_reduce_sum(vcount));
     sums->sum_r2 += v_reduce_sum(r2);
@@ -605,15 +648,19 @@ void PhotometricUpdate::prepareBuffers(const cv::Size& size) {
 
 int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& K, const Vec3& gyro_mean_C,
                                   double dt_s, double state_lag_s, const State& x, double huber_sigma,
-                                  PassSums* out, const ObservedVec* m_rows, const ImageTiming* timing) {
+                                  PassSums* out, const ObservedVec* m_rows, const ImageTiming* timing,
+                                  double readout_s) {
   *out = PassSums();
   SweepConfig cfg = makeConfig(params_, preprocess_, huber_sigma);
   if (use_weight_map_) cfg.weight_map = &weight_map_;
-  const bool rolling = m_rows != nullptr && timing != nullptr && timing->line_delay_s > 0.0 && dt_s > 0.0;
+  const bool rolling = m_rows != nullptr && timing != nullptr && timing->row_weight != nullptr &&
+                       timing->rows == cur.intensity.rows && dt_s > 0.0 &&
+                       (readout_s != 0.0 || timing->estimate_readout);
   if (rolling) {
-    cfg.line_delay_s = static_cast<float>(timing->line_delay_s);
-    cfg.zero_row = static_cast<float>(timing->zero_row);
-    cfg.line_delay_over_dt = static_cast<float>(timing->line_delay_s / dt_s);
+    cfg.row_weight = timing->row_weight;
+    cfg.readout_s = static_cast<float>(readout_s);
+    cfg.readout_over_dt = static_cast<float>(readout_s / dt_s);
+    cfg.row_moments = timing->estimate_readout;
   }
   const PixelWarp wp(x, K, gyro_mean_C, dt_s, state_lag_s, rolling ? m_rows : nullptr);
   if (!wp.ok) return 0;  // the plane model breaks down within the interval: no measurement
@@ -660,6 +707,21 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
   A = (wp.T.transpose() * A * wp.T).eval();
   A = (0.5 * (A + A.transpose())).eval();
   b = (wp.T.transpose() * b).eval();
+  if (cfg.row_moments) {
+    // The readout's information (docs/algorithm.md section 3.7): its column is w_y S m, so it needs the row
+    // moments sum w S^T S, sum w^2 S^T S and sum w S^T r, scaled and turned like A and b.
+    for (int i = 0; i < 8; ++i) {
+      for (int j = i; j < 8; ++j) {
+        out->A1(i, j) = out->A1(j, i) = sA * sums.G1[i][j];
+        out->A2(i, j) = out->A2(j, i) = sA * sums.G2[i][j];
+      }
+      out->b1(i) = sb * sums.G1[i][8];
+    }
+    out->A1 = (wp.T.transpose() * out->A1 * wp.T).eval();
+    out->A2 = (wp.T.transpose() * out->A2 * wp.T).eval();
+    out->b1 = (wp.T.transpose() * out->b1).eval();
+    out->has_moments = true;
+  }
   out->valid = sums.valid;
   out->candidates = sums.candidates;
   out->sum_r2 = sums.sum_r2;
@@ -744,6 +806,20 @@ struct InnovationSpectrum {
 /// variance var_bw = var_theta / dt^2. Marginalising it (Schur complement) leaves
 ///   A' = A - A_.w (A_ww + I / var_bw)^-1 A_w.,   b' = b - A_.w (A_ww + I / var_bw)^-1 b_w,
 /// the information of the image about everything else, with the rotation-like part of the flow discounted.
+/// The same for the system extended by the readout's column (index 8): the nuisance enters like b_w there too.
+void marginalizeRotationError9(double var_bw, Eigen::Matrix<double, 9, 9>* A, Eigen::Matrix<double, 9, 1>* b) {
+  if (!(var_bw > 0.0) || !std::isfinite(var_bw)) return;
+  constexpr int w0 = 5;
+  const Eigen::Matrix<double, 9, 3> A_xw = A->block<9, 3>(0, w0);
+  const Mat3 S = A->block<3, 3>(w0, w0) + (1.0 / var_bw) * Mat3::Identity();
+  const Eigen::LLT<Mat3> llt(S);
+  if (llt.info() != Eigen::Success) return;
+  const Eigen::Matrix<double, 3, 9> G = llt.solve(A_xw.transpose());
+  *A -= A_xw * G;
+  *A = (0.5 * (*A + A->transpose())).eval();
+  *b -= G.transpose() * b->segment<3>(w0);
+}
+
 void marginalizeRotationError(double var_bw, ObservedInfo* A, ObservedVec* b) {
   if (!(var_bw > 0.0) || !std::isfinite(var_bw)) return;
   constexpr int w0 = 5;  // first b_w column of the observed block
@@ -815,14 +891,17 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   int pass = 0;
   PassSums sums;
   // Every pass writes the residual image; the RMS and the valid ratio are those of the last linearisation.
-  auto linearize_at = [&](const State& x_j, internal::ObsMat* A, internal::ObsVec* b, internal::ObsVec* m) {
+  auto linearize_at = [&](const State& x_j, internal::ObsMat* A, internal::ObsVec* b, internal::ObsVec* m,
+                          internal::ExtraColumn* readout) {
     // A time offset changed by e within the update: the image sees the state and the gyro window of e later.
     *m = timeOffsetMap(x_j, gyro_mean_C, timing, dt_s);
     const State x_seen = shiftedAlong(x_j, *m, x_j.t_d_s - t_d_prior_s);
-    const bool rolling = timing.line_delay_s > 0.0 && timing.rates_valid;
+    // Rolling shutter: every row with the motion at its own time (the readout of the iterate).
+    const bool rolling = timing.rates_valid && timing.row_weight != nullptr &&
+                         (x_j.readout_s != 0.0 || timing.estimate_readout);
     const ObservedVec m_rows = rolling ? stateRateMap(x_seen, gyro_mean_C, timing, dt_s) : ObservedVec::Zero();
     const int valid = accumulate(cur, K, gyro_mean_C, dt_s, state_lag_s, x_seen, huber_sigma, &sums,
-                                 rolling ? &m_rows : nullptr, rolling ? &timing : nullptr);
+                                 rolling ? &m_rows : nullptr, rolling ? &timing : nullptr, x_j.readout_s);
     stats.valid_ratio = sums.candidates > 0 ? static_cast<double>(valid) / sums.candidates : 0.0;
     stats.rms_residual = valid > 0 ? std::sqrt(sums.sum_r2 / valid) : 0.0;
     stats.residual_sigma = sums.robust_sigma;
@@ -874,9 +953,30 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     // A frame the innovation test flags does not move the time offset: the offset is a slow property of the
     // sensors, and a wrong frame's innovation projected on m would be taken for it.
     if (stats.gated) m->setZero();
-    *A = info_scale * sums.A;
-    *b = info_scale * sums.b;
-    marginalizeRotationError(var_bw_equiv, A, b);
+    if (rolling && sums.has_moments && !stats.gated) {
+      // The readout's column w_y S m_rows (section 3.7) next to the observed ones, the rotation error
+      // marginalised from the extended system.
+      Eigen::Matrix<double, 9, 9> Ae;
+      Eigen::Matrix<double, 9, 1> be;
+      Ae.topLeftCorner<8, 8>() = info_scale * sums.A;
+      const ObservedVec cross = info_scale * (sums.A1 * m_rows);
+      Ae.block<8, 1>(0, 8) = cross;
+      Ae.block<1, 8>(8, 0) = cross.transpose();
+      Ae(8, 8) = info_scale * m_rows.dot(sums.A2 * m_rows);
+      be.head<8>() = info_scale * sums.b;
+      be(8) = info_scale * m_rows.dot(sums.b1);
+      marginalizeRotationError9(var_bw_equiv, &Ae, &be);
+      *A = Ae.topLeftCorner<8, 8>();
+      *b = be.head<8>();
+      readout->active = true;
+      readout->cross = Ae.block<8, 1>(0, 8);
+      readout->diag = Ae(8, 8);
+      readout->rhs = be(8);
+    } else {
+      *A = info_scale * sums.A;
+      *b = info_scale * sums.b;
+      marginalizeRotationError(var_bw_equiv, A, b);
+    }
     ++pass;
     return true;
   };

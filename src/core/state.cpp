@@ -13,6 +13,7 @@ State State::boxplus(const ErrorVec& delta) const {
   out.b_a = b_a + delta.segment<3>(ErrIdx::kBa);
   out.b_w = b_w + delta.segment<3>(ErrIdx::kBw);
   out.t_d_s = t_d_s + delta(ErrIdx::kTd);
+  out.readout_s = readout_s + delta(ErrIdx::kRo);
   return out;
 }
 
@@ -25,6 +26,7 @@ ErrorVec State::boxminus(const State& other) const {
   e.segment<3>(ErrIdx::kBa) = b_a - other.b_a;
   e.segment<3>(ErrIdx::kBw) = b_w - other.b_w;
   e(ErrIdx::kTd) = t_d_s - other.t_d_s;
+  e(ErrIdx::kRo) = readout_s - other.readout_s;
   return e;
 }
 
@@ -37,7 +39,8 @@ ErrorCov State::boxminusJacobian(const State& ref) const {
 
 bool State::allFinite() const {
   return std::isfinite(alpha) && vartheta.allFinite() && mu.quaternion().coeffs().allFinite() &&
-         g.quaternion().coeffs().allFinite() && b_a.allFinite() && b_w.allFinite() && std::isfinite(t_d_s);
+         g.quaternion().coeffs().allFinite() && b_a.allFinite() && b_w.allFinite() && std::isfinite(t_d_s) &&
+         std::isfinite(readout_s);
 }
 
 }  // namespace diekf

@@ -307,7 +307,7 @@ int run(const RunnerOptions& o) {
   if (o.frames_csv) {
     frames.open(out_dir / "frames.csv");
     if (!frames) throw RunError("cannot write " + (out_dir / "frames.csv").string());
-    frames << "t,applied,passes,photometric_rms,valid_ratio,nis,noise_sigma,noise_correlation,nis_scale,gate_inflation,outlier_fraction,time_offset_ms,sigma_time_offset_ms,"
+    frames << "t,applied,passes,photometric_rms,valid_ratio,nis,noise_sigma,noise_correlation,nis_scale,gate_inflation,outlier_fraction,time_offset_ms,sigma_time_offset_ms,readout_ms,sigma_readout_ms,"
               "status,message\n";
     frames.precision(12);
   }
@@ -326,6 +326,8 @@ int run(const RunnerOptions& o) {
                << result.noise_sigma << ',' << result.noise_correlation << ',' << result.nis_scale << ',' << result.gate_inflation << ','
                << result.outlier_fraction << ',' << 1e3 * result.state.t_d_s << ','
                << 1e3 * std::sqrt(std::max(0.0, result.covariance(diekf::ErrIdx::kTd, diekf::ErrIdx::kTd))) << ','
+               << 1e3 * result.state.readout_s << ','
+               << 1e3 * std::sqrt(std::max(0.0, result.covariance(diekf::ErrIdx::kRo, diekf::ErrIdx::kRo))) << ','
                << diekf::toString(result.status) << ',' << msg << '\n';
       }
       if (keep_rows) {

@@ -106,6 +106,7 @@ struct OffsetRun {
   double rmse_d_m = 0.0, rmse_v_mps = 0.0;  // from 5 s on
   double t_d_end_s = 0.0, sigma_t_d_end_s = 0.0;
   double mean_abs_err_t_d_s = 0.0;  // mean |t_d - truth| over the second half
+  double readout_end_s = 0.0, sigma_readout_end_s = 0.0;
   int frames = 0, resets = 0;
 };
 
@@ -117,6 +118,7 @@ struct RunOptions {
   bool estimate = true;         // estimate_time_offset
   double readout_s = 0.0;       // rolling-shutter readout of the rendered images (0: global shutter)
   bool tell_line_delay = false; // the camera model knows the line delay
+  bool estimate_readout = false; // estimate the readout time (off here unless a test asks for it)
 };
 
 OffsetRun runFlight(const RunOptions& o) {
@@ -124,12 +126,13 @@ OffsetRun runFlight(const RunOptions& o) {
   test_util::SyntheticFlight flight;
   flight.rate = 2.5;  // turns and accelerations that make the offset observable (about 0.3 rad/s, 2 m/s^2)
   CameraModel cam = test_util::syntheticCamera();
-  const double line_delay_s = o.readout_s / cam.K.height;
+  const double line_delay_s = o.readout_s / (cam.K.height - 1);  // first to last row
   if (o.tell_line_delay) cam.line_delay_s = line_delay_s;
   EstimatorParams params;
   params.preprocess.working_width_px = 90;
   params.init.alpha0_inv_m = 1.0 / 0.8;
   params.estimate_time_offset = o.estimate;
+  params.estimate_readout = o.estimate_readout;
   Estimator estimator(cam, params);
   const double duration_s = 12.0, imu_rate_hz = 500.0, cam_rate_hz = 30.0;
   const int n_imu = static_cast<int>(duration_s * imu_rate_hz);
@@ -183,6 +186,8 @@ OffsetRun runFlight(const RunOptions& o) {
   if (!results.empty()) {
     out.t_d_end_s = results.back().state.t_d_s;
     out.sigma_t_d_end_s = std::sqrt(results.back().covariance(ErrIdx::kTd, ErrIdx::kTd));
+    out.readout_end_s = results.back().state.readout_s;
+    out.sigma_readout_end_s = std::sqrt(results.back().covariance(ErrIdx::kRo, ErrIdx::kRo));
   }
   return out;
 }
@@ -217,6 +222,32 @@ TEST(TimeOffsetEstimate, FindsAnOffsetTheCalibrationDoesNotKnow) {
   EXPECT_LT(est.rmse_d_m, 1.3 * exact.rmse_d_m + 0.002);
 }
 
+// The rows' capture times per second of readout: the pinhole mapping without distortion; with barrel
+// distortion the working image's top and bottom rows lie closer to the middle raw row (read out nearer the stamp).
+TEST(RollingShutter, RowWeightsFollowTheRawRows) {
+  CameraModel cam = test_util::syntheticCamera(4.0);  // 752 x 480
+  PinholeK Kw;
+  Kw.width = 180;
+  Kw.height = 116;
+  Kw.fx = Kw.fy = cam.K.fx * 180.0 / 752.0;
+  Kw.cx = 89.5;
+  Kw.cy = 57.5;
+  const std::vector<float> pinhole = readoutRowWeights(cam, Kw);
+  ASSERT_EQ(pinhole.size(), 116u);
+  for (int y : {0, 30, 57, 90, 115}) {
+    const double v = cam.K.cy + (y - Kw.cy) * cam.K.fy / Kw.fy;
+    EXPECT_NEAR(pinhole[y], (v - 0.5 * (cam.K.height - 1)) / (cam.K.height - 1), 1e-6) << "row " << y;
+  }
+  cam.distortion = DistortionModel::kRadTan;
+  cam.distortion_coeffs = Vec4(-0.3178, 0.0962, 0.0, 0.0);  // the MYNT EYE's barrel distortion
+  const std::vector<float> barrel = readoutRowWeights(cam, Kw);
+  EXPECT_LT(barrel[0], 0.0f);
+  EXPECT_GT(barrel[0], 1.05f * pinhole[0]);  // at least 5 % closer to the middle (negative weights)
+  EXPECT_LT(barrel[115], 0.95f * pinhole[115]);
+  EXPECT_NEAR(barrel[57], pinhole[57], 0.01);
+  for (int y = 1; y < 116; ++y) EXPECT_GT(barrel[y], barrel[y - 1]) << "row " << y;  // read out top to bottom
+}
+
 TEST(ImageStamp, ShiftToTheMiddleRowsMidExposure) {
   EXPECT_DOUBLE_EQ(imageStampShift(ImageStamp::kMiddle, 0.004, 0.016), 0.0);
   EXPECT_DOUBLE_EQ(imageStampShift(ImageStamp::kStart, 0.004, 0.016), 0.010);
@@ -230,7 +261,7 @@ TEST(ImageStamp, ShiftToTheMiddleRowsMidExposure) {
 TEST(ImageStamp, TheEstimatorShiftsStampsBeforeAnythingElse) {
   const test_util::SyntheticFlight flight;
   CameraModel cam = test_util::syntheticCamera();
-  cam.line_delay_s = 0.010 / cam.K.height;
+  cam.line_delay_s = 0.010 / (cam.K.height - 1);  // a 10 ms readout, first to last row
   EstimatorParams params;
   params.preprocess.working_width_px = 90;
   params.image_stamp = ImageStamp::kStart;
@@ -275,6 +306,27 @@ TEST(RollingShutter, RowTimesInTheWarpRecoverTheGlobalShutterAccuracy) {
   EXPECT_LT(known.rmse_d_m, 1.2 * global.rmse_d_m + 0.002);
   // With the readout modelled, nothing is left for the time offset to absorb.
   EXPECT_LT(std::abs(known.t_d_end_s), 3.0 * known.sigma_t_d_end_s);
+}
+
+// The same readout, unknown to the estimator, estimated online as a filter state.
+TEST(RollingShutter, TheReadoutTimeIsEstimatedOnline) {
+  RunOptions o;
+  o.readout_s = 0.016;
+  const OffsetRun ignored = runFlight(o);
+  o.estimate_readout = true;
+  const OffsetRun est = runFlight(o);
+  o.readout_s = 0.0;
+  const OffsetRun global = runFlight(o);
+  std::printf("[rolling shutter] 16 ms readout estimated: %.2f +- %.2f ms, d/v RMSE from 5 s %.2f cm / %.2f cm/s "
+              "(not estimated %.2f / %.2f); global shutter, estimated: %.2f +- %.2f ms, %.2f / %.2f\n",
+              1e3 * est.readout_end_s, 1e3 * est.sigma_readout_end_s, 100 * est.rmse_d_m, 100 * est.rmse_v_mps,
+              100 * ignored.rmse_d_m, 100 * ignored.rmse_v_mps, 1e3 * global.readout_end_s,
+              1e3 * global.sigma_readout_end_s, 100 * global.rmse_d_m, 100 * global.rmse_v_mps);
+  EXPECT_EQ(est.resets, 0);
+  EXPECT_LT(std::abs(est.readout_end_s - 0.016), 3.0 * est.sigma_readout_end_s + 1e-3);
+  EXPECT_LT(est.sigma_readout_end_s, 0.004);
+  EXPECT_LT(est.rmse_v_mps, ignored.rmse_v_mps);
+  EXPECT_LT(std::abs(global.readout_end_s), 3.0 * global.sigma_readout_end_s + 1e-3);
 }
 
 }  // namespace
