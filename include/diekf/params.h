@@ -151,6 +151,7 @@ struct EstimatorParams {
   double time_offset_start_s = 2.0;             ///< converged this long before the offset is estimated, s
   bool estimate_readout = true;                 ///< the rolling-shutter readout time as a filter state
   double max_readout_s = 0.05;                  ///< bound of the estimated readout (either sign), s
+  double readout_start_sigma_time_offset_s = 0.003;  ///< the readout is estimated once the offset's 1-sigma is below, s
   /// Rolling shutter: readout time per raw image row, s; 0 = the camchain's line_delay_s (0 there: global shutter).
   double line_delay_s = 0.0;
   /// What the image stamp marks: the middle of the exposure of the middle row (the estimator's image time),

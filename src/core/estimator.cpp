@@ -4,6 +4,7 @@
 #include <array>
 #include <chrono>
 #include <cmath>
+#include <cstdlib>
 #include <cstdio>
 #include <cstring>
 #include <sstream>
@@ -498,7 +499,12 @@ struct Estimator::Impl {
           timing.estimate_offset = params.estimate_time_offset && settled;
           timing.row_weight = readout_row_weight.data();
           timing.rows = static_cast<int>(readout_row_weight.size());
-          timing.estimate_readout = params.estimate_readout && settled;
+          // The readout once the offset is known to a few ms (when it is estimated): early on, with both
+          // uncertain, a large offset was partly taken for a readout (19 ms of readout for a 20 ms offset on a
+          // global-shutter flight, the offset then 10 s late).
+          const double gate_s = params.readout_start_sigma_time_offset_s;
+          timing.estimate_readout = params.estimate_readout && settled &&
+                                    (!params.estimate_time_offset || P(ErrIdx::kTd, ErrIdx::kTd) < gate_s * gate_s);
           timing.rates_valid = timing.estimate_offset || timing.estimate_readout || x.readout_s != 0.0;
           if (timing.rates_valid) {
             timing.accel_C = imuAt(t_state_s).accel_mps2;

@@ -411,6 +411,8 @@ const std::vector<Entry>& table() {
     t.push_back(real("time_offset_start_s", DIEKF_FIELD(double, time_offset_start_s), between(0.0, 1e4)));
     t.push_back(flag("estimate_readout", DIEKF_FIELD(bool, estimate_readout)));
     t.push_back(real("max_readout_s", DIEKF_FIELD(double, max_readout_s), between(0.0, 1.0)));
+    t.push_back(real("readout_start_sigma_time_offset_s", DIEKF_FIELD(double, readout_start_sigma_time_offset_s),
+                     positive(1.0)));
     t.push_back(real("line_delay_s", DIEKF_FIELD(double, line_delay_s), between(0.0, 1e-3)));
     t.push_back({"image_stamp", [](const ParamSource& s, EstimatorParams& p) {
                    std::string name;
