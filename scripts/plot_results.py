@@ -13,6 +13,9 @@ Reads RUN_DIR/estimates.csv and, when present, RUN_DIR/groundtruth.csv and RUN_D
                     gravity angle errors (evaluation window shaded; 2-sigma coverage and NEES in the title)
   consistency.png   NEES per frame (z_d^2 + sum z_v,i^2) against the chi-square(4) mean and 95 % interval
   update_time.png   histogram of the per-frame update time
+  timing.png        with RUN_DIR/frames.csv (--frames-csv): the estimated camera-IMU time offset and rolling-shutter
+                    readout time with their 2-sigma bands (docs/algorithm.md sections 3.6, 3.7); --true-offset-ms
+                    and --true-readout-ms draw the truth (e.g. realism.yaml's values)
 """
 
 import argparse
@@ -96,6 +99,8 @@ def main(argv=None):
     parser.add_argument("run_dir", help="diekf_bag_runner output folder")
     parser.add_argument("--output", help="where the PNGs go (default: RUN_DIR)")
     parser.add_argument("--title", help="figure title prefix (default: the sequence name)")
+    parser.add_argument("--true-offset-ms", type=float, help="true time offset on top of the camchain's, ms")
+    parser.add_argument("--true-readout-ms", type=float, help="true rolling-shutter readout time, ms")
     args = parser.parse_args(argv)
 
     est_path = os.path.join(args.run_dir, "estimates.csv")
@@ -285,7 +290,37 @@ def main(argv=None):
     ax.set_title("%s: image update time (%d frames)" % (title, ms.size))
     ax.grid(alpha=0.3)
     save(fig, os.path.join(out_dir, "update_time.png"))
+    plot_timing(args, title, t0, out_dir)
     return 0
+
+
+def plot_timing(args, title, t0, out_dir):
+    """timing.png from frames.csv: the estimated time offset and readout with their 2-sigma bands."""
+    path = os.path.join(args.run_dir, "frames.csv")
+    if not os.path.isfile(path):
+        return
+    with open(path) as f:
+        rows = list(csv.DictReader(f))
+    keys = ["time_offset_ms", "sigma_time_offset_ms", "readout_ms", "sigma_readout_ms"]
+    if not rows or any(k not in rows[0] for k in keys):
+        return
+    t = np.array([float(r["t"]) for r in rows]) - t0
+    fig, axes = plt.subplots(2, 1, figsize=(9, 6), sharex=True)
+    for ax, (key, sigma_key, truth, label) in zip(axes, [
+            ("time_offset_ms", "sigma_time_offset_ms", args.true_offset_ms, "time offset (ms)"),
+            ("readout_ms", "sigma_readout_ms", args.true_readout_ms, "readout time (ms)")]):
+        v = np.array([float(r[key]) for r in rows])
+        s = np.array([float(r[sigma_key]) for r in rows])
+        ax.fill_between(t, v - 2 * s, v + 2 * s, color="tab:blue", alpha=0.2, lw=0, label="±2σ")
+        ax.plot(t, v, color="tab:blue", lw=1.0, label="estimate")
+        if truth is not None:
+            ax.axhline(truth, color="k", lw=1.0, ls="--", label="truth %g ms" % truth)
+        ax.set_ylabel(label)
+        ax.grid(alpha=0.3)
+        ax.legend(loc="upper right", fontsize=8)
+    axes[0].set_title("%s: image timing estimated by the filter" % title)
+    axes[1].set_xlabel("time (s)")
+    save(fig, os.path.join(out_dir, "timing.png"))
 
 
 if __name__ == "__main__":
