@@ -100,6 +100,7 @@ void EstimatorNodelet::onInit() {
 std::vector<std::string> EstimatorNodelet::nodeletParamKeys() {
   return {"camchain_file", "camera_name", "imu_file", "image_topic", "imu_topic", "camera_info_topic",
           "image_transport", "odom_frame", "base_frame", "camera_frame", "publish_tf", "publish_static_tf",
+          "camera_tf_root", "camera_tf_wait_s",
           "publish_odometry_imu_rate", "image_queue_size", "imu_queue_size", "expected_imu_rate_hz",
           "expected_image_rate_hz", "rate_tolerance", "time_jump_reset_s", "late_image_warn_s",
           "residual_image_gain", "path_max_poses", "gravity_arrow_m", "plane_marker_size_m", "diagnostic_period_s",
@@ -122,6 +123,8 @@ void EstimatorNodelet::loadSettings() {
   pnh_.param("camera_frame", s.camera_frame, s.camera_frame);
   pnh_.param("publish_tf", s.publish_tf, s.publish_tf);
   pnh_.param("publish_static_tf", s.publish_static_tf, s.publish_static_tf);
+  pnh_.param("camera_tf_root", s.camera_tf_root, s.camera_tf_root);
+  pnh_.param("camera_tf_wait_s", s.camera_tf_wait_s, s.camera_tf_wait_s);
   pnh_.param("publish_odometry_imu_rate", s.publish_odometry_imu_rate, s.publish_odometry_imu_rate);
   pnh_.param("image_queue_size", s.image_queue_size, s.image_queue_size);
   pnh_.param("imu_queue_size", s.imu_queue_size, s.imu_queue_size);
@@ -146,6 +149,7 @@ void EstimatorNodelet::loadSettings() {
   require(s.time_jump_reset_s > 0.0, "time_jump_reset_s", "> 0");
   require(s.diagnostic_period_s > 0.0, "diagnostic_period_s", "> 0");
   require(s.path_max_poses >= 0, "path_max_poses", ">= 0");
+  require(s.camera_tf_wait_s >= 0.0, "camera_tf_wait_s", ">= 0");
   require(!s.odom_frame.empty() && !s.base_frame.empty() && !s.camera_frame.empty(), "odom_frame",
           "non-empty (as base_frame and camera_frame)");
 }
@@ -167,8 +171,16 @@ void EstimatorNodelet::setUpOutputs() {
   if (settings_.publish_tf) tf_broadcaster_ = std::make_unique<tf2_ros::TransformBroadcaster>();
   if (settings_.publish_static_tf) {
     static_tf_broadcaster_ = std::make_unique<tf2_ros::StaticTransformBroadcaster>();
-    static_tf_broadcaster_->sendTransform(toTransform(camera_->T_cam_imu.inverse(), ros::Time::now(),
-                                                      settings_.base_frame, settings_.camera_frame));
+    if (!settings_.camera_tf_root.empty()) {
+      tf_buffer_ = std::make_unique<tf2_ros::Buffer>();
+      tf_listener_ = std::make_unique<tf2_ros::TransformListener>(*tf_buffer_);
+    }
+    updateCameraTf();
+    if (camera_tf_plan_.kind == CameraTfPlan::Kind::kWait) {
+      camera_tf_timer_ = nh_.createWallTimer(ros::WallDuration(0.2), [this](const ros::WallTimerEvent&) {
+        updateCameraTf();
+      });
+    }
   }
 
   const double tol = settings_.rate_tolerance;
@@ -196,6 +208,41 @@ void EstimatorNodelet::setUpInputs() {
   if (!settings_.camera_info_topic.empty()) {
     camera_info_sub_ = nh_.subscribe(settings_.camera_info_topic, 1, &EstimatorNodelet::cameraInfoCallback, this);
   }
+}
+
+void EstimatorNodelet::updateCameraTf() {
+  if (camera_tf_plan_.kind != CameraTfPlan::Kind::kWait) return;
+  const bool waited = !first_image_ros_time_.isZero() &&
+                      (ros::Time::now() - first_image_ros_time_).toSec() >= settings_.camera_tf_wait_s;
+  static const tf2::BufferCore kEmpty;
+  const CameraTfPlan plan =
+      planCameraTf(tf_buffer_ ? static_cast<const tf2::BufferCore&>(*tf_buffer_) : kEmpty, settings_.camera_tf_root,
+                   settings_.base_frame, settings_.odom_frame, settings_.camera_frame,
+                   camera_->T_cam_imu.inverse(), waited);
+  {
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    camera_tf_plan_ = plan;
+  }
+  switch (plan.kind) {
+    case CameraTfPlan::Kind::kWait:
+      if (settings_.camera_tf_root != "auto") NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: TF: %s", plan.why.c_str());
+      return;
+    case CameraTfPlan::Kind::kDirect:
+    case CameraTfPlan::Kind::kAttachToRoot:
+      static_tf_broadcaster_->sendTransform(toTransform(plan.T_parent_child, ros::Time::now(), plan.parent,
+                                                        plan.child));
+      NODELET_INFO("diekf: TF: publishing %s -> %s: %s", plan.parent.c_str(), plan.child.c_str(), plan.why.c_str());
+      break;
+    case CameraTfPlan::Kind::kAlreadyConnected:
+      NODELET_INFO("diekf: TF: %s", plan.why.c_str());
+      break;
+    case CameraTfPlan::Kind::kError:
+      NODELET_ERROR("diekf: TF: %s; no static transform published", plan.why.c_str());
+      break;
+  }
+  camera_tf_timer_.stop();
+  tf_listener_.reset();  // nothing else reads TF
+  tf_buffer_.reset();
 }
 
 // ------------------------------------------------------------------------------------------------------------
@@ -267,6 +314,7 @@ void EstimatorNodelet::imuCallback(const sensor_msgs::ImuConstPtr& msg) {
 
 void EstimatorNodelet::imageCallback(const sensor_msgs::ImageConstPtr& msg) {
   checkClock();
+  if (first_image_ros_time_.isZero()) first_image_ros_time_ = ros::Time::now();
   image_rate_diag_->tick();
   const double t = msg->header.stamp.toSec();
   if (last_image_stamp_s_ >= 0.0) {
@@ -601,6 +649,7 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
   stat.add("gated updates", gated_updates_);
   stat.add("mean update time (ms)", update_count_ > 0 ? update_ms_sum_ / update_count_ : 0.0);
   stat.add("max update time (ms)", update_ms_max_);
+  stat.add("TF base_link to camera", std::string(toString(camera_tf_plan_.kind)) + ": " + camera_tf_plan_.why);
   stat.add("distance (m)", last_distance_m_);
   stat.add("height (m)", last_height_m_);
 }

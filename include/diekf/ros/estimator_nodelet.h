@@ -21,13 +21,16 @@
 #include <sensor_msgs/Image.h>
 #include <sensor_msgs/Imu.h>
 #include <std_srvs/Trigger.h>
+#include <tf2_ros/buffer.h>
 #include <tf2_ros/static_transform_broadcaster.h>
+#include <tf2_ros/transform_listener.h>
 #include <tf2_ros/transform_broadcaster.h>
 
 #include "diekf/camera_model.h"
 #include "diekf/estimator.h"
 #include "diekf/params.h"
 #include "diekf/ros/body_odometry.h"
+#include "diekf/ros/camera_tf.h"
 
 namespace diekf_ros {
 
@@ -44,7 +47,9 @@ struct NodeletSettings {
   std::string base_frame = "base_link";
   std::string camera_frame = "mynteye_left_frame";
   bool publish_tf = true;                     ///< odom -> base_link
-  bool publish_static_tf = true;              ///< base_link -> camera from the extrinsics
+  bool publish_static_tf = true;              ///< base_link -> camera (or the camera driver's root) from the extrinsics
+  std::string camera_tf_root = "auto";        ///< where base_link attaches: auto, "" (the camera frame), a frame
+  double camera_tf_wait_s = 2.0;              ///< auto: ROS time after the first image before publishing directly, s
   bool publish_odometry_imu_rate = false;     ///< ~odometry_imu_rate at the raw IMU rate
   int image_queue_size = 4;                   ///< images waiting for the worker before the oldest is dropped
   int imu_queue_size = 2000;                  ///< IMU samples waiting for the worker (4 s at 500 Hz)
@@ -80,6 +85,8 @@ class EstimatorNodelet : public nodelet::Nodelet {
   void checkClock();
   bool resetService(std_srvs::Trigger::Request& req, std_srvs::Trigger::Response& res);
   void filterDiagnostics(diagnostic_updater::DiagnosticStatusWrapper& stat);
+  /// Connects base_link to the camera frame in TF (camera_tf.h), once TF and the first image allow it.
+  void updateCameraTf();
 
   // Worker thread: owns estimator_ and odometry_.
   void workerLoop();
@@ -141,6 +148,11 @@ class EstimatorNodelet : public nodelet::Nodelet {
   ros::ServiceServer reset_srv_;
   std::unique_ptr<tf2_ros::TransformBroadcaster> tf_broadcaster_;
   std::unique_ptr<tf2_ros::StaticTransformBroadcaster> static_tf_broadcaster_;
+  std::unique_ptr<tf2_ros::Buffer> tf_buffer_;
+  std::unique_ptr<tf2_ros::TransformListener> tf_listener_;
+  ros::WallTimer camera_tf_timer_;
+  ros::Time first_image_ros_time_;     ///< ROS time of the first image callback (zero before)
+  CameraTfPlan camera_tf_plan_;        ///< the decision (stats_mutex_ for diagnostics)
   std::deque<geometry_msgs::PoseStamped> path_;  ///< worker thread only
 
   // Diagnostics.
