@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <exception>
+#include <sstream>
 #include <utility>
 
 #include <cv_bridge/cv_bridge.h>
@@ -66,6 +67,7 @@ void EstimatorNodelet::onInit() {
     const auto warn = [this](const std::string& warning) { NODELET_WARN("diekf: %s", warning.c_str()); };
     diekf::loadEstimatorParams(RosParamSource(pnh_), &params_, warn, nodeletParamKeys());
     if (!settings_.imu_file.empty()) diekf::loadKalibrImuYaml(settings_.imu_file, &params_.imu);
+    configured_params_ = params_;
     estimator_ = std::make_unique<diekf::Estimator>(*camera_, params_);
     odometry_ = std::make_unique<BodyOdometry>(camera_->T_cam_imu, params_.imu.gyro_noise_density,
                                                params_.imu.input_rate_hz, params_.imu.gravity_mps2);
@@ -78,6 +80,13 @@ void EstimatorNodelet::onInit() {
     return;
   }
   field_of_view_rad_ = 2.0 * std::atan2(0.5 * camera_->K.width, camera_->K.fx);
+  {
+    std::ostringstream os;
+    os << "IMU at imu/input_rate_hz " << params_.imu.input_rate_hz << " Hz (not measured): low-pass at "
+       << params_.imu.lowpass_cutoff_hz << " Hz, decimation " << params_.imu.decimation_factor;
+    imu_design_ = os.str();
+  }
+  if (settings_.imu_rate_measure_s > 0.0) startImuRateMeasurement();
 
   setUpOutputs();
   ready_ = true;
@@ -102,7 +111,7 @@ std::vector<std::string> EstimatorNodelet::nodeletParamKeys() {
           "image_transport", "odom_frame", "base_frame", "camera_frame", "publish_tf", "publish_static_tf",
           "camera_tf_root", "camera_tf_wait_s",
           "publish_odometry_imu_rate", "image_queue_size", "imu_queue_size", "expected_imu_rate_hz",
-          "expected_image_rate_hz", "rate_tolerance", "time_jump_reset_s", "late_image_warn_s",
+          "expected_image_rate_hz", "imu_rate_measure_s", "rate_tolerance", "time_jump_reset_s", "late_image_warn_s",
           "residual_image_gain", "path_max_poses", "gravity_arrow_m", "plane_marker_size_m", "diagnostic_period_s",
           "diagnostic_period"};
 }
@@ -130,6 +139,7 @@ void EstimatorNodelet::loadSettings() {
   pnh_.param("imu_queue_size", s.imu_queue_size, s.imu_queue_size);
   pnh_.param("expected_imu_rate_hz", s.expected_imu_rate_hz, s.expected_imu_rate_hz);
   pnh_.param("expected_image_rate_hz", s.expected_image_rate_hz, s.expected_image_rate_hz);
+  pnh_.param("imu_rate_measure_s", s.imu_rate_measure_s, s.imu_rate_measure_s);
   pnh_.param("rate_tolerance", s.rate_tolerance, s.rate_tolerance);
   pnh_.param("time_jump_reset_s", s.time_jump_reset_s, s.time_jump_reset_s);
   pnh_.param("late_image_warn_s", s.late_image_warn_s, s.late_image_warn_s);
@@ -145,6 +155,7 @@ void EstimatorNodelet::loadSettings() {
   require(s.imu_queue_size >= 10, "imu_queue_size", ">= 10");
   require(s.expected_imu_rate_hz > 0.0, "expected_imu_rate_hz", "> 0");
   require(s.expected_image_rate_hz > 0.0, "expected_image_rate_hz", "> 0");
+  require(s.imu_rate_measure_s >= 0.0 && s.imu_rate_measure_s <= 30.0, "imu_rate_measure_s", "in [0, 30] s");
   require(s.rate_tolerance > 0.0 && s.rate_tolerance < 1.0, "rate_tolerance", "in (0, 1)");
   require(s.time_jump_reset_s > 0.0, "time_jump_reset_s", "> 0");
   require(s.diagnostic_period_s > 0.0, "diagnostic_period_s", "> 0");
@@ -263,10 +274,12 @@ void EstimatorNodelet::checkClock() {
     requestRestart("ROS time jumped backwards", true);
     last_imu_stamp_s_ = -1.0;
     last_image_stamp_s_ = -1.0;
+    if (settings_.imu_rate_measure_s > 0.0) startImuRateMeasurement();
   }
 }
 
 void EstimatorNodelet::imuCallback(const sensor_msgs::ImuConstPtr& msg) {
+  if (!ready_) return;
   checkClock();
   diekf::ImuSample sample;
   if (!imuFromMsg(*msg, &sample)) {
@@ -283,6 +296,7 @@ void EstimatorNodelet::imuCallback(const sensor_msgs::ImuConstPtr& msg) {
       NODELET_WARN("diekf: IMU time jumped back by %.3f s (bag loop or clock reset): restarting the filter", -dt);
       requestRestart("IMU time jumped backwards", true);
       last_image_stamp_s_ = -1.0;
+      if (settings_.imu_rate_measure_s > 0.0) startImuRateMeasurement();  // a restarted driver may run at another rate
     } else if (dt <= 0.0) {
       NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: %s IMU message (stamp %.6f s, previous %.6f s) dropped",
                             dt == 0.0 ? "duplicated" : "out-of-order", t, last_imu_stamp_s_);
@@ -294,6 +308,16 @@ void EstimatorNodelet::imuCallback(const sensor_msgs::ImuConstPtr& msg) {
     }
   }
   last_imu_stamp_s_ = t;
+  if (measuring_imu_rate_) {
+    // Held back until the rate is known (the preprocessing is designed for it), then handed over at once.
+    imu_rate_buffer_.push_back(sample);
+    {
+      std::lock_guard<std::mutex> lock(stats_mutex_);
+      ++imu_received_;
+    }
+    if (imu_rate_meter_.add(t)) finishImuRateMeasurement();
+    return;
+  }
   bool overflow = false;
   {
     std::lock_guard<std::mutex> lock(queue_mutex_);
@@ -313,6 +337,7 @@ void EstimatorNodelet::imuCallback(const sensor_msgs::ImuConstPtr& msg) {
 }
 
 void EstimatorNodelet::imageCallback(const sensor_msgs::ImageConstPtr& msg) {
+  if (!ready_) return;
   checkClock();
   if (first_image_ros_time_.isZero()) first_image_ros_time_ = ros::Time::now();
   image_rate_diag_->tick();
@@ -323,6 +348,7 @@ void EstimatorNodelet::imageCallback(const sensor_msgs::ImageConstPtr& msg) {
       NODELET_WARN("diekf: image time jumped back by %.3f s: restarting the filter", -dt);
       requestRestart("image time jumped backwards", true);
       last_imu_stamp_s_ = -1.0;
+      if (settings_.imu_rate_measure_s > 0.0) startImuRateMeasurement();
     } else if (dt <= 0.0) {
       NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: %s image (stamp %.6f s, previous %.6f s) dropped",
                             dt == 0.0 ? "duplicated" : "out-of-order", t, last_image_stamp_s_);
@@ -334,6 +360,12 @@ void EstimatorNodelet::imageCallback(const sensor_msgs::ImageConstPtr& msg) {
     }
   }
   last_image_stamp_s_ = t;
+  if (measuring_imu_rate_ || !ready_) {
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    ++images_received_;
+    ++images_skipped_measuring_;
+    return;
+  }
   const double t_imu_clock = t + camera_->timeshift_cam_imu_s;
   if (last_imu_stamp_s_ >= 0.0 && t_imu_clock < last_imu_stamp_s_ - settings_.late_image_warn_s) {
     NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: late image: %.3f s older than the newest IMU sample",
@@ -371,6 +403,43 @@ void EstimatorNodelet::cameraInfoCallback(const sensor_msgs::CameraInfoConstPtr&
   }
 }
 
+void EstimatorNodelet::startImuRateMeasurement() {
+  measuring_imu_rate_ = true;
+  imu_rate_meter_ = diekf::RateMeter(settings_.imu_rate_measure_s, 20);
+  imu_rate_buffer_.clear();
+}
+
+bool EstimatorNodelet::finishImuRateMeasurement() {
+  measuring_imu_rate_ = false;
+  const double rate_hz = imu_rate_meter_.rateHz();
+  std::string summary;
+  diekf::ImuParams imu;
+  try {
+    imu = diekf::designImuPreprocessing(configured_params_.imu, rate_hz, &summary);
+  } catch (const std::invalid_argument& e) {
+    init_error_ = std::string("cannot preprocess the IMU: ") + e.what();
+    ready_ = false;
+    imu_rate_buffer_.clear();
+    NODELET_FATAL("diekf: %s", init_error_.c_str());
+    return false;
+  }
+  NODELET_INFO("diekf: %s (median of %d intervals)", summary.c_str(), imu_rate_meter_.intervals());
+  imu_rate_min_hz_ = rate_hz * (1.0 - settings_.rate_tolerance);
+  imu_rate_max_hz_ = rate_hz * (1.0 + settings_.rate_tolerance);
+  {
+    std::lock_guard<std::mutex> lock(queue_mutex_);
+    pending_imu_params_ = imu;
+    imu_design_pending_ = true;
+    imu_queue_.insert(imu_queue_.end(), imu_rate_buffer_.begin(), imu_rate_buffer_.end());
+  }
+  imu_rate_buffer_.clear();
+  queue_cv_.notify_one();
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  measured_imu_rate_hz_ = rate_hz;
+  imu_design_ = summary;
+  return true;
+}
+
 bool EstimatorNodelet::resetService(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
   if (!ready_) {
     res.success = false;
@@ -405,17 +474,23 @@ void EstimatorNodelet::workerLoop() {
   std::deque<diekf::ImuSample> imu;
   while (true) {
     sensor_msgs::ImageConstPtr image;
-    bool restart = false, rebuild = false;
+    bool restart = false, rebuild = false, design = false;
+    diekf::ImuParams design_params;
     std::string reason;
     {
       std::unique_lock<std::mutex> lock(queue_mutex_);
       queue_cv_.wait(lock, [this] {
-        return stop_ || restart_requested_ || !imu_queue_.empty() || !image_queue_.empty();
+        return stop_ || restart_requested_ || imu_design_pending_ || !imu_queue_.empty() || !image_queue_.empty();
       });
       if (stop_) return;
       std::swap(restart, restart_requested_);
       std::swap(rebuild, restart_rebuild_);
       std::swap(reason, restart_reason_);
+      if (imu_design_pending_) {
+        design = true;
+        design_params = pending_imu_params_;
+        imu_design_pending_ = false;
+      }
       // Stamp order: the IMU samples up to the oldest waiting image, then that image. Without an image, all IMU
       // samples (the estimator keeps enough IMU history for an image that arrives after its samples).
       if (!image_queue_.empty()) {
@@ -433,6 +508,7 @@ void EstimatorNodelet::workerLoop() {
     }
     try {
       if (restart) restartFilter(reason, rebuild);
+      if (design) applyImuDesign(design_params);
       for (const diekf::ImuSample& s : imu) forwardImu(s);
       imu.clear();
       if (image) forwardImage(image);
@@ -463,6 +539,14 @@ void EstimatorNodelet::restartFilter(const std::string& reason, bool rebuild) {
   last_reset_reason_ = reason;
   last_status_ = diekf::FilterStatus::kReset;
   last_message_ = reason;
+}
+
+void EstimatorNodelet::applyImuDesign(const diekf::ImuParams& imu) {
+  params_.imu = imu;
+  estimator_ = std::make_unique<diekf::Estimator>(*camera_, params_);
+  odometry_ = std::make_unique<BodyOdometry>(camera_->T_cam_imu, params_.imu.gyro_noise_density,
+                                             params_.imu.input_rate_hz, params_.imu.gravity_mps2);
+  odometry_->max_integration_gap_s = std::max(1.0, 5.0 / settings_.expected_image_rate_hz);
 }
 
 void EstimatorNodelet::forwardImu(const diekf::ImuSample& s) {
@@ -617,7 +701,10 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
     return;
   }
   std::lock_guard<std::mutex> lock(stats_mutex_);
-  if (imu_received_ == 0) {
+  if (measuring_imu_rate_) {
+    stat.summaryf(DiagnosticStatus::WARN, "measuring the IMU rate from the stamps of %s (%d intervals so far)",
+                  settings_.imu_topic.c_str(), imu_rate_meter_.intervals());
+  } else if (imu_received_ == 0) {
     stat.summary(DiagnosticStatus::WARN, "waiting for IMU messages on " + settings_.imu_topic);
   } else if (images_received_ == 0) {
     stat.summary(DiagnosticStatus::WARN, "waiting for images on " + settings_.image_topic);
@@ -649,6 +736,9 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
   stat.add("gated updates", gated_updates_);
   stat.add("mean update time (ms)", update_count_ > 0 ? update_ms_sum_ / update_count_ : 0.0);
   stat.add("max update time (ms)", update_ms_max_);
+  stat.add("IMU rate (Hz, measured; 0 = not measured)", measured_imu_rate_hz_);
+  stat.add("IMU preprocessing", imu_design_);
+  stat.add("images skipped while measuring the IMU rate", images_skipped_measuring_);
   stat.add("TF base_link to camera", std::string(toString(camera_tf_plan_.kind)) + ": " + camera_tf_plan_.why);
   stat.add("distance (m)", last_distance_m_);
   stat.add("height (m)", last_height_m_);

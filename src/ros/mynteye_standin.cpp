@@ -11,7 +11,8 @@
 //  - the IMU message layout: frame imu_frame_id, orientation and every covariance zero, the device's readings
 //    in g and deg/s scaled by the `gravity` parameter and pi/180;
 //  - stamps: the device clock mapped onto ROS time at start-up; the first 10 images and 50 IMU samples dropped;
-//    images and IMU published only while subscribed; the IMU at the device's standard/imu_frequency;
+//    images and IMU published only while subscribed; the IMU at the device's standard/imu_frequency (the recording
+//    resampled on a regular grid, averaged over one period as the sensor's own low-pass would);
 //  - its static TF: base_frame_id -> left (identity), left -> right, left_rect, disparity, depth, points and the
 //    IMU frame, right -> right_rect, disparity -> disparity_norm;
 //  - the way it runs: onInit() never returns, it loops publishing until shutdown (so the process or manager that
@@ -25,6 +26,7 @@
 // recording when both the left image and the IMU are subscribed, true), baseline_m (0.12).
 #include <algorithm>
 #include <cmath>
+#include <deque>
 #include <map>
 #include <memory>
 #include <string>
@@ -98,7 +100,11 @@ class MyntEyeStandin : public nodelet::Nodelet {
   void publishStaticTransforms();
   void stream();
   void publishImage(const sensor_msgs::Image& recorded, const ros::Time& stamp);
-  void publishImu(const sensor_msgs::Imu& recorded, const ros::Time& stamp);
+  /// A recorded IMU sample: published as it is at the recording's rate, or resampled to standard/imu_frequency.
+  void addImu(const sensor_msgs::Imu& recorded);
+  /// Publishes one device sample (m/s^2 and rad/s in the IMU frame) taken at device time t_s.
+  void publishImu(double t_s, const Eigen::Vector3d& accel, const Eigen::Vector3d& gyro);
+  ros::Time toRosTime(double device_s) const { return ros_t0_ + ros::Duration(device_s - device_t0_); }
 
   ros::NodeHandle nh_, pnh_;
   // Driver parameters (the wrapper's names and defaults).
@@ -124,7 +130,15 @@ class MyntEyeStandin : public nodelet::Nodelet {
   bool have_info_ = false;
   int images_seen_ = 0, imu_seen_ = 0;
   uint32_t image_seq_ = 0, imu_seq_ = 0;
-  double last_imu_device_s_ = -1.0, last_image_device_s_ = -1.0;
+  double last_image_device_s_ = -1.0;
+  double device_t0_ = -1.0;  ///< device (recording) time of the first message, s
+  ros::Time ros_t0_;         ///< ROS time it is mapped onto
+  struct ImuRecord {
+    double t_s;
+    Eigen::Vector3d accel, gyro;
+  };
+  std::deque<ImuRecord> imu_history_;  ///< recorded samples around the next device sample (resampling)
+  double next_imu_t_s_ = -1.0;         ///< device time of the next resampled sample, s
 };
 
 void MyntEyeStandin::onInit() {
@@ -288,8 +302,6 @@ void MyntEyeStandin::stream() {
     NODELET_FATAL("mynteye stand-in: %s has neither %s nor %s", bag_path_.c_str(), rec_image.c_str(), rec_imu.c_str());
   }
   // Device clock: the recording's stamps; ROS stamp = ROS time at the first message + device time elapsed.
-  double device_t0 = -1.0;
-  ros::Time ros_t0;
   const ros::WallTime wall_t0 = ros::WallTime::now();
   NODELET_INFO("mynteye stand-in: playing %s (%u messages) as the %s device", bag_path_.c_str(), view.size(),
                model_.c_str());
@@ -309,20 +321,19 @@ void MyntEyeStandin::stream() {
       recorded = imu->header.stamp;
     }
     const double device_s = recorded.toSec();
-    if (device_t0 < 0.0) {
-      device_t0 = device_s;
-      ros_t0 = ros::Time::now();
+    if (device_t0_ < 0.0) {
+      device_t0_ = device_s;
+      ros_t0_ = ros::Time::now();
     }
-    const double elapsed_s = device_s - device_t0;
+    const double elapsed_s = device_s - device_t0_;
     // Real-time pacing on the wall clock (the device does not wait).
     const ros::WallTime due = wall_t0 + ros::WallDuration(elapsed_s);
     const ros::WallTime now = ros::WallTime::now();
     if (due > now) (due - now).sleep();
-    const ros::Time stamp = ros_t0 + ros::Duration(elapsed_s);
     if (is_image) {
-      publishImage(*image, stamp);
+      publishImage(*image, toRosTime(device_s));
     } else {
-      publishImu(*imu, stamp);
+      addImu(*imu);
     }
   }
   NODELET_INFO("mynteye stand-in: end of %s after %.1f s; no more data", bag_path_.c_str(),
@@ -390,23 +401,55 @@ void MyntEyeStandin::publishImage(const sensor_msgs::Image& recorded, const ros:
   }
 }
 
-void MyntEyeStandin::publishImu(const sensor_msgs::Imu& recorded, const ros::Time& stamp) {
-  const double device_s = recorded.header.stamp.toSec();
-  if (imu_frequency_hz_ > 0 && last_imu_device_s_ >= 0.0 &&
-      device_s - last_imu_device_s_ < 1.0 / imu_frequency_hz_ - 0.5e-3) {
-    return;  // the device samples at standard/imu_frequency
+void MyntEyeStandin::addImu(const sensor_msgs::Imu& recorded) {
+  const ImuRecord r{recorded.header.stamp.toSec(),
+                    Eigen::Vector3d(recorded.linear_acceleration.x, recorded.linear_acceleration.y,
+                                    recorded.linear_acceleration.z),
+                    Eigen::Vector3d(recorded.angular_velocity.x, recorded.angular_velocity.y,
+                                    recorded.angular_velocity.z)};
+  if (!imu_history_.empty() && r.t_s <= imu_history_.back().t_s) return;
+  if (imu_frequency_hz_ <= 0) {  // the device's rate is the recording's
+    publishImu(r.t_s, r.accel, r.gyro);
+    return;
   }
-  last_imu_device_s_ = device_s;
+  // The device at standard/imu_frequency: samples on its own regular grid, each the mean of the signal over one
+  // output period centred on its stamp (the sensor's internal averaging low-pass; without it, vibration in the
+  // recording would alias), from the recording linearly interpolated.
+  const double T = 1.0 / imu_frequency_hz_;
+  imu_history_.push_back(r);
+  if (next_imu_t_s_ < 0.0) next_imu_t_s_ = r.t_s + 0.5 * T;
+  while (imu_history_.back().t_s >= next_imu_t_s_ + 0.5 * T) {
+    const double a = next_imu_t_s_ - 0.5 * T, b = next_imu_t_s_ + 0.5 * T;
+    Eigen::Vector3d acc = Eigen::Vector3d::Zero(), gyr = Eigen::Vector3d::Zero();
+    for (size_t i = 0; i + 1 < imu_history_.size(); ++i) {  // trapezoids of the interpolation over [a, b]
+      const ImuRecord& p = imu_history_[i];
+      const ImuRecord& q = imu_history_[i + 1];
+      const double lo = std::max(a, p.t_s), hi = std::min(b, q.t_s);
+      if (hi <= lo) continue;
+      const auto at = [&](double t, const Eigen::Vector3d& vp, const Eigen::Vector3d& vq) {
+        return (vp + (vq - vp) * ((t - p.t_s) / (q.t_s - p.t_s))).eval();
+      };
+      acc += 0.5 * (hi - lo) * (at(lo, p.accel, q.accel) + at(hi, p.accel, q.accel));
+      gyr += 0.5 * (hi - lo) * (at(lo, p.gyro, q.gyro) + at(hi, p.gyro, q.gyro));
+    }
+    publishImu(next_imu_t_s_, acc / T, gyr / T);
+    next_imu_t_s_ += T;
+    while (imu_history_.size() > 2 && imu_history_[1].t_s <= next_imu_t_s_ - 0.5 * T) imu_history_.pop_front();
+  }
+}
+
+void MyntEyeStandin::publishImu(double t_s, const Eigen::Vector3d& accel, const Eigen::Vector3d& gyro) {
   if (++imu_seen_ <= kSkippedImuSamples) return;
+  const ros::Time stamp = toRosTime(t_s);
   ++imu_seq_;
   if (imu_pub_.getNumSubscribers() == 0 && temperature_pub_.getNumSubscribers() == 0) return;
   // The device reports float readings in g and deg/s; the wrapper multiplies by its `gravity` parameter and pi/180.
-  const float ax = static_cast<float>(recorded.linear_acceleration.x / true_gravity_mps2_);
-  const float ay = static_cast<float>(recorded.linear_acceleration.y / true_gravity_mps2_);
-  const float az = static_cast<float>(recorded.linear_acceleration.z / true_gravity_mps2_);
-  const float gx = static_cast<float>(recorded.angular_velocity.x * 180.0 / M_PI);
-  const float gy = static_cast<float>(recorded.angular_velocity.y * 180.0 / M_PI);
-  const float gz = static_cast<float>(recorded.angular_velocity.z * 180.0 / M_PI);
+  const float ax = static_cast<float>(accel.x() / true_gravity_mps2_);
+  const float ay = static_cast<float>(accel.y() / true_gravity_mps2_);
+  const float az = static_cast<float>(accel.z() / true_gravity_mps2_);
+  const float gx = static_cast<float>(gyro.x() * 180.0 / M_PI);
+  const float gy = static_cast<float>(gyro.y() * 180.0 / M_PI);
+  const float gz = static_cast<float>(gyro.z() * 180.0 / M_PI);
   if (imu_pub_.getNumSubscribers() > 0) {
     auto msg = boost::make_shared<sensor_msgs::Imu>();  // orientation and all covariances stay zero
     msg->header.seq = imu_seq_;

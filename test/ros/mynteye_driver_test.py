@@ -108,11 +108,15 @@ class MyntEyeDriver(unittest.TestCase):
         self.tree = TfTree()
         self.states = []
         self.tf_diag = []
+        self.imu_diag = (None, None)
         self.procs = []
         self.tmp = None
+        self.subscribers = []
 
     def tearDown(self):
         self.stop_all()
+        for sub in self.subscribers:
+            sub.unregister()
         if self.tmp:
             util.cleanup(self.tmp)
 
@@ -141,10 +145,12 @@ class MyntEyeDriver(unittest.TestCase):
     def on_diagnostics(self, msg):
         for s in msg.status:
             if "diekf" in s.name and s.name.endswith("filter"):
-                for kv in s.values:
-                    if kv.key == "TF base_link to camera":
-                        with self.lock:
-                            self.tf_diag.append(kv.value)
+                values = {kv.key: kv.value for kv in s.values}
+                with self.lock:
+                    if "TF base_link to camera" in values:
+                        self.tf_diag.append(values["TF base_link to camera"])
+                    self.imu_diag = (values.get("IMU rate (Hz, measured; 0 = not measured)"),
+                                     values.get("IMU preprocessing"))
 
     def tracking_states(self):
         with self.lock:
@@ -157,23 +163,26 @@ class MyntEyeDriver(unittest.TestCase):
         except IOError:
             return ""
 
-    def run_command(self, command, bag, camchain, truth, T_cam_imu, timeout_s, max_rmse_m):
-        """Runs one README command against the stand-in; returns nothing, asserts."""
+    def run_command(self, command, bag, camchain, truth, T_cam_imu, timeout_s, max_rmse_m, standin_args=()):
+        """Runs one README command against the stand-in (started with `standin_args` too), asserts; returns the
+        IMU rate (Hz) and preprocessing /diagnostics reported."""
         with self.tree.lock:
             self.tree.parents.clear()
             self.tree.transforms.clear()
         with self.lock:
             del self.states[:]
             del self.tf_diag[:]
+            self.imu_diag = (None, None)
         args = command.replace(CAMCHAIN_PLACEHOLDER, camchain).split()
         self.assertNotIn("/path/to", " ".join(args), "README command with a placeholder left: " + command)
-        label = re.sub(r"[^A-Za-z0-9]+", "_", " ".join(args[2:]).replace(camchain, "CAMCHAIN"))[:80]
+        label = re.sub(r"[^A-Za-z0-9]+", "_", " ".join(args[2:] + list(standin_args)).replace(camchain, "CAMCHAIN"))[:80]
         if "mynteye_driver.launch" in command:
             args.append("standin_bag:=" + bag)  # the driver itself is the stand-in
+            args += list(standin_args)
         else:
             # What the README assumes to be running: the driver's stock launch file. Its stand-in:
-            self.launch(["roslaunch", "diekf", "mynteye_standin.launch", "bag:=" + bag, "camchain:=" + camchain],
-                        "standin_%s.log" % label)
+            self.launch(["roslaunch", "diekf", "mynteye_standin.launch", "bag:=" + bag, "camchain:=" + camchain] +
+                        list(standin_args), "standin_%s.log" % label)
             self.assertTrue(util.wait_for(lambda: util.has_publisher("/mynteye/imu/data_raw"), 30.0),
                             "the stand-in did not come up:\n" + self.log_tail("standin_%s.log" % label))
         rospy.loginfo("running: %s", " ".join(args))
@@ -189,6 +198,7 @@ class MyntEyeDriver(unittest.TestCase):
         with self.lock:
             first_stamp = self.states[0].header.stamp.to_sec() if self.states else None
         diag = list(self.tf_diag)
+        imu_diag = self.imu_diag
         self.stop_all()
         logs = self.log_tail("diekf_%s.log" % label) + self.log_tail("standin_%s.log" % label, 10)
         self.assertTrue(ok, "%s: %d tracking states within %.0f s, TF %s; log:\n%s" %
@@ -216,9 +226,9 @@ class MyntEyeDriver(unittest.TestCase):
                         "%s: /diagnostics does not report the attachment to the driver's tree: %s" %
                         (command, diag[-1:] or "nothing"))
         # The estimator tracks: its distance follows the truth. The stand-in maps the bag's clock onto ROS time
-        # at its start (as the driver maps the device clock), so the offset is found by fitting, +-1.5 s around
-        # that of the first estimate (the driver drops the first 10 images); then the RMSE of the distance after
-        # the first 2 s of tracking must be small.
+        # at its start (as the driver maps the device clock), so the offset is found by fitting, from 3 s before
+        # to 1 s after that of the first estimate (the driver drops the first 10 images, diekf those of its IMU
+        # rate measurement); then the RMSE of the distance after the first 2 s of tracking must be small.
         t = np.array([s.header.stamp.to_sec() for s in states])
         d = np.array([s.distance for s in states])
         self.assertTrue(np.all(np.isfinite(d)))
@@ -226,7 +236,7 @@ class MyntEyeDriver(unittest.TestCase):
         self.assertGreater(np.count_nonzero(keep), 20, "%s: too few tracking states after 2 s" % command)
         guess = first_stamp - (truth.t[0] + 10.0 / 30.0)
         best = (np.inf, 0.0)
-        for offset in guess + np.arange(-1.5, 1.5, 0.005):
+        for offset in guess + np.arange(-3.0, 1.0, 0.005):
             tb = t[keep] - offset
             if tb[0] < truth.t[0] or tb[-1] > truth.t[-1]:
                 continue
@@ -234,32 +244,54 @@ class MyntEyeDriver(unittest.TestCase):
             best = min(best, (rmse, offset))
         self.assertLess(best[0], max_rmse_m, "%s: distance RMSE %.3f m against the truth (at the best clock offset)"
                         % (command, best[0]))
-        print("[diekf rostest] %s: %d tracking states, distance RMSE %.4f m, TF chain %s" %
-              (command, len(states), best[0], " <- ".join(chain)))
+        print("[diekf rostest] %s %s: %d tracking states, distance RMSE %.4f m, TF chain %s, IMU %s Hz: %s" %
+              (command, " ".join(standin_args), len(states), best[0], " <- ".join(chain), imu_diag[0], imu_diag[1]))
+        self.assertIsNotNone(imu_diag[0], "%s: no IMU rate in /diagnostics" % command)
+        return float(imu_diag[0]), imu_diag[1]
 
     def tf_decided(self):
         with self.lock:
             return any(not d.startswith("waiting") for d in self.tf_diag)
 
-    def test_readme_commands_against_the_driver_standin(self):
-        commands = readme_robot_commands(util.package_file("README.md"))
-        self.assertGreaterEqual(len(commands), 3, "README's robot commands not found: %s" % commands)
-        self.assertTrue(any("mynteye_driver.launch" in c for c in commands), commands)
+    def prepare(self):
+        """Simulates the flight, subscribes; returns (bag, camchain, truth, T_cam_imu, timeout_s, max_rmse_m)."""
         duration_s = float(rospy.get_param("~duration_s", 12.0))
-        timeout_s = float(rospy.get_param("~timeout_s", 90.0))
         self.tmp, bag, camchain, _ = util.simulate(rospy.get_param("~preset", "flight1"), duration_s)
         with open(camchain) as f:
             T_cam_imu = np.array(yaml.safe_load(f)["cam0"]["T_cam_imu"], dtype=float)
         truth = util.GroundTruth(bag, camchain)
         truth.d = np.array([truth.at(t)[0] for t in truth.t])
-        max_rmse_m = float(rospy.get_param("~max_rmse_distance_m", 0.05))
+        self.subscribers = [
+            rospy.Subscriber("/tf", TFMessage, self.tree.add, queue_size=1000),
+            rospy.Subscriber("/tf_static", TFMessage, self.tree.add, queue_size=100),
+            rospy.Subscriber("/diekf/state", PlanarState, self.on_state, queue_size=100),
+            rospy.Subscriber("/diagnostics", DiagnosticArray, self.on_diagnostics, queue_size=100)]
+        return (bag, camchain, truth, T_cam_imu, float(rospy.get_param("~timeout_s", 90.0)),
+                float(rospy.get_param("~max_rmse_distance_m", 0.05)))
 
-        rospy.Subscriber("/tf", TFMessage, self.tree.add, queue_size=1000)
-        rospy.Subscriber("/tf_static", TFMessage, self.tree.add, queue_size=100)
-        rospy.Subscriber("/diekf/state", PlanarState, self.on_state, queue_size=100)
-        rospy.Subscriber("/diagnostics", DiagnosticArray, self.on_diagnostics, queue_size=100)
+    def test_readme_commands_against_the_driver_standin(self):
+        commands = readme_robot_commands(util.package_file("README.md"))
+        self.assertGreaterEqual(len(commands), 3, "README's robot commands not found: %s" % commands)
+        self.assertTrue(any("mynteye_driver.launch" in c for c in commands), commands)
+        setup = self.prepare()
         for command in commands:
-            self.run_command(command, bag, camchain, truth, T_cam_imu, timeout_s, max_rmse_m)
+            rate_hz, design = self.run_command(command, *setup)
+            # The simulated IMU runs at 500 Hz: measured, decimated by 5 to the 100 Hz prediction.
+            self.assertAlmostEqual(rate_hz, 500.0, delta=5.0)
+            self.assertIn("decimation 5", design)
+
+    def test_imu_rates_of_the_device(self):
+        """The stand-in at the device's standard/imu_frequency of 100 and 200 Hz (500 Hz: the test above), next
+        to diekf in its own manager (the README's second command): the rate is measured from the stamps, the
+        preprocessing designed for it (decimation 1 and 2 to the 100 Hz prediction), and the estimator tracks."""
+        commands = [c for c in readme_robot_commands(util.package_file("README.md"))
+                    if "mynteye.launch" in c and "standalone" not in c]
+        self.assertTrue(commands, "README has no command for diekf next to the driver's own launch file")
+        setup = self.prepare()
+        for rate, decimation in ((100, 1), (200, 2)):
+            rate_hz, design = self.run_command(commands[0], *setup, standin_args=("imu_frequency:=%d" % rate,))
+            self.assertAlmostEqual(rate_hz, rate, delta=0.01 * rate)
+            self.assertIn("decimation %d " % decimation, design)
 
 
 if __name__ == "__main__":

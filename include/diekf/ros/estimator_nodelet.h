@@ -28,6 +28,7 @@
 
 #include "diekf/camera_model.h"
 #include "diekf/estimator.h"
+#include "diekf/imu_rate.h"
 #include "diekf/params.h"
 #include "diekf/ros/body_odometry.h"
 #include "diekf/ros/camera_tf.h"
@@ -53,7 +54,8 @@ struct NodeletSettings {
   bool publish_odometry_imu_rate = false;     ///< ~odometry_imu_rate at the raw IMU rate
   int image_queue_size = 4;                   ///< images waiting for the worker before the oldest is dropped
   int imu_queue_size = 2000;                  ///< IMU samples waiting for the worker (4 s at 500 Hz)
-  double expected_imu_rate_hz = 500.0;        ///< for the /diagnostics rate check, Hz
+  double expected_imu_rate_hz = 500.0;        ///< for the /diagnostics rate check until the rate is measured, Hz
+  double imu_rate_measure_s = 0.5;            ///< IMU stamps measured at start-up for the rate, s (0: imu/input_rate_hz)
   double expected_image_rate_hz = 30.0;       ///< for the /diagnostics rate check, Hz
   double rate_tolerance = 0.3;                ///< accepted relative deviation of the input rates
   double time_jump_reset_s = 1.0;             ///< a stamp this far backwards restarts the filter, s
@@ -96,6 +98,13 @@ class EstimatorNodelet : public nodelet::Nodelet {
   void publishResult(const diekf::FrameResult& result);
   void restartFilter(const std::string& reason, bool rebuild);
   void requestRestart(const std::string& reason, bool rebuild);
+  /// (Re)starts the measurement of the IMU rate from the stamps (callback thread).
+  void startImuRateMeasurement();
+  /// Callback thread: the rate is measured; designs the IMU preprocessing for it and hands it to the worker with
+  /// the samples held back meanwhile. False (and the nodelet stopped) when the configuration cannot work.
+  bool finishImuRateMeasurement();
+  /// Worker thread: rebuilds the estimator and the odometry for new IMU preprocessing parameters.
+  void applyImuDesign(const diekf::ImuParams& imu);
 
   NodeletSettings settings_;
   ros::NodeHandle nh_, pnh_;
@@ -115,6 +124,8 @@ class EstimatorNodelet : public nodelet::Nodelet {
   bool stop_ = false;
   bool restart_requested_ = false;
   bool restart_rebuild_ = false;
+  bool imu_design_pending_ = false;   ///< pending_imu_params_ waits for the worker (queue_mutex_)
+  diekf::ImuParams pending_imu_params_;
   std::string restart_reason_;
   std::thread worker_;
 
@@ -123,6 +134,11 @@ class EstimatorNodelet : public nodelet::Nodelet {
   double last_image_stamp_s_ = -1.0;
   double last_ros_now_s_ = 0.0;  ///< ros::Time::now() at the previous callback, s
   bool camera_info_checked_ = false;
+  // IMU rate measurement (callback thread).
+  diekf::RateMeter imu_rate_meter_;
+  bool measuring_imu_rate_ = false;
+  std::vector<diekf::ImuSample> imu_rate_buffer_;  ///< samples held back while measuring
+  diekf::EstimatorParams configured_params_;       ///< as loaded (params_ gets the designed IMU preprocessing)
 
   // Counters and the filter snapshot for /diagnostics (stats_mutex_).
   std::mutex stats_mutex_;
@@ -133,6 +149,9 @@ class EstimatorNodelet : public nodelet::Nodelet {
   std::string last_reset_reason_;      ///< why the filter last restarted (estimator or nodelet)
   std::string camera_info_mismatch_;   ///< what camera_info disagreed on (empty: agrees or not seen)
   std::string last_message_;
+  double measured_imu_rate_hz_ = 0.0;          ///< 0: not measured (yet)
+  std::string imu_design_;                     ///< the IMU preprocessing in use, one line
+  uint64_t images_skipped_measuring_ = 0;      ///< images dropped while the IMU rate was being measured
   double last_update_ms_ = 0.0, update_ms_sum_ = 0.0, update_ms_max_ = 0.0;
   double last_nis_ = 0.0, last_noise_sigma_ = 0.0, last_noise_correlation_ = 0.0, last_outlier_fraction_ = 0.0;
   std::uint64_t gated_updates_ = 0;
