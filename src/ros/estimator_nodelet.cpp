@@ -569,15 +569,26 @@ void EstimatorNodelet::forwardImu(const diekf::ImuSample& s) {
 }
 
 void EstimatorNodelet::forwardImage(const sensor_msgs::ImageConstPtr& msg) {
-  cv::Mat mono;
+  // The message's own pixels (zero-copy); Estimator::addImage converts them to grey once (diekf::toGrey8) into its
+  // queue. Colour in RGB order is converted here, the estimator taking colour as BGR.
+  cv_bridge::CvImageConstPtr shared;
+  diekf::ChannelOrder order = diekf::ChannelOrder::kBgr;
   std::string error;
-  bool ok = imageToMono8(*msg, &mono, &error);
-  if (ok && (mono.cols != camera_->K.width || mono.rows != camera_->K.height)) {
-    ok = false;
-    error = "image is " + std::to_string(mono.cols) + "x" + std::to_string(mono.rows) + " but the calibration is " +
-            std::to_string(camera_->K.width) + "x" + std::to_string(camera_->K.height);
+  bool ok = imageView(msg, &shared, &order, &error);
+  cv::Mat pixels;
+  if (ok) {
+    pixels = shared->image;
+    if (order == diekf::ChannelOrder::kRgb && pixels.channels() > 1) {
+      ok = diekf::toGrey8(pixels, order, &rgb_grey_);
+      pixels = rgb_grey_;
+    }
   }
-  if (ok && !estimator_->addImage(msg->header.stamp.toSec(), mono)) {
+  if (ok && (pixels.cols != camera_->K.width || pixels.rows != camera_->K.height)) {
+    ok = false;
+    error = "image is " + std::to_string(pixels.cols) + "x" + std::to_string(pixels.rows) +
+            " but the calibration is " + std::to_string(camera_->K.width) + "x" + std::to_string(camera_->K.height);
+  }
+  if (ok && !estimator_->addImage(msg->header.stamp.toSec(), pixels)) {
     ok = false;
     error = "estimator rejected it: " + estimator_->takeWarning();
   }

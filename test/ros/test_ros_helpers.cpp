@@ -5,6 +5,8 @@
 #include <string>
 
 #include <gtest/gtest.h>
+#include <boost/make_shared.hpp>
+#include <sensor_msgs/image_encodings.h>
 
 #include "diekf/ros/body_odometry.h"
 #include "diekf/ros/conversions.h"
@@ -175,6 +177,45 @@ TEST(Conversions, MalformedImagesRejectedWithReason) {
   msg.encoding = "32FC1";
   EXPECT_FALSE(diekf_ros::imageToMono8(msg, &out, &error));
   EXPECT_NE(error.find("32FC1"), std::string::npos);
+}
+
+TEST(Conversions, ImageViewSharesTheMessageBuffer) {
+  // The nodelet's image path: the message's pixels are wrapped, not copied (cv_bridge::toCvShare), for every
+  // encoding; the one grey conversion happens in Estimator::addImage (diekf::toGrey8).
+  for (const char* encoding : {"mono8", "8UC1", "mono16", "bgr8", "rgb8", "bgra8", "rgba8"}) {
+    auto msg = boost::make_shared<sensor_msgs::Image>();
+    msg->encoding = encoding;
+    msg->width = 3;
+    msg->height = 2;
+    const int bytes = sensor_msgs::image_encodings::bitDepth(encoding) / 8 *
+                      sensor_msgs::image_encodings::numChannels(encoding);
+    msg->step = 3 * bytes + 4;  // padded rows
+    msg->data.assign(msg->step * 2, 0);
+    for (size_t i = 0; i < msg->data.size(); ++i) msg->data[i] = static_cast<uint8_t>(i * 7);
+    cv_bridge::CvImageConstPtr view;
+    diekf::ChannelOrder order;
+    std::string error;
+    ASSERT_TRUE(diekf_ros::imageView(msg, &view, &order, &error)) << encoding << ": " << error;
+    EXPECT_EQ(view->image.data, msg->data.data()) << encoding << ": copied";
+    EXPECT_EQ(static_cast<size_t>(view->image.step), msg->step) << encoding;
+    EXPECT_EQ(view->image.cols, 3);
+    EXPECT_EQ(order == diekf::ChannelOrder::kRgb, std::string(encoding).find("rgb") == 0) << encoding;
+    // Same grey as the copying conversion.
+    cv::Mat grey, through_view;
+    ASSERT_TRUE(diekf_ros::imageToMono8(*msg, &grey, &error)) << error;
+    ASSERT_TRUE(diekf::toGrey8(view->image, order, &through_view));
+    EXPECT_EQ(cv::norm(grey, through_view, cv::NORM_INF), 0.0) << encoding;
+  }
+  auto bad = boost::make_shared<sensor_msgs::Image>();
+  bad->encoding = "yuv422";
+  bad->width = bad->height = 2;
+  bad->step = 4;
+  bad->data.assign(8, 0);
+  cv_bridge::CvImageConstPtr view;
+  diekf::ChannelOrder order;
+  std::string error;
+  EXPECT_FALSE(diekf_ros::imageView(bad, &view, &order, &error));
+  EXPECT_NE(error.find("yuv422"), std::string::npos) << error;
 }
 
 TEST(Conversions, ClockJumpRestartsOnlyOnce) {

@@ -5,6 +5,7 @@
 
 #include <geometry_msgs/TwistWithCovarianceStamped.h>
 #include <nav_msgs/Odometry.h>
+#include <cv_bridge/cv_bridge.h>
 #include <opencv2/core.hpp>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
@@ -15,12 +16,18 @@
 #include "diekf/PlanarState.h"
 #include "diekf/camera_model.h"
 #include "diekf/estimator.h"
+#include "diekf/grey_image.h"
 #include "diekf/ros/body_odometry.h"
 
 namespace diekf_ros {
 
-/// Grey 8-bit copy of an image in mono8, mono16 (scaled by 1/256), bgr8, rgb8, bgra8 or rgba8 (also 8UC1 and
-/// 16UC1). Returns false and says why for any other encoding or a malformed message.
+/// The image message's own pixels without a copy (cv_bridge::toCvShare; *view keeps the message alive), after
+/// checking its fields (diekf::describeImageBuffer): mono8, mono16, bgr8, rgb8, bgra8, rgba8 (also 8UC1 and 16UC1);
+/// `order` is the channel order of a colour image. False and why for any other encoding or a malformed message.
+bool imageView(const sensor_msgs::ImageConstPtr& msg, cv_bridge::CvImageConstPtr* view, diekf::ChannelOrder* order,
+               std::string* error);
+
+/// Grey 8-bit copy of an image in the encodings of imageView (diekf::toGrey8: 16-bit scaled by 1/256).
 bool imageToMono8(const sensor_msgs::Image& msg, cv::Mat* mono8, std::string* error);
 
 /// IMU message -> core sample (stamp in s, base_link frame). False if any value is non-finite.

@@ -173,6 +173,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
   ros::Time first_image_ros_time_;     ///< ROS time of the first image callback (zero before)
   CameraTfPlan camera_tf_plan_;        ///< the decision (stats_mutex_ for diagnostics)
   std::deque<geometry_msgs::PoseStamped> path_;  ///< worker thread only
+  cv::Mat rgb_grey_;                             ///< worker thread: grey of an rgb8/rgba8 image
 
   // Diagnostics.
   std::unique_ptr<diagnostic_updater::Updater> updater_;
