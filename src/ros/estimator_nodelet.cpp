@@ -13,6 +13,7 @@
 
 #include "diekf/PlanarState.h"
 #include "diekf/param_source.h"
+#include "diekf/ros/camera_info_calibration.h"
 #include "diekf/ros/conversions.h"
 #include "diekf/ros/ros_param_source.h"
 
@@ -59,8 +60,13 @@ void EstimatorNodelet::onInit() {
 
   try {
     loadSettings();
-    camera_ = std::make_unique<diekf::CameraModel>(
-        diekf::CameraModel::fromKalibrYaml(settings_.camchain_file, settings_.camera_name));
+    // The calibration: the Kalibr camchain when given (first choice), else camera_info and TF once they arrive
+    // (tryCalibrationFromCameraInfo).
+    if (!settings_.camchain_file.empty()) {
+      camera_ = std::make_unique<diekf::CameraModel>(
+          diekf::CameraModel::fromKalibrYaml(settings_.camchain_file, settings_.camera_name));
+      calibration_source_ = "Kalibr camchain " + settings_.camchain_file + " (" + settings_.camera_name + ")";
+    }
     // Estimator keys from the private namespace (config/estimator.yaml); the Kalibr IMU file, when given, is the
     // calibration of this very sensor and overrides the noise densities and rate.
     // Keys of the namespace that neither the estimator nor the nodelet reads (typos) are warned about.
@@ -68,10 +74,7 @@ void EstimatorNodelet::onInit() {
     diekf::loadEstimatorParams(RosParamSource(pnh_), &params_, warn, nodeletParamKeys());
     if (!settings_.imu_file.empty()) diekf::loadKalibrImuYaml(settings_.imu_file, &params_.imu);
     configured_params_ = params_;
-    estimator_ = std::make_unique<diekf::Estimator>(*camera_, params_);
-    odometry_ = std::make_unique<BodyOdometry>(camera_->T_cam_imu, params_.imu.gyro_noise_density,
-                                               params_.imu.input_rate_hz, params_.imu.gravity_mps2);
-    odometry_->max_integration_gap_s = std::max(1.0, 5.0 / settings_.expected_image_rate_hz);
+    if (camera_) buildFilter();
   } catch (const std::exception& e) {
     init_error_ = e.what();
     NODELET_FATAL("diekf: cannot start: %s", e.what());
@@ -79,18 +82,24 @@ void EstimatorNodelet::onInit() {
                                             [this](const ros::WallTimerEvent&) { updater_->update(); });
     return;
   }
-  field_of_view_rad_ = 2.0 * std::atan2(0.5 * camera_->K.width, camera_->K.fx);
   {
     std::ostringstream os;
     os << "IMU at imu/input_rate_hz " << params_.imu.input_rate_hz << " Hz (not measured): low-pass at "
        << params_.imu.lowpass_cutoff_hz << " Hz, decimation " << params_.imu.decimation_factor;
     imu_design_ = os.str();
   }
-  if (settings_.imu_rate_measure_s > 0.0) startImuRateMeasurement();
 
   setUpOutputs();
   ready_ = true;
-  worker_ = std::thread(&EstimatorNodelet::workerLoop, this);
+  if (camera_) {
+    startProcessing();
+  } else {
+    NODELET_INFO("diekf: no camchain_file: the calibration comes from camera_info on %s and the IMU -> camera "
+                 "transform from TF", settings_.camera_info_topic.c_str());
+    calibration_timer_ = nh_.createWallTimer(ros::WallDuration(0.2), [this](const ros::WallTimerEvent&) {
+      tryCalibrationFromCameraInfo();
+    });
+  }
   try {
     setUpInputs();
   } catch (const std::exception& e) {  // e.g. the requested image_transport plugin is not installed
@@ -99,9 +108,88 @@ void EstimatorNodelet::onInit() {
     NODELET_FATAL("diekf: %s", init_error_.c_str());
     return;
   }
-  NODELET_INFO("diekf: %s, camera '%s' %dx%d from %s; image %s, IMU %s, mode %s", getName().c_str(),
-               settings_.camera_name.c_str(), camera_->K.width, camera_->K.height, settings_.camchain_file.c_str(),
-               settings_.image_topic.c_str(), settings_.imu_topic.c_str(), diekf::toString(params_.mode));
+  NODELET_INFO("diekf: %s: image %s, IMU %s, mode %s", getName().c_str(), settings_.image_topic.c_str(),
+               settings_.imu_topic.c_str(), diekf::toString(params_.mode));
+}
+
+void EstimatorNodelet::buildFilter() {
+  estimator_ = std::make_unique<diekf::Estimator>(*camera_, params_);
+  odometry_ = std::make_unique<BodyOdometry>(camera_->T_cam_imu, params_.imu.gyro_noise_density,
+                                             params_.imu.input_rate_hz, params_.imu.gravity_mps2);
+  odometry_->max_integration_gap_s = std::max(1.0, 5.0 / settings_.expected_image_rate_hz);
+  field_of_view_rad_ = 2.0 * std::atan2(0.5 * camera_->K.width, camera_->K.fx);
+}
+
+void EstimatorNodelet::startProcessing() {
+  NODELET_INFO("diekf: camera %dx%d from the %s", camera_->K.width, camera_->K.height, calibration_source_.c_str());
+  if (settings_.imu_rate_measure_s > 0.0) startImuRateMeasurement();
+  worker_ = std::thread(&EstimatorNodelet::workerLoop, this);
+  if (settings_.publish_static_tf) {
+    updateCameraTf();
+    if (camera_tf_plan_.kind == CameraTfPlan::Kind::kWait) {
+      camera_tf_timer_ = nh_.createWallTimer(ros::WallDuration(0.2), [this](const ros::WallTimerEvent&) {
+        updateCameraTf();
+      });
+    }
+  }
+  calibrated_ = true;
+}
+
+void EstimatorNodelet::tryCalibrationFromCameraInfo() {
+  if (!ready_ || calibrated_) {
+    calibration_timer_.stop();
+    return;
+  }
+  std::string waiting;
+  if (!latest_camera_info_) {
+    waiting = "waiting for camera_info on " + settings_.camera_info_topic + " (no camchain_file)";
+  } else if (settings_.imu_frame.empty() && imu_frame_id_.empty()) {
+    waiting = "waiting for an IMU message on " + settings_.imu_topic + " (its frame_id for the extrinsics)";
+  }
+  const std::string camera_frame = latest_camera_info_ && !latest_camera_info_->header.frame_id.empty()
+                                       ? latest_camera_info_->header.frame_id
+                                       : settings_.camera_frame;
+  const std::string imu_frame = settings_.imu_frame.empty() ? imu_frame_id_ : settings_.imu_frame;
+  geometry_msgs::TransformStamped T;
+  if (waiting.empty()) {
+    try {
+      T = tf_buffer_->lookupTransform(camera_frame, imu_frame, ros::Time(0));
+    } catch (const tf2::TransformException& e) {
+      waiting = "waiting for the IMU -> camera transform " + camera_frame + " <- " + imu_frame + " in TF: " + e.what();
+    }
+  }
+  if (!waiting.empty()) {
+    NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: %s", waiting.c_str());
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    calibration_source_ = waiting;
+    return;
+  }
+  Eigen::Isometry3d T_cam_imu = Eigen::Isometry3d::Identity();
+  T_cam_imu.translation() =
+      Eigen::Vector3d(T.transform.translation.x, T.transform.translation.y, T.transform.translation.z);
+  T_cam_imu.linear() = Eigen::Quaterniond(T.transform.rotation.w, T.transform.rotation.x, T.transform.rotation.y,
+                                          T.transform.rotation.z)
+                           .normalized()
+                           .toRotationMatrix();
+  try {
+    camera_ = std::make_unique<diekf::CameraModel>(
+        cameraModelFromCameraInfo(*latest_camera_info_, T_cam_imu, settings_.camera_info_topic));
+    buildFilter();
+  } catch (const std::exception& e) {
+    camera_.reset();
+    ready_ = false;
+    init_error_ = std::string("cannot use the calibration from camera_info: ") + e.what();
+    NODELET_FATAL("diekf: %s", init_error_.c_str());
+    calibration_timer_.stop();
+    return;
+  }
+  calibration_timer_.stop();
+  {
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    calibration_source_ = "camera_info on " + settings_.camera_info_topic + " (" +
+                          latest_camera_info_->distortion_model + ") and TF " + camera_frame + " <- " + imu_frame;
+  }
+  startProcessing();
 }
 
 /// The nodelet's own keys in its private namespace (loadSettings, config/mynteye.yaml), plus those that
@@ -109,7 +197,7 @@ void EstimatorNodelet::onInit() {
 std::vector<std::string> EstimatorNodelet::nodeletParamKeys() {
   return {"camchain_file", "camera_name", "imu_file", "image_topic", "imu_topic", "camera_info_topic",
           "image_transport", "odom_frame", "base_frame", "camera_frame", "publish_tf", "publish_static_tf",
-          "camera_tf_root", "camera_tf_wait_s",
+          "camera_tf_root", "camera_tf_wait_s", "imu_frame",
           "publish_odometry_imu_rate", "image_queue_size", "imu_queue_size", "expected_imu_rate_hz",
           "expected_image_rate_hz", "imu_rate_measure_s", "rate_tolerance", "time_jump_reset_s", "late_image_warn_s",
           "residual_image_gain", "path_max_poses", "gravity_arrow_m", "plane_marker_size_m", "diagnostic_period_s",
@@ -118,10 +206,8 @@ std::vector<std::string> EstimatorNodelet::nodeletParamKeys() {
 
 void EstimatorNodelet::loadSettings() {
   NodeletSettings& s = settings_;
-  if (!pnh_.getParam("camchain_file", s.camchain_file) || s.camchain_file.empty()) {
-    throw std::runtime_error("parameter " + pnh_.resolveName("camchain_file") +
-                             " (Kalibr camchain YAML) is required");
-  }
+  pnh_.param("camchain_file", s.camchain_file, s.camchain_file);
+  pnh_.param("imu_frame", s.imu_frame, s.imu_frame);
   pnh_.param("camera_name", s.camera_name, s.camera_name);
   pnh_.param("imu_file", s.imu_file, s.imu_file);
   pnh_.param("image_topic", s.image_topic, s.image_topic);
@@ -163,6 +249,8 @@ void EstimatorNodelet::loadSettings() {
   require(s.camera_tf_wait_s >= 0.0, "camera_tf_wait_s", ">= 0");
   require(!s.odom_frame.empty() && !s.base_frame.empty() && !s.camera_frame.empty(), "odom_frame",
           "non-empty (as base_frame and camera_frame)");
+  require(!s.camchain_file.empty() || !s.camera_info_topic.empty(), "camera_info_topic",
+          "set when camchain_file is empty (the calibration then comes from camera_info)");
 }
 
 void EstimatorNodelet::setUpOutputs() {
@@ -180,18 +268,11 @@ void EstimatorNodelet::setUpOutputs() {
   reset_srv_ = pnh_.advertiseService("reset", &EstimatorNodelet::resetService, this);
 
   if (settings_.publish_tf) tf_broadcaster_ = std::make_unique<tf2_ros::TransformBroadcaster>();
-  if (settings_.publish_static_tf) {
-    static_tf_broadcaster_ = std::make_unique<tf2_ros::StaticTransformBroadcaster>();
-    if (!settings_.camera_tf_root.empty()) {
-      tf_buffer_ = std::make_unique<tf2_ros::Buffer>();
-      tf_listener_ = std::make_unique<tf2_ros::TransformListener>(*tf_buffer_);
-    }
-    updateCameraTf();
-    if (camera_tf_plan_.kind == CameraTfPlan::Kind::kWait) {
-      camera_tf_timer_ = nh_.createWallTimer(ros::WallDuration(0.2), [this](const ros::WallTimerEvent&) {
-        updateCameraTf();
-      });
-    }
+  if (settings_.publish_static_tf) static_tf_broadcaster_ = std::make_unique<tf2_ros::StaticTransformBroadcaster>();
+  // TF is read for the camera's place in the tree (camera_tf_root) and, without a camchain, for the extrinsics.
+  if ((settings_.publish_static_tf && !settings_.camera_tf_root.empty()) || !camera_) {
+    tf_buffer_ = std::make_unique<tf2_ros::Buffer>();
+    tf_listener_ = std::make_unique<tf2_ros::TransformListener>(*tf_buffer_);
   }
 
   const double tol = settings_.rate_tolerance;
@@ -280,6 +361,10 @@ void EstimatorNodelet::checkClock() {
 
 void EstimatorNodelet::imuCallback(const sensor_msgs::ImuConstPtr& msg) {
   if (!ready_) return;
+  if (!calibrated_) {  // the calibration from camera_info and TF is still missing
+    if (imu_frame_id_.empty()) imu_frame_id_ = msg->header.frame_id;
+    return;
+  }
   checkClock();
   diekf::ImuSample sample;
   if (!imuFromMsg(*msg, &sample)) {
@@ -337,7 +422,7 @@ void EstimatorNodelet::imuCallback(const sensor_msgs::ImuConstPtr& msg) {
 }
 
 void EstimatorNodelet::imageCallback(const sensor_msgs::ImageConstPtr& msg) {
-  if (!ready_) return;
+  if (!ready_ || !calibrated_) return;
   checkClock();
   if (first_image_ros_time_.isZero()) first_image_ros_time_ = ros::Time::now();
   image_rate_diag_->tick();
@@ -390,6 +475,10 @@ void EstimatorNodelet::imageCallback(const sensor_msgs::ImageConstPtr& msg) {
 }
 
 void EstimatorNodelet::cameraInfoCallback(const sensor_msgs::CameraInfoConstPtr& msg) {
+  if (settings_.camchain_file.empty()) {  // camera_info is the calibration (tryCalibrationFromCameraInfo)
+    if (!calibrated_) latest_camera_info_ = msg;
+    return;
+  }
   if (camera_info_checked_) return;
   camera_info_checked_ = true;
   std::string why;
@@ -712,7 +801,10 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
     return;
   }
   std::lock_guard<std::mutex> lock(stats_mutex_);
-  if (measuring_imu_rate_) {
+  if (!calibrated_) {
+    stat.summary(DiagnosticStatus::WARN, calibration_source_.empty() ? "waiting for the calibration"
+                                                                     : calibration_source_);
+  } else if (measuring_imu_rate_) {
     stat.summaryf(DiagnosticStatus::WARN, "measuring the IMU rate from the stamps of %s (%d intervals so far)",
                   settings_.imu_topic.c_str(), imu_rate_meter_.intervals());
   } else if (imu_received_ == 0) {
@@ -747,6 +839,7 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
   stat.add("gated updates", gated_updates_);
   stat.add("mean update time (ms)", update_count_ > 0 ? update_ms_sum_ / update_count_ : 0.0);
   stat.add("max update time (ms)", update_ms_max_);
+  stat.add("calibration", calibration_source_);
   stat.add("IMU rate (Hz, measured; 0 = not measured)", measured_imu_rate_hz_);
   stat.add("IMU preprocessing", imu_design_);
   stat.add("images skipped while measuring the IMU rate", images_skipped_measuring_);

@@ -7,11 +7,13 @@ and static TF, fed from a simulated bag; docs/ros.md). The README block "On the 
  - launch files that expect the driver to be running already get the stand-in, started with
    launch/mynteye_standin.launch (the layout of the driver's stock launch file);
  - mynteye_driver.launch, which starts the driver itself, gets `standin_bag:=BAG` (the README says so).
-For every command: the combined TF tree (/tf and /tf_static of every process) is a tree: one parent per frame, no
-cycle, one root (odom), base_link an ancestor of the camera's frames; base_link -> camera through that tree equals
-the calibration's T_cam_imu^-1; /diagnostics reports the attachment; and the estimator tracks: ~state reaches
-`tracking` and its distance follows the bag's truth (RMSE below max_rmse_distance_m at the best clock offset: the
-stand-in, like the driver, stamps with ROS time).
+Without `camchain:=` the calibration comes from the stand-in's camera_info and TF. For every command: the combined
+TF tree (/tf and /tf_static of every process) is a tree: one parent per frame, no cycle, one root (odom), base_link
+an ancestor of the camera's frames; base_link -> camera through that tree equals the calibration's T_cam_imu^-1;
+/diagnostics reports the attachment, the calibration's source and the measured IMU rate; and the estimator tracks:
+~state reaches `tracking` and its distance follows the bag's truth (RMSE below max_rmse_distance_m at the best
+clock offset: the stand-in, like the driver, stamps with ROS time). A second test runs the stand-in at the device's
+IMU rates of 100 and 200 Hz.
 
 Private parameters: preset, duration_s (bag length, s), timeout_s (per command, s), max_rmse_distance_m (m).
 """
@@ -109,6 +111,7 @@ class MyntEyeDriver(unittest.TestCase):
         self.states = []
         self.tf_diag = []
         self.imu_diag = (None, None)
+        self.calibration_diag = ""
         self.procs = []
         self.tmp = None
         self.subscribers = []
@@ -151,6 +154,7 @@ class MyntEyeDriver(unittest.TestCase):
                         self.tf_diag.append(values["TF base_link to camera"])
                     self.imu_diag = (values.get("IMU rate (Hz, measured; 0 = not measured)"),
                                      values.get("IMU preprocessing"))
+                    self.calibration_diag = values.get("calibration", "")
 
     def tracking_states(self):
         with self.lock:
@@ -199,6 +203,7 @@ class MyntEyeDriver(unittest.TestCase):
             first_stamp = self.states[0].header.stamp.to_sec() if self.states else None
         diag = list(self.tf_diag)
         imu_diag = self.imu_diag
+        calibration = self.calibration_diag
         self.stop_all()
         logs = self.log_tail("diekf_%s.log" % label) + self.log_tail("standin_%s.log" % label, 10)
         self.assertTrue(ok, "%s: %d tracking states within %.0f s, TF %s; log:\n%s" %
@@ -247,6 +252,9 @@ class MyntEyeDriver(unittest.TestCase):
         print("[diekf rostest] %s %s: %d tracking states, distance RMSE %.4f m, TF chain %s, IMU %s Hz: %s" %
               (command, " ".join(standin_args), len(states), best[0], " <- ".join(chain), imu_diag[0], imu_diag[1]))
         self.assertIsNotNone(imu_diag[0], "%s: no IMU rate in /diagnostics" % command)
+        # Kalibr camchain when given, else the driver's camera_info and TF (docs/ros.md, "Calibration").
+        expected = "Kalibr camchain" if "camchain:=" in command else "camera_info on /mynteye/left/camera_info"
+        self.assertTrue(calibration.startswith(expected), "%s: calibration '%s'" % (command, calibration))
         return float(imu_diag[0]), imu_diag[1]
 
     def tf_decided(self):

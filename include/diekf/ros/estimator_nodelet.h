@@ -38,7 +38,7 @@ namespace diekf_ros {
 /// Everything the nodelet reads from its private namespace besides the estimator's own keys (config/mynteye.yaml
 /// documents each one).
 struct NodeletSettings {
-  std::string camchain_file;                  ///< Kalibr camchain YAML (required)
+  std::string camchain_file;                  ///< Kalibr camchain YAML ("": camera_info + TF)
   std::string camera_name = "cam0";           ///< camera entry in the camchain
   std::string imu_file;                       ///< Kalibr IMU YAML with noise densities (optional)
   std::string image_topic = "/mynteye/left/image_raw";
@@ -47,6 +47,7 @@ struct NodeletSettings {
   std::string odom_frame = "odom";
   std::string base_frame = "base_link";
   std::string camera_frame = "mynteye_left_frame";
+  std::string imu_frame;                      ///< IMU frame for the TF extrinsics without camchain ("": messages')
   bool publish_tf = true;                     ///< odom -> base_link
   bool publish_static_tf = true;              ///< base_link -> camera (or the camera driver's root) from the extrinsics
   std::string camera_tf_root = "auto";        ///< where base_link attaches: auto, "" (the camera frame), a frame
@@ -77,6 +78,12 @@ class EstimatorNodelet : public nodelet::Nodelet {
   void loadSettings();
   static std::vector<std::string> nodeletParamKeys();
   void setUpOutputs();
+  /// Estimator, odometry and field of view for camera_ and params_.
+  void buildFilter();
+  /// Once camera_ exists: IMU rate measurement, worker thread, camera TF; then inputs are processed.
+  void startProcessing();
+  /// Without camchain: the calibration from the latest camera_info and the IMU -> camera transform in TF.
+  void tryCalibrationFromCameraInfo();
   void setUpInputs();
 
   // Callbacks (nodelet's single-threaded queue: never run concurrently with each other).
@@ -170,6 +177,11 @@ class EstimatorNodelet : public nodelet::Nodelet {
   std::unique_ptr<tf2_ros::Buffer> tf_buffer_;
   std::unique_ptr<tf2_ros::TransformListener> tf_listener_;
   ros::WallTimer camera_tf_timer_;
+  ros::WallTimer calibration_timer_;
+  std::atomic<bool> calibrated_{false};           ///< camera_ and the filter exist; inputs are processed
+  sensor_msgs::CameraInfoConstPtr latest_camera_info_;  ///< callback thread
+  std::string imu_frame_id_;                      ///< frame_id of the first IMU message (callback thread)
+  std::string calibration_source_;                ///< where the calibration came from (stats_mutex_)
   ros::Time first_image_ros_time_;     ///< ROS time of the first image callback (zero before)
   CameraTfPlan camera_tf_plan_;        ///< the decision (stats_mutex_ for diagnostics)
   std::deque<geometry_msgs::PoseStamped> path_;  ///< worker thread only
