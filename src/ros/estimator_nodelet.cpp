@@ -2,6 +2,7 @@
 
 #include <cmath>
 #include <exception>
+#include <map>
 #include <sstream>
 #include <utility>
 
@@ -15,6 +16,7 @@
 #include "diekf/param_source.h"
 #include "diekf/ros/camera_info_calibration.h"
 #include "diekf/ros/conversions.h"
+#include "diekf/ros/driver_settings.h"
 #include "diekf/ros/ros_param_source.h"
 
 namespace diekf_ros {
@@ -197,7 +199,7 @@ void EstimatorNodelet::tryCalibrationFromCameraInfo() {
 std::vector<std::string> EstimatorNodelet::nodeletParamKeys() {
   return {"camchain_file", "camera_name", "imu_file", "image_topic", "imu_topic", "camera_info_topic",
           "image_transport", "odom_frame", "base_frame", "camera_frame", "publish_tf", "publish_static_tf",
-          "camera_tf_root", "camera_tf_wait_s", "imu_frame",
+          "camera_tf_root", "camera_tf_wait_s", "imu_frame", "driver_node",
           "publish_odometry_imu_rate", "image_queue_size", "imu_queue_size", "expected_imu_rate_hz",
           "expected_image_rate_hz", "imu_rate_measure_s", "rate_tolerance", "time_jump_reset_s", "late_image_warn_s",
           "residual_image_gain", "path_max_poses", "gravity_arrow_m", "plane_marker_size_m", "diagnostic_period_s",
@@ -208,6 +210,7 @@ void EstimatorNodelet::loadSettings() {
   NodeletSettings& s = settings_;
   pnh_.param("camchain_file", s.camchain_file, s.camchain_file);
   pnh_.param("imu_frame", s.imu_frame, s.imu_frame);
+  pnh_.param("driver_node", s.driver_node, s.driver_node);
   pnh_.param("camera_name", s.camera_name, s.camera_name);
   pnh_.param("imu_file", s.imu_file, s.imu_file);
   pnh_.param("image_topic", s.image_topic, s.image_topic);
@@ -424,7 +427,10 @@ void EstimatorNodelet::imuCallback(const sensor_msgs::ImuConstPtr& msg) {
 void EstimatorNodelet::imageCallback(const sensor_msgs::ImageConstPtr& msg) {
   if (!ready_ || !calibrated_) return;
   checkClock();
-  if (first_image_ros_time_.isZero()) first_image_ros_time_ = ros::Time::now();
+  if (first_image_ros_time_.isZero()) {
+    first_image_ros_time_ = ros::Time::now();
+    checkDriverSettings();  // the driver runs now: its parameters are set
+  }
   image_rate_diag_->tick();
   const double t = msg->header.stamp.toSec();
   if (last_image_stamp_s_ >= 0.0) {
@@ -527,6 +533,23 @@ bool EstimatorNodelet::finishImuRateMeasurement() {
   measured_imu_rate_hz_ = rate_hz;
   imu_design_ = summary;
   return true;
+}
+
+void EstimatorNodelet::checkDriverSettings() {
+  if (settings_.driver_node.empty()) return;
+  std::map<std::string, int> found;
+  for (const char* key : kIrControlKeys) {
+    int value = 0;
+    if (nh_.getParam(settings_.driver_node + "/" + key, value)) found[key] = value;
+  }
+  std::string text;
+  if (irProjectorMayBeOn(found, settings_.driver_node, &text)) {
+    NODELET_WARN("diekf: %s", text.c_str());
+  } else {
+    NODELET_INFO("diekf: %s", text.c_str());
+  }
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  ir_projector_ = text;
 }
 
 bool EstimatorNodelet::resetService(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
@@ -840,6 +863,7 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
   stat.add("mean update time (ms)", update_count_ > 0 ? update_ms_sum_ / update_count_ : 0.0);
   stat.add("max update time (ms)", update_ms_max_);
   stat.add("calibration", calibration_source_);
+  stat.add("camera driver IR projector", ir_projector_);
   stat.add("IMU rate (Hz, measured; 0 = not measured)", measured_imu_rate_hz_);
   stat.add("IMU preprocessing", imu_design_);
   stat.add("images skipped while measuring the IMU rate", images_skipped_measuring_);

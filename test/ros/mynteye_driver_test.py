@@ -10,7 +10,8 @@ and static TF, fed from a simulated bag; docs/ros.md). The README block "On the 
 Without `camchain:=` the calibration comes from the stand-in's camera_info and TF. For every command: the combined
 TF tree (/tf and /tf_static of every process) is a tree: one parent per frame, no cycle, one root (odom), base_link
 an ancestor of the camera's frames; base_link -> camera through that tree equals the calibration's T_cam_imu^-1;
-/diagnostics reports the attachment, the calibration's source and the measured IMU rate; and the estimator tracks:
+/diagnostics reports the attachment, the calibration's source, the measured IMU rate and the driver's IR projector
+setting; and the estimator tracks:
 ~state reaches `tracking` and its distance follows the bag's truth (RMSE below max_rmse_distance_m at the best
 clock offset: the stand-in, like the driver, stamps with ROS time). A second test runs the stand-in at the device's
 IMU rates of 100 and 200 Hz.
@@ -112,6 +113,7 @@ class MyntEyeDriver(unittest.TestCase):
         self.tf_diag = []
         self.imu_diag = (None, None)
         self.calibration_diag = ""
+        self.ir_diag = ""
         self.procs = []
         self.tmp = None
         self.subscribers = []
@@ -155,6 +157,7 @@ class MyntEyeDriver(unittest.TestCase):
                     self.imu_diag = (values.get("IMU rate (Hz, measured; 0 = not measured)"),
                                      values.get("IMU preprocessing"))
                     self.calibration_diag = values.get("calibration", "")
+                    self.ir_diag = values.get("camera driver IR projector", "")
 
     def tracking_states(self):
         with self.lock:
@@ -204,6 +207,7 @@ class MyntEyeDriver(unittest.TestCase):
         diag = list(self.tf_diag)
         imu_diag = self.imu_diag
         calibration = self.calibration_diag
+        ir = self.ir_diag
         self.stop_all()
         logs = self.log_tail("diekf_%s.log" % label) + self.log_tail("standin_%s.log" % label, 10)
         self.assertTrue(ok, "%s: %d tracking states within %.0f s, TF %s; log:\n%s" %
@@ -255,6 +259,11 @@ class MyntEyeDriver(unittest.TestCase):
         # Kalibr camchain when given, else the driver's camera_info and TF (docs/ros.md, "Calibration").
         expected = "Kalibr camchain" if "camchain:=" in command else "camera_info on /mynteye/left/camera_info"
         self.assertTrue(calibration.startswith(expected), "%s: calibration '%s'" % (command, calibration))
+        # The driver's IR projector parameter is read: on (its stock files set 80) unless the stand-in was told 0.
+        if "ir_control:=0" in standin_args:
+            self.assertEqual(ir, "IR projector off", command)
+        else:
+            self.assertIn("IR projector on (/mynteye/mynteye_wrapper_node/standard/ir_control = 80)", ir, command)
         return float(imu_diag[0]), imu_diag[1]
 
     def tf_decided(self):
@@ -297,7 +306,8 @@ class MyntEyeDriver(unittest.TestCase):
         self.assertTrue(commands, "README has no command for diekf next to the driver's own launch file")
         setup = self.prepare()
         for rate, decimation in ((100, 1), (200, 2)):
-            rate_hz, design = self.run_command(commands[0], *setup, standin_args=("imu_frequency:=%d" % rate,))
+            args = ("imu_frequency:=%d" % rate,) + (("ir_control:=0",) if rate == 200 else ())
+            rate_hz, design = self.run_command(commands[0], *setup, standin_args=args)
             self.assertAlmostEqual(rate_hz, rate, delta=0.01 * rate)
             self.assertIn("decimation %d " % decimation, design)
 

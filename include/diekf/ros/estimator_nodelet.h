@@ -48,6 +48,7 @@ struct NodeletSettings {
   std::string base_frame = "base_link";
   std::string camera_frame = "mynteye_left_frame";
   std::string imu_frame;                      ///< IMU frame for the TF extrinsics without camchain ("": messages')
+  std::string driver_node = "/mynteye/mynteye_wrapper_node";  ///< camera driver's node (its parameters); "" = none
   bool publish_tf = true;                     ///< odom -> base_link
   bool publish_static_tf = true;              ///< base_link -> camera (or the camera driver's root) from the extrinsics
   std::string camera_tf_root = "auto";        ///< where base_link attaches: auto, "" (the camera frame), a frame
@@ -84,6 +85,8 @@ class EstimatorNodelet : public nodelet::Nodelet {
   void startProcessing();
   /// Without camchain: the calibration from the latest camera_info and the IMU -> camera transform in TF.
   void tryCalibrationFromCameraInfo();
+  /// Reads the camera driver's settings that matter (its IR projector) and warns (callback thread).
+  void checkDriverSettings();
   void setUpInputs();
 
   // Callbacks (nodelet's single-threaded queue: never run concurrently with each other).
@@ -182,6 +185,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
   sensor_msgs::CameraInfoConstPtr latest_camera_info_;  ///< callback thread
   std::string imu_frame_id_;                      ///< frame_id of the first IMU message (callback thread)
   std::string calibration_source_;                ///< where the calibration came from (stats_mutex_)
+  std::string ir_projector_;                      ///< the driver's IR projector setting (stats_mutex_)
   ros::Time first_image_ros_time_;     ///< ROS time of the first image callback (zero before)
   CameraTfPlan camera_tf_plan_;        ///< the decision (stats_mutex_ for diagnostics)
   std::deque<geometry_msgs::PoseStamped> path_;  ///< worker thread only
