@@ -183,6 +183,24 @@ bool fillRange(const diekf::FrameResult& r, const std_msgs::Header& header, doub
   return true;
 }
 
+bool fillDownRange(const diekf::FrameResult& r, const std_msgs::Header& header, const Vec3& down_C,
+                   double field_of_view_rad, double min_range_m, double max_range_m, sensor_msgs::Range* msg) {
+  if (!r.state.allFinite()) return false;
+  const double c = r.state.mu.vector().dot(down_C);  // cosine between the axis and the normal to the plane
+  if (!(c > std::cos(80.0 * M_PI / 180.0))) return false;
+  const double range = r.state.distance_m() / c;
+  if (!std::isfinite(range)) return false;
+  sensor_msgs::Range m;
+  m.header = header;
+  m.radiation_type = sensor_msgs::Range::INFRARED;
+  m.field_of_view = static_cast<float>(field_of_view_rad);
+  m.min_range = static_cast<float>(min_range_m);
+  m.max_range = static_cast<float>(max_range_m);
+  m.range = static_cast<float>(range);
+  *msg = m;
+  return true;
+}
+
 bool cameraInfoAgrees(const sensor_msgs::CameraInfo& info, const diekf::CameraModel& camera, std::string* why) {
   std::ostringstream out;
   const diekf::PinholeK& K = camera.K;

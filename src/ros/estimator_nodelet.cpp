@@ -116,9 +116,11 @@ void EstimatorNodelet::onInit() {
 
 void EstimatorNodelet::buildFilter() {
   estimator_ = std::make_unique<diekf::Estimator>(*camera_, params_);
+  predictor_ = std::make_unique<diekf::StatePredictor>(*camera_, params_);
   odometry_ = std::make_unique<BodyOdometry>(camera_->T_cam_imu, params_.imu.gyro_noise_density,
-                                             params_.imu.input_rate_hz, params_.imu.gravity_mps2);
+                                             params_.imu.input_rate_hz, params_.imu.gravity_mps2, T_base_imu_);
   odometry_->max_integration_gap_s = std::max(1.0, 5.0 / settings_.expected_image_rate_hz);
+  odometry_->odom_z_step_m = settings_.odom_z_step_m;
   field_of_view_rad_ = 2.0 * std::atan2(0.5 * camera_->K.width, camera_->K.fx);
 }
 
@@ -200,7 +202,8 @@ std::vector<std::string> EstimatorNodelet::nodeletParamKeys() {
   return {"camchain_file", "camera_name", "imu_file", "image_topic", "imu_topic", "camera_info_topic",
           "image_transport", "odom_frame", "base_frame", "camera_frame", "publish_tf", "publish_static_tf",
           "camera_tf_root", "camera_tf_wait_s", "imu_frame", "driver_node",
-          "publish_odometry_imu_rate", "image_queue_size", "imu_queue_size", "expected_imu_rate_hz",
+          "publish_odometry_imu_rate", "odometry_imu_rate_raw", "odom_z_step_m", "imu_pose_in_base",
+          "image_queue_size", "imu_queue_size", "expected_imu_rate_hz",
           "expected_image_rate_hz", "imu_rate_measure_s", "rate_tolerance", "time_jump_reset_s", "late_image_warn_s",
           "residual_image_gain", "path_max_poses", "gravity_arrow_m", "plane_marker_size_m", "diagnostic_period_s",
           "diagnostic_period"};
@@ -224,6 +227,12 @@ void EstimatorNodelet::loadSettings() {
   pnh_.param("camera_tf_root", s.camera_tf_root, s.camera_tf_root);
   pnh_.param("camera_tf_wait_s", s.camera_tf_wait_s, s.camera_tf_wait_s);
   pnh_.param("publish_odometry_imu_rate", s.publish_odometry_imu_rate, s.publish_odometry_imu_rate);
+  pnh_.param("odometry_imu_rate_raw", s.odometry_imu_rate_raw, s.odometry_imu_rate_raw);
+  pnh_.param("odom_z_step_m", s.odom_z_step_m, s.odom_z_step_m);
+  if (pnh_.hasParam("imu_pose_in_base") && !pnh_.getParam("imu_pose_in_base", s.imu_pose_in_base)) {
+    throw std::runtime_error("parameter " + pnh_.resolveName("imu_pose_in_base") +
+                             " must be a list of 6 numbers [x, y, z, roll, pitch, yaw] (m, rad)");
+  }
   pnh_.param("image_queue_size", s.image_queue_size, s.image_queue_size);
   pnh_.param("imu_queue_size", s.imu_queue_size, s.imu_queue_size);
   pnh_.param("expected_imu_rate_hz", s.expected_imu_rate_hz, s.expected_imu_rate_hz);
@@ -250,6 +259,15 @@ void EstimatorNodelet::loadSettings() {
   require(s.diagnostic_period_s > 0.0, "diagnostic_period_s", "> 0");
   require(s.path_max_poses >= 0, "path_max_poses", ">= 0");
   require(s.camera_tf_wait_s >= 0.0, "camera_tf_wait_s", ">= 0");
+  require(s.odom_z_step_m >= 0.0, "odom_z_step_m", ">= 0");
+  require(s.imu_pose_in_base.size() == 6, "imu_pose_in_base", "a list of 6 numbers [x, y, z, roll, pitch, yaw] (m, rad)");
+  for (double v : s.imu_pose_in_base) require(std::isfinite(v), "imu_pose_in_base", "finite");
+  T_base_imu_ = Eigen::Isometry3d::Identity();
+  T_base_imu_.translation() = Eigen::Vector3d(s.imu_pose_in_base[0], s.imu_pose_in_base[1], s.imu_pose_in_base[2]);
+  T_base_imu_.linear() = (Eigen::AngleAxisd(s.imu_pose_in_base[5], Eigen::Vector3d::UnitZ()) *
+                          Eigen::AngleAxisd(s.imu_pose_in_base[4], Eigen::Vector3d::UnitY()) *
+                          Eigen::AngleAxisd(s.imu_pose_in_base[3], Eigen::Vector3d::UnitX()))
+                             .toRotationMatrix();
   require(!s.odom_frame.empty() && !s.base_frame.empty() && !s.camera_frame.empty(), "odom_frame",
           "non-empty (as base_frame and camera_frame)");
   require(!s.camchain_file.empty() || !s.camera_info_topic.empty(), "camera_info_topic",
@@ -261,6 +279,7 @@ void EstimatorNodelet::setUpOutputs() {
   odom_pub_ = pnh_.advertise<nav_msgs::Odometry>("odometry", 10);
   twist_pub_ = pnh_.advertise<geometry_msgs::TwistWithCovarianceStamped>("twist", 10);
   range_pub_ = pnh_.advertise<sensor_msgs::Range>("height", 10);
+  down_range_pub_ = pnh_.advertise<sensor_msgs::Range>("range", 10);
   path_pub_ = pnh_.advertise<nav_msgs::Path>("path", 1);
   markers_pub_ = pnh_.advertise<visualization_msgs::MarkerArray>("markers", 1);
   if (settings_.publish_odometry_imu_rate) {
@@ -313,7 +332,7 @@ void EstimatorNodelet::updateCameraTf() {
   const CameraTfPlan plan =
       planCameraTf(tf_buffer_ ? static_cast<const tf2::BufferCore&>(*tf_buffer_) : kEmpty, settings_.camera_tf_root,
                    settings_.base_frame, settings_.odom_frame, settings_.camera_frame,
-                   camera_->T_cam_imu.inverse(), waited);
+                   T_base_imu_ * camera_->T_cam_imu.inverse(), waited);
   {
     std::lock_guard<std::mutex> lock(stats_mutex_);
     camera_tf_plan_ = plan;
@@ -645,6 +664,7 @@ void EstimatorNodelet::restartFilter(const std::string& reason, bool rebuild) {
     estimator_->reset(reason);
   }
   odometry_->restart();
+  predictor_->reset(rebuild);
   NODELET_INFO("diekf: filter restarted: %s", reason.c_str());
   std::lock_guard<std::mutex> lock(stats_mutex_);
   ++restarts_;
@@ -656,9 +676,11 @@ void EstimatorNodelet::restartFilter(const std::string& reason, bool rebuild) {
 void EstimatorNodelet::applyImuDesign(const diekf::ImuParams& imu) {
   params_.imu = imu;
   estimator_ = std::make_unique<diekf::Estimator>(*camera_, params_);
+  predictor_ = std::make_unique<diekf::StatePredictor>(*camera_, params_);
   odometry_ = std::make_unique<BodyOdometry>(camera_->T_cam_imu, params_.imu.gyro_noise_density,
-                                             params_.imu.input_rate_hz, params_.imu.gravity_mps2);
+                                             params_.imu.input_rate_hz, params_.imu.gravity_mps2, T_base_imu_);
   odometry_->max_integration_gap_s = std::max(1.0, 5.0 / settings_.expected_image_rate_hz);
+  odometry_->odom_z_step_m = settings_.odom_z_step_m;
 }
 
 void EstimatorNodelet::forwardImu(const diekf::ImuSample& s) {
@@ -670,12 +692,16 @@ void EstimatorNodelet::forwardImu(const diekf::ImuSample& s) {
     return;
   }
   odometry_->addImu(s.t_s, s.accel_mps2, s.gyro_radps);
-  if (settings_.publish_odometry_imu_rate && odometry_->hasFrame()) {
+  const bool filtered = predictor_->addImu(s);
+  // ~odometry_imu_rate: the last posterior predicted to this sample's stamp by the filter's own prediction
+  // (diekf::StatePredictor), at every filtered sample (100 Hz) or every raw one.
+  if (settings_.publish_odometry_imu_rate && odometry_->hasFrame() && (filtered || settings_.odometry_imu_rate_raw)) {
+    diekf::State x;
+    diekf::ErrorCov P;
     nav_msgs::Odometry odom;
-    if (fillOdometry(odometry_->imuRatePose(), settings_.odom_frame, settings_.base_frame, &odom)) {
+    if (predictor_->predict(s.t_s, &x, &P) && x.allFinite() && P.allFinite() &&
+        fillOdometry(odometry_->predictedPose(s.t_s, x, P), settings_.odom_frame, settings_.base_frame, &odom)) {
       odom_imu_pub_.publish(odom);
-    } else {
-      NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: non-finite IMU-rate odometry not published");
     }
   }
 }
@@ -742,11 +768,20 @@ void EstimatorNodelet::publishResult(const diekf::FrameResult& r) {
                 params_.divergence.max_distance_m, &range)) {
     range_pub_.publish(range);
   }
+  // base_link's -z axis in C, for what a downward rangefinder would read (flight controllers' distance sensor).
+  const Vec3 down_C = camera_->R_CI() * T_base_imu_.linear().transpose() * Vec3(0.0, 0.0, -1.0);
+  sensor_msgs::Range down_range;
+  if (fillDownRange(r, header, down_C, field_of_view_rad_, params_.divergence.min_distance_m,
+                    params_.divergence.max_distance_m, &down_range)) {
+    down_range_pub_.publish(down_range);
+  }
 
   // After the estimator's own divergence reset the velocity starts again from its prior: do not integrate
   // across (x, y and yaw stay where they were).
   if (r.status == diekf::FilterStatus::kReset) odometry_->restart();
-  const BodyPose& pose = odometry_->addFrame(r.t_s, r.state, r.covariance);
+  predictor_->setPosterior(r.t_s, r.state, r.covariance);
+  const bool height_usable = r.status == diekf::FilterStatus::kTracking || r.status == diekf::FilterStatus::kDegraded;
+  const BodyPose& pose = odometry_->addFrame(r.t_s, r.state, r.covariance, height_usable);
   nav_msgs::Odometry odom;
   if (fillOdometry(pose, settings_.odom_frame, settings_.base_frame, &odom)) {
     odom_pub_.publish(odom);

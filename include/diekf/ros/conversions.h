@@ -52,6 +52,12 @@ bool fillOdometry(const BodyPose& pose, const std::string& odom_frame, const std
 bool fillRange(const diekf::FrameResult& result, const std_msgs::Header& header, double field_of_view_rad,
                double min_range_m, double max_range_m, sensor_msgs::Range* msg);
 
+/// Distance from the camera to the plane along base_link's -z axis (`down_C`: that axis in C, unit), what a
+/// downward rangefinder on the camera measures (flight controllers compensate its tilt themselves). In the header's
+/// frame, the other fields as fillRange. False if non-finite or the axis is more than 80 deg off the plane normal.
+bool fillDownRange(const diekf::FrameResult& result, const std_msgs::Header& header, const Vec3& down_C,
+                   double field_of_view_rad, double min_range_m, double max_range_m, sensor_msgs::Range* msg);
+
 /// Checks a CameraInfo against the calibration: size, K (1 % relative) and distortion (1e-3 absolute, when the
 /// model matches). Returns true if they agree; otherwise `why` lists the differences.
 bool cameraInfoAgrees(const sensor_msgs::CameraInfo& info, const diekf::CameraModel& camera, std::string* why);

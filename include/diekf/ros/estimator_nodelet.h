@@ -30,6 +30,7 @@
 #include "diekf/estimator.h"
 #include "diekf/imu_rate.h"
 #include "diekf/params.h"
+#include "diekf/state_predictor.h"
 #include "diekf/ros/body_odometry.h"
 #include "diekf/ros/camera_tf.h"
 
@@ -53,7 +54,10 @@ struct NodeletSettings {
   bool publish_static_tf = true;              ///< base_link -> camera (or the camera driver's root) from the extrinsics
   std::string camera_tf_root = "auto";        ///< where base_link attaches: auto, "" (the camera frame), a frame
   double camera_tf_wait_s = 2.0;              ///< auto: ROS time after the first image before publishing directly, s
-  bool publish_odometry_imu_rate = false;     ///< ~odometry_imu_rate at the raw IMU rate
+  bool publish_odometry_imu_rate = false;     ///< ~odometry_imu_rate, predicted from the filter state
+  bool odometry_imu_rate_raw = false;         ///< at every raw IMU sample instead of every filtered one
+  double odom_z_step_m = 0.1;                 ///< height jump between frames taken as a ground step, m (0 = off)
+  std::vector<double> imu_pose_in_base = std::vector<double>(6, 0.0);  ///< x y z (m) roll pitch yaw (rad) of the IMU
   int image_queue_size = 4;                   ///< images waiting for the worker before the oldest is dropped
   int imu_queue_size = 2000;                  ///< IMU samples waiting for the worker (4 s at 500 Hz)
   double expected_imu_rate_hz = 500.0;        ///< for the /diagnostics rate check until the rate is measured, Hz
@@ -125,6 +129,8 @@ class EstimatorNodelet : public nodelet::Nodelet {
   diekf::EstimatorParams params_;
   std::unique_ptr<diekf::Estimator> estimator_;
   std::unique_ptr<BodyOdometry> odometry_;
+  std::unique_ptr<diekf::StatePredictor> predictor_;  ///< worker thread: the filter state between images
+  Eigen::Isometry3d T_base_imu_ = Eigen::Isometry3d::Identity();  ///< pose of the IMU in base_link
 
   // Inputs handed from the callbacks to the worker.
   std::mutex queue_mutex_;
@@ -169,7 +175,8 @@ class EstimatorNodelet : public nodelet::Nodelet {
   double last_distance_m_ = 0.0, last_height_m_ = 0.0;
 
   // Outputs.
-  ros::Publisher state_pub_, odom_pub_, odom_imu_pub_, twist_pub_, range_pub_, path_pub_, markers_pub_;
+  ros::Publisher state_pub_, odom_pub_, odom_imu_pub_, twist_pub_, range_pub_, down_range_pub_, path_pub_,
+      markers_pub_;
   std::unique_ptr<image_transport::ImageTransport> it_, pit_;
   image_transport::Publisher residual_pub_;
   image_transport::Subscriber image_sub_;
