@@ -22,6 +22,10 @@ class CameraModel {
   PinholeK K;                                           ///< intrinsics at calibration resolution
   DistortionModel distortion = DistortionModel::kNone;
   Vec4 distortion_coeffs = Vec4::Zero();                ///< radtan: k1 k2 r1 r2; equidistant: k1..k4
+  /// radtan only: OpenCV's further radial coefficients k3, k4, k5, k6 (ROS plumb_bob has k3,
+  /// rational_polynomial all four): radial = (1 + k1 r2 + k2 r2^2 + k3 r2^3) / (1 + k4 r2 + k5 r2^2 + k6 r2^3).
+  /// Zero for Kalibr's radtan.
+  Vec4 radial_extra = Vec4::Zero();
   Eigen::Isometry3d T_cam_imu = Eigen::Isometry3d::Identity();  ///< p_C = T_cam_imu p_I
   double timeshift_cam_imu_s = 0.0;                     ///< t_imu = t_cam + timeshift
   double line_delay_s = 0.0;  ///< rolling shutter: readout time per image row, s (camchain key line_delay_s; 0 = global)

@@ -3,6 +3,8 @@
 // Distortion models (normalised coordinates x = X/Z, y = Y/Z):
 //   radtan (Kalibr "radtan", OpenCV plumb_bob with k3 = 0), coefficients [k1 k2 r1 r2]:
 //     r2 = x^2 + y^2, radial = 1 + k1 r2 + k2 r2^2
+//     (with OpenCV's further radial terms, radial_extra = [k3 k4 k5 k6]: ROS plumb_bob's k3, rational_polynomial:
+//      radial = (1 + k1 r2 + k2 r2^2 + k3 r2^3) / (1 + k4 r2 + k5 r2^2 + k6 r2^3))
 //     xd = x radial + 2 r1 x y + r2 (r2 + 2 x^2)        (r1, r2 = tangential p1, p2)
 //     yd = y radial + r1 (r2 + 2 y^2) + 2 r2 x y
 //   equidistant (Kalibr "equidistant" = OpenCV fisheye), coefficients [k1 k2 k3 k4]:
@@ -67,16 +69,20 @@ std::string readString(const YAML::Node& node, const std::string& path, const st
   return node.Scalar();
 }
 
-// Radtan distortion and its Jacobian d(xd)/d(xn).
-Vec2 radtan(const Vec4& k, const Vec2& p, Mat2* J) {
+// Radtan distortion (with the rational radial terms `e` = k3..k6) and its Jacobian d(xd)/d(xn).
+Vec2 radtan(const Vec4& k, const Vec4& e, const Vec2& p, Mat2* J) {
   const double x = p.x(), y = p.y();
   const double k1 = k[0], k2 = k[1], p1 = k[2], p2 = k[3];
   const double xx = x * x, yy = y * y, xy = x * y, r2 = xx + yy;
-  const double radial = 1.0 + k1 * r2 + k2 * r2 * r2;
+  const double num = 1.0 + r2 * (k1 + r2 * (k2 + r2 * e[0]));
+  const double den = 1.0 + r2 * (e[1] + r2 * (e[2] + r2 * e[3]));
+  const double radial = num / den;
   const Vec2 out(x * radial + 2.0 * p1 * xy + p2 * (r2 + 2.0 * xx),
                  y * radial + p1 * (r2 + 2.0 * yy) + 2.0 * p2 * xy);
   if (J) {
-    const double drad = k1 + 2.0 * k2 * r2;  // d radial / d r2
+    const double dnum = k1 + r2 * (2.0 * k2 + 3.0 * e[0] * r2);
+    const double dden = e[1] + r2 * (2.0 * e[2] + 3.0 * e[3] * r2);
+    const double drad = (dnum * den - num * dden) / (den * den);  // d radial / d r2
     // d radial/dx = 2x drad, d radial/dy = 2y drad
     (*J)(0, 0) = radial + 2.0 * xx * drad + 2.0 * p1 * y + 6.0 * p2 * x;
     (*J)(0, 1) = 2.0 * xy * drad + 2.0 * p1 * x + 2.0 * p2 * y;
@@ -205,7 +211,7 @@ Vec2 CameraModel::distort(const Vec2& xn) const {
     case DistortionModel::kNone:
       return xn;
     case DistortionModel::kRadTan:
-      return radtan(distortion_coeffs, xn, nullptr);
+      return radtan(distortion_coeffs, radial_extra, xn, nullptr);
     case DistortionModel::kEquidistant: {
       const double r = xn.norm();
       if (r < 1e-12) return xn;  // theta_d / r -> 1
@@ -228,7 +234,7 @@ bool CameraModel::undistort(const Vec2& xd, Vec2* xn) const {
       Vec2 x = xd;
       for (int it = 0; it < kMaxIter; ++it) {
         Mat2 J;
-        const Vec2 f = radtan(distortion_coeffs, x, &J) - xd;
+        const Vec2 f = radtan(distortion_coeffs, radial_extra, x, &J) - xd;
         if (f.squaredNorm() < 1e-30) break;
         const double det = J.determinant();
         if (!std::isfinite(det) || std::abs(det) < 1e-12) return false;
@@ -237,7 +243,7 @@ bool CameraModel::undistort(const Vec2& xd, Vec2* xn) const {
         if (!x.allFinite()) return false;
         if (step.squaredNorm() < 1e-32) break;
       }
-      const Vec2 f = radtan(distortion_coeffs, x, nullptr) - xd;
+      const Vec2 f = radtan(distortion_coeffs, radial_extra, x, nullptr) - xd;
       *xn = x;
       return f.norm() < 1e-11 * (1.0 + xd.norm());
     }

@@ -13,6 +13,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "diekf/feature_update.h"
+#include "diekf/grey_image.h"
 #include "diekf/image_preprocessor.h"
 #include "diekf/imu_filter.h"
 #include "diekf/photometric_update.h"
@@ -861,15 +862,7 @@ bool Estimator::addImage(double t_cam_s, const cv::Mat& image) {
     PendingImage& slot = m.images.emplaceSlot();
     slot.t_s = t_s;
     slot.stamp_s = t_cam_s;
-    if (channels == 1 && depth == CV_8U) {
-      image.copyTo(slot.gray);
-    } else if (channels == 1) {
-      image.convertTo(slot.gray, CV_8U, 1.0 / 256.0);
-    } else if (channels == 3) {
-      cv::cvtColor(image, slot.gray, cv::COLOR_BGR2GRAY);
-    } else {
-      cv::cvtColor(image, slot.gray, cv::COLOR_BGRA2GRAY);
-    }
+    toGrey8(image, ChannelOrder::kBgr, &slot.gray);  // the package's one grey conversion (grey_image.h)
     m.last_image_t_s = t_s;
     m.processReady();
     return true;

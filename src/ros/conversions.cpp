@@ -4,7 +4,6 @@
 #include <cstdio>
 #include <sstream>
 
-#include <opencv2/imgproc.hpp>
 #include <sensor_msgs/image_encodings.h>
 
 namespace diekf_ros {
@@ -37,54 +36,43 @@ void copyCovariance(const Mat6& C, Array* out) {
 
 }  // namespace
 
-bool imageToMono8(const sensor_msgs::Image& msg, cv::Mat* mono8, std::string* error) {
-  const std::string& e = msg.encoding;
+bool imageView(const sensor_msgs::ImageConstPtr& msg, cv_bridge::CvImageConstPtr* view, diekf::ChannelOrder* order,
+               std::string* error) {
   int type = -1;
-  int code = -1;  // cv::cvtColor code, -1 = none
-  if (e == enc::MONO8 || e == enc::TYPE_8UC1) {
-    type = CV_8UC1;
-  } else if (e == enc::MONO16 || e == enc::TYPE_16UC1) {
-    type = CV_16UC1;
-  } else if (e == enc::BGR8) {
-    type = CV_8UC3;
-    code = cv::COLOR_BGR2GRAY;
-  } else if (e == enc::RGB8) {
-    type = CV_8UC3;
-    code = cv::COLOR_RGB2GRAY;
-  } else if (e == enc::BGRA8) {
-    type = CV_8UC4;
-    code = cv::COLOR_BGRA2GRAY;
-  } else if (e == enc::RGBA8) {
-    type = CV_8UC4;
-    code = cv::COLOR_RGBA2GRAY;
-  } else {
-    *error = "unsupported image encoding '" + e + "' (mono8, mono16, bgr8, rgb8, bgra8, rgba8)";
+  if (!msg || !diekf::describeImageBuffer(msg->encoding, msg->width, msg->height, msg->step, msg->is_bigendian != 0,
+                                          msg->data.size(), &type, order, error)) {
+    if (!msg) *error = "null image message";
     return false;
   }
-  const size_t min_step = static_cast<size_t>(msg.width) * CV_ELEM_SIZE(type);
-  if (msg.width == 0 || msg.height == 0 || msg.step < min_step ||
-      msg.data.size() < static_cast<size_t>(msg.step) * msg.height) {
-    *error = "malformed image message (size, step and data length disagree)";
+  try {
+    *view = cv_bridge::toCvShare(msg);  // same encoding: shares the message's buffer
+  } catch (const std::exception& e) {
+    *error = std::string("cannot wrap the image: ") + e.what();
     return false;
   }
-  if (msg.step % CV_ELEM_SIZE1(type) != 0 || msg.width > 65535 || msg.height > 65535) {
-    *error = "malformed image message (row step not a multiple of the sample size, or absurd size)";
+  if ((*view)->image.type() != type || (*view)->image.data != msg->data.data()) {
+    *error = "cv_bridge did not share the image buffer as " + msg->encoding;
     return false;
   }
-  if (CV_MAT_DEPTH(type) == CV_16U && msg.is_bigendian != 0) {
-    *error = "big-endian mono16 images are not supported";
+  return true;
+}
+
+bool imageToMono8(const sensor_msgs::Image& msg, cv::Mat* mono8, std::string* error) {
+  int type = -1;
+  diekf::ChannelOrder order;
+  if (!diekf::describeImageBuffer(msg.encoding, msg.width, msg.height, msg.step, msg.is_bigendian != 0,
+                                  msg.data.size(), &type, &order, error)) {
     return false;
   }
-  // Wraps the message buffer without copying; the result below is always an owned copy.
+  // Wraps the message buffer without copying; the result is an owned grey copy.
   const cv::Mat view(static_cast<int>(msg.height), static_cast<int>(msg.width), type,
                      const_cast<uint8_t*>(msg.data.data()), msg.step);
-  if (type == CV_8UC1) {
-    view.copyTo(*mono8);
-  } else if (type == CV_16UC1) {
-    view.convertTo(*mono8, CV_8U, 1.0 / 256.0);
-  } else {
-    cv::cvtColor(view, *mono8, code);
+  cv::Mat out;
+  if (!diekf::toGrey8(view, order, &out)) {
+    *error = "cannot convert " + msg.encoding + " to grey";
+    return false;
   }
+  *mono8 = out;
   return true;
 }
 
@@ -195,6 +183,24 @@ bool fillRange(const diekf::FrameResult& r, const std_msgs::Header& header, doub
   m.min_range = static_cast<float>(min_range_m);
   m.max_range = static_cast<float>(max_range_m);
   m.range = static_cast<float>(h);
+  *msg = m;
+  return true;
+}
+
+bool fillDownRange(const diekf::FrameResult& r, const std_msgs::Header& header, const Vec3& down_C,
+                   double field_of_view_rad, double min_range_m, double max_range_m, sensor_msgs::Range* msg) {
+  if (!r.state.allFinite()) return false;
+  const double c = r.state.mu.vector().dot(down_C);  // cosine between the axis and the normal to the plane
+  if (!(c > std::cos(80.0 * M_PI / 180.0))) return false;
+  const double range = r.state.distance_m() / c;
+  if (!std::isfinite(range)) return false;
+  sensor_msgs::Range m;
+  m.header = header;
+  m.radiation_type = sensor_msgs::Range::INFRARED;
+  m.field_of_view = static_cast<float>(field_of_view_rad);
+  m.min_range = static_cast<float>(min_range_m);
+  m.max_range = static_cast<float>(max_range_m);
+  m.range = static_cast<float>(range);
   *msg = m;
   return true;
 }

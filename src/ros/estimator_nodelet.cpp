@@ -2,6 +2,8 @@
 
 #include <cmath>
 #include <exception>
+#include <map>
+#include <sstream>
 #include <utility>
 
 #include <cv_bridge/cv_bridge.h>
@@ -12,7 +14,9 @@
 
 #include "diekf/PlanarState.h"
 #include "diekf/param_source.h"
+#include "diekf/ros/camera_info_calibration.h"
 #include "diekf/ros/conversions.h"
+#include "diekf/ros/driver_settings.h"
 #include "diekf/ros/ros_param_source.h"
 
 namespace diekf_ros {
@@ -58,18 +62,21 @@ void EstimatorNodelet::onInit() {
 
   try {
     loadSettings();
-    camera_ = std::make_unique<diekf::CameraModel>(
-        diekf::CameraModel::fromKalibrYaml(settings_.camchain_file, settings_.camera_name));
+    // The calibration: the Kalibr camchain when given (first choice), else camera_info and TF once they arrive
+    // (tryCalibrationFromCameraInfo).
+    if (!settings_.camchain_file.empty()) {
+      camera_ = std::make_unique<diekf::CameraModel>(
+          diekf::CameraModel::fromKalibrYaml(settings_.camchain_file, settings_.camera_name));
+      calibration_source_ = "Kalibr camchain " + settings_.camchain_file + " (" + settings_.camera_name + ")";
+    }
     // Estimator keys from the private namespace (config/estimator.yaml); the Kalibr IMU file, when given, is the
     // calibration of this very sensor and overrides the noise densities and rate.
     // Keys of the namespace that neither the estimator nor the nodelet reads (typos) are warned about.
     const auto warn = [this](const std::string& warning) { NODELET_WARN("diekf: %s", warning.c_str()); };
     diekf::loadEstimatorParams(RosParamSource(pnh_), &params_, warn, nodeletParamKeys());
     if (!settings_.imu_file.empty()) diekf::loadKalibrImuYaml(settings_.imu_file, &params_.imu);
-    estimator_ = std::make_unique<diekf::Estimator>(*camera_, params_);
-    odometry_ = std::make_unique<BodyOdometry>(camera_->T_cam_imu, params_.imu.gyro_noise_density,
-                                               params_.imu.input_rate_hz, params_.imu.gravity_mps2);
-    odometry_->max_integration_gap_s = std::max(1.0, 5.0 / settings_.expected_image_rate_hz);
+    configured_params_ = params_;
+    if (camera_) buildFilter();
   } catch (const std::exception& e) {
     init_error_ = e.what();
     NODELET_FATAL("diekf: cannot start: %s", e.what());
@@ -77,11 +84,24 @@ void EstimatorNodelet::onInit() {
                                             [this](const ros::WallTimerEvent&) { updater_->update(); });
     return;
   }
-  field_of_view_rad_ = 2.0 * std::atan2(0.5 * camera_->K.width, camera_->K.fx);
+  {
+    std::ostringstream os;
+    os << "IMU at imu/input_rate_hz " << params_.imu.input_rate_hz << " Hz (not measured): low-pass at "
+       << params_.imu.lowpass_cutoff_hz << " Hz, decimation " << params_.imu.decimation_factor;
+    imu_design_ = os.str();
+  }
 
   setUpOutputs();
   ready_ = true;
-  worker_ = std::thread(&EstimatorNodelet::workerLoop, this);
+  if (camera_) {
+    startProcessing();
+  } else {
+    NODELET_INFO("diekf: no camchain_file: the calibration comes from camera_info on %s and the IMU -> camera "
+                 "transform from TF", settings_.camera_info_topic.c_str());
+    calibration_timer_ = nh_.createWallTimer(ros::WallDuration(0.2), [this](const ros::WallTimerEvent&) {
+      tryCalibrationFromCameraInfo();
+    });
+  }
   try {
     setUpInputs();
   } catch (const std::exception& e) {  // e.g. the requested image_transport plugin is not installed
@@ -90,9 +110,90 @@ void EstimatorNodelet::onInit() {
     NODELET_FATAL("diekf: %s", init_error_.c_str());
     return;
   }
-  NODELET_INFO("diekf: %s, camera '%s' %dx%d from %s; image %s, IMU %s, mode %s", getName().c_str(),
-               settings_.camera_name.c_str(), camera_->K.width, camera_->K.height, settings_.camchain_file.c_str(),
-               settings_.image_topic.c_str(), settings_.imu_topic.c_str(), diekf::toString(params_.mode));
+  NODELET_INFO("diekf: %s: image %s, IMU %s, mode %s", getName().c_str(), settings_.image_topic.c_str(),
+               settings_.imu_topic.c_str(), diekf::toString(params_.mode));
+}
+
+void EstimatorNodelet::buildFilter() {
+  estimator_ = std::make_unique<diekf::Estimator>(*camera_, params_);
+  predictor_ = std::make_unique<diekf::StatePredictor>(*camera_, params_);
+  odometry_ = std::make_unique<BodyOdometry>(camera_->T_cam_imu, params_.imu.gyro_noise_density,
+                                             params_.imu.input_rate_hz, params_.imu.gravity_mps2, T_base_imu_);
+  odometry_->max_integration_gap_s = std::max(1.0, 5.0 / settings_.expected_image_rate_hz);
+  odometry_->odom_z_step_m = settings_.odom_z_step_m;
+  field_of_view_rad_ = 2.0 * std::atan2(0.5 * camera_->K.width, camera_->K.fx);
+}
+
+void EstimatorNodelet::startProcessing() {
+  NODELET_INFO("diekf: camera %dx%d from the %s", camera_->K.width, camera_->K.height, calibration_source_.c_str());
+  if (settings_.imu_rate_measure_s > 0.0) startImuRateMeasurement();
+  worker_ = std::thread(&EstimatorNodelet::workerLoop, this);
+  if (settings_.publish_static_tf) {
+    updateCameraTf();
+    if (camera_tf_plan_.kind == CameraTfPlan::Kind::kWait) {
+      camera_tf_timer_ = nh_.createWallTimer(ros::WallDuration(0.2), [this](const ros::WallTimerEvent&) {
+        updateCameraTf();
+      });
+    }
+  }
+  calibrated_ = true;
+}
+
+void EstimatorNodelet::tryCalibrationFromCameraInfo() {
+  if (!ready_ || calibrated_) {
+    calibration_timer_.stop();
+    return;
+  }
+  std::string waiting;
+  if (!latest_camera_info_) {
+    waiting = "waiting for camera_info on " + settings_.camera_info_topic + " (no camchain_file)";
+  } else if (settings_.imu_frame.empty() && imu_frame_id_.empty()) {
+    waiting = "waiting for an IMU message on " + settings_.imu_topic + " (its frame_id for the extrinsics)";
+  }
+  const std::string camera_frame = latest_camera_info_ && !latest_camera_info_->header.frame_id.empty()
+                                       ? latest_camera_info_->header.frame_id
+                                       : settings_.camera_frame;
+  const std::string imu_frame = settings_.imu_frame.empty() ? imu_frame_id_ : settings_.imu_frame;
+  geometry_msgs::TransformStamped T;
+  if (waiting.empty()) {
+    try {
+      T = tf_buffer_->lookupTransform(camera_frame, imu_frame, ros::Time(0));
+    } catch (const tf2::TransformException& e) {
+      waiting = "waiting for the IMU -> camera transform " + camera_frame + " <- " + imu_frame + " in TF: " + e.what();
+    }
+  }
+  if (!waiting.empty()) {
+    NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: %s", waiting.c_str());
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    calibration_source_ = waiting;
+    return;
+  }
+  Eigen::Isometry3d T_cam_imu = Eigen::Isometry3d::Identity();
+  T_cam_imu.translation() =
+      Eigen::Vector3d(T.transform.translation.x, T.transform.translation.y, T.transform.translation.z);
+  T_cam_imu.linear() = Eigen::Quaterniond(T.transform.rotation.w, T.transform.rotation.x, T.transform.rotation.y,
+                                          T.transform.rotation.z)
+                           .normalized()
+                           .toRotationMatrix();
+  try {
+    camera_ = std::make_unique<diekf::CameraModel>(
+        cameraModelFromCameraInfo(*latest_camera_info_, T_cam_imu, settings_.camera_info_topic));
+    buildFilter();
+  } catch (const std::exception& e) {
+    camera_.reset();
+    ready_ = false;
+    init_error_ = std::string("cannot use the calibration from camera_info: ") + e.what();
+    NODELET_FATAL("diekf: %s", init_error_.c_str());
+    calibration_timer_.stop();
+    return;
+  }
+  calibration_timer_.stop();
+  {
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    calibration_source_ = "camera_info on " + settings_.camera_info_topic + " (" +
+                          latest_camera_info_->distortion_model + ") and TF " + camera_frame + " <- " + imu_frame;
+  }
+  startProcessing();
 }
 
 /// The nodelet's own keys in its private namespace (loadSettings, config/mynteye.yaml), plus those that
@@ -100,18 +201,19 @@ void EstimatorNodelet::onInit() {
 std::vector<std::string> EstimatorNodelet::nodeletParamKeys() {
   return {"camchain_file", "camera_name", "imu_file", "image_topic", "imu_topic", "camera_info_topic",
           "image_transport", "odom_frame", "base_frame", "camera_frame", "publish_tf", "publish_static_tf",
-          "publish_odometry_imu_rate", "image_queue_size", "imu_queue_size", "expected_imu_rate_hz",
-          "expected_image_rate_hz", "rate_tolerance", "time_jump_reset_s", "late_image_warn_s",
+          "camera_tf_root", "camera_tf_wait_s", "imu_frame", "driver_node",
+          "publish_odometry_imu_rate", "odometry_imu_rate_raw", "odom_z_step_m", "imu_pose_in_base",
+          "image_queue_size", "imu_queue_size", "expected_imu_rate_hz",
+          "expected_image_rate_hz", "imu_rate_measure_s", "rate_tolerance", "time_jump_reset_s", "late_image_warn_s",
           "residual_image_gain", "path_max_poses", "gravity_arrow_m", "plane_marker_size_m", "diagnostic_period_s",
           "diagnostic_period"};
 }
 
 void EstimatorNodelet::loadSettings() {
   NodeletSettings& s = settings_;
-  if (!pnh_.getParam("camchain_file", s.camchain_file) || s.camchain_file.empty()) {
-    throw std::runtime_error("parameter " + pnh_.resolveName("camchain_file") +
-                             " (Kalibr camchain YAML) is required");
-  }
+  pnh_.param("camchain_file", s.camchain_file, s.camchain_file);
+  pnh_.param("imu_frame", s.imu_frame, s.imu_frame);
+  pnh_.param("driver_node", s.driver_node, s.driver_node);
   pnh_.param("camera_name", s.camera_name, s.camera_name);
   pnh_.param("imu_file", s.imu_file, s.imu_file);
   pnh_.param("image_topic", s.image_topic, s.image_topic);
@@ -122,11 +224,20 @@ void EstimatorNodelet::loadSettings() {
   pnh_.param("camera_frame", s.camera_frame, s.camera_frame);
   pnh_.param("publish_tf", s.publish_tf, s.publish_tf);
   pnh_.param("publish_static_tf", s.publish_static_tf, s.publish_static_tf);
+  pnh_.param("camera_tf_root", s.camera_tf_root, s.camera_tf_root);
+  pnh_.param("camera_tf_wait_s", s.camera_tf_wait_s, s.camera_tf_wait_s);
   pnh_.param("publish_odometry_imu_rate", s.publish_odometry_imu_rate, s.publish_odometry_imu_rate);
+  pnh_.param("odometry_imu_rate_raw", s.odometry_imu_rate_raw, s.odometry_imu_rate_raw);
+  pnh_.param("odom_z_step_m", s.odom_z_step_m, s.odom_z_step_m);
+  if (pnh_.hasParam("imu_pose_in_base") && !pnh_.getParam("imu_pose_in_base", s.imu_pose_in_base)) {
+    throw std::runtime_error("parameter " + pnh_.resolveName("imu_pose_in_base") +
+                             " must be a list of 6 numbers [x, y, z, roll, pitch, yaw] (m, rad)");
+  }
   pnh_.param("image_queue_size", s.image_queue_size, s.image_queue_size);
   pnh_.param("imu_queue_size", s.imu_queue_size, s.imu_queue_size);
   pnh_.param("expected_imu_rate_hz", s.expected_imu_rate_hz, s.expected_imu_rate_hz);
   pnh_.param("expected_image_rate_hz", s.expected_image_rate_hz, s.expected_image_rate_hz);
+  pnh_.param("imu_rate_measure_s", s.imu_rate_measure_s, s.imu_rate_measure_s);
   pnh_.param("rate_tolerance", s.rate_tolerance, s.rate_tolerance);
   pnh_.param("time_jump_reset_s", s.time_jump_reset_s, s.time_jump_reset_s);
   pnh_.param("late_image_warn_s", s.late_image_warn_s, s.late_image_warn_s);
@@ -142,12 +253,25 @@ void EstimatorNodelet::loadSettings() {
   require(s.imu_queue_size >= 10, "imu_queue_size", ">= 10");
   require(s.expected_imu_rate_hz > 0.0, "expected_imu_rate_hz", "> 0");
   require(s.expected_image_rate_hz > 0.0, "expected_image_rate_hz", "> 0");
+  require(s.imu_rate_measure_s >= 0.0 && s.imu_rate_measure_s <= 30.0, "imu_rate_measure_s", "in [0, 30] s");
   require(s.rate_tolerance > 0.0 && s.rate_tolerance < 1.0, "rate_tolerance", "in (0, 1)");
   require(s.time_jump_reset_s > 0.0, "time_jump_reset_s", "> 0");
   require(s.diagnostic_period_s > 0.0, "diagnostic_period_s", "> 0");
   require(s.path_max_poses >= 0, "path_max_poses", ">= 0");
+  require(s.camera_tf_wait_s >= 0.0, "camera_tf_wait_s", ">= 0");
+  require(s.odom_z_step_m >= 0.0, "odom_z_step_m", ">= 0");
+  require(s.imu_pose_in_base.size() == 6, "imu_pose_in_base", "a list of 6 numbers [x, y, z, roll, pitch, yaw] (m, rad)");
+  for (double v : s.imu_pose_in_base) require(std::isfinite(v), "imu_pose_in_base", "finite");
+  T_base_imu_ = Eigen::Isometry3d::Identity();
+  T_base_imu_.translation() = Eigen::Vector3d(s.imu_pose_in_base[0], s.imu_pose_in_base[1], s.imu_pose_in_base[2]);
+  T_base_imu_.linear() = (Eigen::AngleAxisd(s.imu_pose_in_base[5], Eigen::Vector3d::UnitZ()) *
+                          Eigen::AngleAxisd(s.imu_pose_in_base[4], Eigen::Vector3d::UnitY()) *
+                          Eigen::AngleAxisd(s.imu_pose_in_base[3], Eigen::Vector3d::UnitX()))
+                             .toRotationMatrix();
   require(!s.odom_frame.empty() && !s.base_frame.empty() && !s.camera_frame.empty(), "odom_frame",
           "non-empty (as base_frame and camera_frame)");
+  require(!s.camchain_file.empty() || !s.camera_info_topic.empty(), "camera_info_topic",
+          "set when camchain_file is empty (the calibration then comes from camera_info)");
 }
 
 void EstimatorNodelet::setUpOutputs() {
@@ -155,6 +279,7 @@ void EstimatorNodelet::setUpOutputs() {
   odom_pub_ = pnh_.advertise<nav_msgs::Odometry>("odometry", 10);
   twist_pub_ = pnh_.advertise<geometry_msgs::TwistWithCovarianceStamped>("twist", 10);
   range_pub_ = pnh_.advertise<sensor_msgs::Range>("height", 10);
+  down_range_pub_ = pnh_.advertise<sensor_msgs::Range>("range", 10);
   path_pub_ = pnh_.advertise<nav_msgs::Path>("path", 1);
   markers_pub_ = pnh_.advertise<visualization_msgs::MarkerArray>("markers", 1);
   if (settings_.publish_odometry_imu_rate) {
@@ -165,10 +290,11 @@ void EstimatorNodelet::setUpOutputs() {
   reset_srv_ = pnh_.advertiseService("reset", &EstimatorNodelet::resetService, this);
 
   if (settings_.publish_tf) tf_broadcaster_ = std::make_unique<tf2_ros::TransformBroadcaster>();
-  if (settings_.publish_static_tf) {
-    static_tf_broadcaster_ = std::make_unique<tf2_ros::StaticTransformBroadcaster>();
-    static_tf_broadcaster_->sendTransform(toTransform(camera_->T_cam_imu.inverse(), ros::Time::now(),
-                                                      settings_.base_frame, settings_.camera_frame));
+  if (settings_.publish_static_tf) static_tf_broadcaster_ = std::make_unique<tf2_ros::StaticTransformBroadcaster>();
+  // TF is read for the camera's place in the tree (camera_tf_root) and, without a camchain, for the extrinsics.
+  if ((settings_.publish_static_tf && !settings_.camera_tf_root.empty()) || !camera_) {
+    tf_buffer_ = std::make_unique<tf2_ros::Buffer>();
+    tf_listener_ = std::make_unique<tf2_ros::TransformListener>(*tf_buffer_);
   }
 
   const double tol = settings_.rate_tolerance;
@@ -198,6 +324,41 @@ void EstimatorNodelet::setUpInputs() {
   }
 }
 
+void EstimatorNodelet::updateCameraTf() {
+  if (camera_tf_plan_.kind != CameraTfPlan::Kind::kWait) return;
+  const bool waited = !first_image_ros_time_.isZero() &&
+                      (ros::Time::now() - first_image_ros_time_).toSec() >= settings_.camera_tf_wait_s;
+  static const tf2::BufferCore kEmpty;
+  const CameraTfPlan plan =
+      planCameraTf(tf_buffer_ ? static_cast<const tf2::BufferCore&>(*tf_buffer_) : kEmpty, settings_.camera_tf_root,
+                   settings_.base_frame, settings_.odom_frame, settings_.camera_frame,
+                   T_base_imu_ * camera_->T_cam_imu.inverse(), waited);
+  {
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    camera_tf_plan_ = plan;
+  }
+  switch (plan.kind) {
+    case CameraTfPlan::Kind::kWait:
+      if (settings_.camera_tf_root != "auto") NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: TF: %s", plan.why.c_str());
+      return;
+    case CameraTfPlan::Kind::kDirect:
+    case CameraTfPlan::Kind::kAttachToRoot:
+      static_tf_broadcaster_->sendTransform(toTransform(plan.T_parent_child, ros::Time::now(), plan.parent,
+                                                        plan.child));
+      NODELET_INFO("diekf: TF: publishing %s -> %s: %s", plan.parent.c_str(), plan.child.c_str(), plan.why.c_str());
+      break;
+    case CameraTfPlan::Kind::kAlreadyConnected:
+      NODELET_INFO("diekf: TF: %s", plan.why.c_str());
+      break;
+    case CameraTfPlan::Kind::kError:
+      NODELET_ERROR("diekf: TF: %s; no static transform published", plan.why.c_str());
+      break;
+  }
+  camera_tf_timer_.stop();
+  tf_listener_.reset();  // nothing else reads TF
+  tf_buffer_.reset();
+}
+
 // ------------------------------------------------------------------------------------------------------------
 // Callbacks: check stamps, queue for the worker, never touch the estimator.
 // ------------------------------------------------------------------------------------------------------------
@@ -216,10 +377,16 @@ void EstimatorNodelet::checkClock() {
     requestRestart("ROS time jumped backwards", true);
     last_imu_stamp_s_ = -1.0;
     last_image_stamp_s_ = -1.0;
+    if (settings_.imu_rate_measure_s > 0.0) startImuRateMeasurement();
   }
 }
 
 void EstimatorNodelet::imuCallback(const sensor_msgs::ImuConstPtr& msg) {
+  if (!ready_) return;
+  if (!calibrated_) {  // the calibration from camera_info and TF is still missing
+    if (imu_frame_id_.empty()) imu_frame_id_ = msg->header.frame_id;
+    return;
+  }
   checkClock();
   diekf::ImuSample sample;
   if (!imuFromMsg(*msg, &sample)) {
@@ -236,6 +403,7 @@ void EstimatorNodelet::imuCallback(const sensor_msgs::ImuConstPtr& msg) {
       NODELET_WARN("diekf: IMU time jumped back by %.3f s (bag loop or clock reset): restarting the filter", -dt);
       requestRestart("IMU time jumped backwards", true);
       last_image_stamp_s_ = -1.0;
+      if (settings_.imu_rate_measure_s > 0.0) startImuRateMeasurement();  // a restarted driver may run at another rate
     } else if (dt <= 0.0) {
       NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: %s IMU message (stamp %.6f s, previous %.6f s) dropped",
                             dt == 0.0 ? "duplicated" : "out-of-order", t, last_imu_stamp_s_);
@@ -247,6 +415,16 @@ void EstimatorNodelet::imuCallback(const sensor_msgs::ImuConstPtr& msg) {
     }
   }
   last_imu_stamp_s_ = t;
+  if (measuring_imu_rate_) {
+    // Held back until the rate is known (the preprocessing is designed for it), then handed over at once.
+    imu_rate_buffer_.push_back(sample);
+    {
+      std::lock_guard<std::mutex> lock(stats_mutex_);
+      ++imu_received_;
+    }
+    if (imu_rate_meter_.add(t)) finishImuRateMeasurement();
+    return;
+  }
   bool overflow = false;
   {
     std::lock_guard<std::mutex> lock(queue_mutex_);
@@ -266,7 +444,12 @@ void EstimatorNodelet::imuCallback(const sensor_msgs::ImuConstPtr& msg) {
 }
 
 void EstimatorNodelet::imageCallback(const sensor_msgs::ImageConstPtr& msg) {
+  if (!ready_ || !calibrated_) return;
   checkClock();
+  if (first_image_ros_time_.isZero()) {
+    first_image_ros_time_ = ros::Time::now();
+    checkDriverSettings();  // the driver runs now: its parameters are set
+  }
   image_rate_diag_->tick();
   const double t = msg->header.stamp.toSec();
   if (last_image_stamp_s_ >= 0.0) {
@@ -275,6 +458,7 @@ void EstimatorNodelet::imageCallback(const sensor_msgs::ImageConstPtr& msg) {
       NODELET_WARN("diekf: image time jumped back by %.3f s: restarting the filter", -dt);
       requestRestart("image time jumped backwards", true);
       last_imu_stamp_s_ = -1.0;
+      if (settings_.imu_rate_measure_s > 0.0) startImuRateMeasurement();
     } else if (dt <= 0.0) {
       NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: %s image (stamp %.6f s, previous %.6f s) dropped",
                             dt == 0.0 ? "duplicated" : "out-of-order", t, last_image_stamp_s_);
@@ -286,6 +470,12 @@ void EstimatorNodelet::imageCallback(const sensor_msgs::ImageConstPtr& msg) {
     }
   }
   last_image_stamp_s_ = t;
+  if (measuring_imu_rate_ || !ready_) {
+    std::lock_guard<std::mutex> lock(stats_mutex_);
+    ++images_received_;
+    ++images_skipped_measuring_;
+    return;
+  }
   const double t_imu_clock = t + camera_->timeshift_cam_imu_s;
   if (last_imu_stamp_s_ >= 0.0 && t_imu_clock < last_imu_stamp_s_ - settings_.late_image_warn_s) {
     NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: late image: %.3f s older than the newest IMU sample",
@@ -310,6 +500,10 @@ void EstimatorNodelet::imageCallback(const sensor_msgs::ImageConstPtr& msg) {
 }
 
 void EstimatorNodelet::cameraInfoCallback(const sensor_msgs::CameraInfoConstPtr& msg) {
+  if (settings_.camchain_file.empty()) {  // camera_info is the calibration (tryCalibrationFromCameraInfo)
+    if (!calibrated_) latest_camera_info_ = msg;
+    return;
+  }
   if (camera_info_checked_) return;
   camera_info_checked_ = true;
   std::string why;
@@ -321,6 +515,60 @@ void EstimatorNodelet::cameraInfoCallback(const sensor_msgs::CameraInfoConstPtr&
     std::lock_guard<std::mutex> lock(stats_mutex_);
     camera_info_mismatch_ = why;
   }
+}
+
+void EstimatorNodelet::startImuRateMeasurement() {
+  measuring_imu_rate_ = true;
+  imu_rate_meter_ = diekf::RateMeter(settings_.imu_rate_measure_s, 20);
+  imu_rate_buffer_.clear();
+}
+
+bool EstimatorNodelet::finishImuRateMeasurement() {
+  measuring_imu_rate_ = false;
+  const double rate_hz = imu_rate_meter_.rateHz();
+  std::string summary;
+  diekf::ImuParams imu;
+  try {
+    imu = diekf::designImuPreprocessing(configured_params_.imu, rate_hz, &summary);
+  } catch (const std::invalid_argument& e) {
+    init_error_ = std::string("cannot preprocess the IMU: ") + e.what();
+    ready_ = false;
+    imu_rate_buffer_.clear();
+    NODELET_FATAL("diekf: %s", init_error_.c_str());
+    return false;
+  }
+  NODELET_INFO("diekf: %s (median of %d intervals)", summary.c_str(), imu_rate_meter_.intervals());
+  imu_rate_min_hz_ = rate_hz * (1.0 - settings_.rate_tolerance);
+  imu_rate_max_hz_ = rate_hz * (1.0 + settings_.rate_tolerance);
+  {
+    std::lock_guard<std::mutex> lock(queue_mutex_);
+    pending_imu_params_ = imu;
+    imu_design_pending_ = true;
+    imu_queue_.insert(imu_queue_.end(), imu_rate_buffer_.begin(), imu_rate_buffer_.end());
+  }
+  imu_rate_buffer_.clear();
+  queue_cv_.notify_one();
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  measured_imu_rate_hz_ = rate_hz;
+  imu_design_ = summary;
+  return true;
+}
+
+void EstimatorNodelet::checkDriverSettings() {
+  if (settings_.driver_node.empty()) return;
+  std::map<std::string, int> found;
+  for (const char* key : kIrControlKeys) {
+    int value = 0;
+    if (nh_.getParam(settings_.driver_node + "/" + key, value)) found[key] = value;
+  }
+  std::string text;
+  if (irProjectorMayBeOn(found, settings_.driver_node, &text)) {
+    NODELET_WARN("diekf: %s", text.c_str());
+  } else {
+    NODELET_INFO("diekf: %s", text.c_str());
+  }
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  ir_projector_ = text;
 }
 
 bool EstimatorNodelet::resetService(std_srvs::Trigger::Request&, std_srvs::Trigger::Response& res) {
@@ -357,17 +605,23 @@ void EstimatorNodelet::workerLoop() {
   std::deque<diekf::ImuSample> imu;
   while (true) {
     sensor_msgs::ImageConstPtr image;
-    bool restart = false, rebuild = false;
+    bool restart = false, rebuild = false, design = false;
+    diekf::ImuParams design_params;
     std::string reason;
     {
       std::unique_lock<std::mutex> lock(queue_mutex_);
       queue_cv_.wait(lock, [this] {
-        return stop_ || restart_requested_ || !imu_queue_.empty() || !image_queue_.empty();
+        return stop_ || restart_requested_ || imu_design_pending_ || !imu_queue_.empty() || !image_queue_.empty();
       });
       if (stop_) return;
       std::swap(restart, restart_requested_);
       std::swap(rebuild, restart_rebuild_);
       std::swap(reason, restart_reason_);
+      if (imu_design_pending_) {
+        design = true;
+        design_params = pending_imu_params_;
+        imu_design_pending_ = false;
+      }
       // Stamp order: the IMU samples up to the oldest waiting image, then that image. Without an image, all IMU
       // samples (the estimator keeps enough IMU history for an image that arrives after its samples).
       if (!image_queue_.empty()) {
@@ -385,6 +639,7 @@ void EstimatorNodelet::workerLoop() {
     }
     try {
       if (restart) restartFilter(reason, rebuild);
+      if (design) applyImuDesign(design_params);
       for (const diekf::ImuSample& s : imu) forwardImu(s);
       imu.clear();
       if (image) forwardImage(image);
@@ -409,12 +664,23 @@ void EstimatorNodelet::restartFilter(const std::string& reason, bool rebuild) {
     estimator_->reset(reason);
   }
   odometry_->restart();
+  predictor_->reset(rebuild);
   NODELET_INFO("diekf: filter restarted: %s", reason.c_str());
   std::lock_guard<std::mutex> lock(stats_mutex_);
   ++restarts_;
   last_reset_reason_ = reason;
   last_status_ = diekf::FilterStatus::kReset;
   last_message_ = reason;
+}
+
+void EstimatorNodelet::applyImuDesign(const diekf::ImuParams& imu) {
+  params_.imu = imu;
+  estimator_ = std::make_unique<diekf::Estimator>(*camera_, params_);
+  predictor_ = std::make_unique<diekf::StatePredictor>(*camera_, params_);
+  odometry_ = std::make_unique<BodyOdometry>(camera_->T_cam_imu, params_.imu.gyro_noise_density,
+                                             params_.imu.input_rate_hz, params_.imu.gravity_mps2, T_base_imu_);
+  odometry_->max_integration_gap_s = std::max(1.0, 5.0 / settings_.expected_image_rate_hz);
+  odometry_->odom_z_step_m = settings_.odom_z_step_m;
 }
 
 void EstimatorNodelet::forwardImu(const diekf::ImuSample& s) {
@@ -426,26 +692,41 @@ void EstimatorNodelet::forwardImu(const diekf::ImuSample& s) {
     return;
   }
   odometry_->addImu(s.t_s, s.accel_mps2, s.gyro_radps);
-  if (settings_.publish_odometry_imu_rate && odometry_->hasFrame()) {
+  const bool filtered = predictor_->addImu(s);
+  // ~odometry_imu_rate: the last posterior predicted to this sample's stamp by the filter's own prediction
+  // (diekf::StatePredictor), at every filtered sample (100 Hz) or every raw one.
+  if (settings_.publish_odometry_imu_rate && odometry_->hasFrame() && (filtered || settings_.odometry_imu_rate_raw)) {
+    diekf::State x;
+    diekf::ErrorCov P;
     nav_msgs::Odometry odom;
-    if (fillOdometry(odometry_->imuRatePose(), settings_.odom_frame, settings_.base_frame, &odom)) {
+    if (predictor_->predict(s.t_s, &x, &P) && x.allFinite() && P.allFinite() &&
+        fillOdometry(odometry_->predictedPose(s.t_s, x, P), settings_.odom_frame, settings_.base_frame, &odom)) {
       odom_imu_pub_.publish(odom);
-    } else {
-      NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: non-finite IMU-rate odometry not published");
     }
   }
 }
 
 void EstimatorNodelet::forwardImage(const sensor_msgs::ImageConstPtr& msg) {
-  cv::Mat mono;
+  // The message's own pixels (zero-copy); Estimator::addImage converts them to grey once (diekf::toGrey8) into its
+  // queue. Colour in RGB order is converted here, the estimator taking colour as BGR.
+  cv_bridge::CvImageConstPtr shared;
+  diekf::ChannelOrder order = diekf::ChannelOrder::kBgr;
   std::string error;
-  bool ok = imageToMono8(*msg, &mono, &error);
-  if (ok && (mono.cols != camera_->K.width || mono.rows != camera_->K.height)) {
-    ok = false;
-    error = "image is " + std::to_string(mono.cols) + "x" + std::to_string(mono.rows) + " but the calibration is " +
-            std::to_string(camera_->K.width) + "x" + std::to_string(camera_->K.height);
+  bool ok = imageView(msg, &shared, &order, &error);
+  cv::Mat pixels;
+  if (ok) {
+    pixels = shared->image;
+    if (order == diekf::ChannelOrder::kRgb && pixels.channels() > 1) {
+      ok = diekf::toGrey8(pixels, order, &rgb_grey_);
+      pixels = rgb_grey_;
+    }
   }
-  if (ok && !estimator_->addImage(msg->header.stamp.toSec(), mono)) {
+  if (ok && (pixels.cols != camera_->K.width || pixels.rows != camera_->K.height)) {
+    ok = false;
+    error = "image is " + std::to_string(pixels.cols) + "x" + std::to_string(pixels.rows) +
+            " but the calibration is " + std::to_string(camera_->K.width) + "x" + std::to_string(camera_->K.height);
+  }
+  if (ok && !estimator_->addImage(msg->header.stamp.toSec(), pixels)) {
     ok = false;
     error = "estimator rejected it: " + estimator_->takeWarning();
   }
@@ -487,11 +768,20 @@ void EstimatorNodelet::publishResult(const diekf::FrameResult& r) {
                 params_.divergence.max_distance_m, &range)) {
     range_pub_.publish(range);
   }
+  // base_link's -z axis in C, for what a downward rangefinder would read (flight controllers' distance sensor).
+  const Vec3 down_C = camera_->R_CI() * T_base_imu_.linear().transpose() * Vec3(0.0, 0.0, -1.0);
+  sensor_msgs::Range down_range;
+  if (fillDownRange(r, header, down_C, field_of_view_rad_, params_.divergence.min_distance_m,
+                    params_.divergence.max_distance_m, &down_range)) {
+    down_range_pub_.publish(down_range);
+  }
 
   // After the estimator's own divergence reset the velocity starts again from its prior: do not integrate
   // across (x, y and yaw stay where they were).
   if (r.status == diekf::FilterStatus::kReset) odometry_->restart();
-  const BodyPose& pose = odometry_->addFrame(r.t_s, r.state, r.covariance);
+  predictor_->setPosterior(r.t_s, r.state, r.covariance);
+  const bool height_usable = r.status == diekf::FilterStatus::kTracking || r.status == diekf::FilterStatus::kDegraded;
+  const BodyPose& pose = odometry_->addFrame(r.t_s, r.state, r.covariance, height_usable);
   nav_msgs::Odometry odom;
   if (fillOdometry(pose, settings_.odom_frame, settings_.base_frame, &odom)) {
     odom_pub_.publish(odom);
@@ -571,7 +861,13 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
     return;
   }
   std::lock_guard<std::mutex> lock(stats_mutex_);
-  if (imu_received_ == 0) {
+  if (!calibrated_) {
+    stat.summary(DiagnosticStatus::WARN, calibration_source_.empty() ? "waiting for the calibration"
+                                                                     : calibration_source_);
+  } else if (measuring_imu_rate_) {
+    stat.summaryf(DiagnosticStatus::WARN, "measuring the IMU rate from the stamps of %s (%d intervals so far)",
+                  settings_.imu_topic.c_str(), imu_rate_meter_.intervals());
+  } else if (imu_received_ == 0) {
     stat.summary(DiagnosticStatus::WARN, "waiting for IMU messages on " + settings_.imu_topic);
   } else if (images_received_ == 0) {
     stat.summary(DiagnosticStatus::WARN, "waiting for images on " + settings_.image_topic);
@@ -603,6 +899,12 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
   stat.add("gated updates", gated_updates_);
   stat.add("mean update time (ms)", update_count_ > 0 ? update_ms_sum_ / update_count_ : 0.0);
   stat.add("max update time (ms)", update_ms_max_);
+  stat.add("calibration", calibration_source_);
+  stat.add("camera driver IR projector", ir_projector_);
+  stat.add("IMU rate (Hz, measured; 0 = not measured)", measured_imu_rate_hz_);
+  stat.add("IMU preprocessing", imu_design_);
+  stat.add("images skipped while measuring the IMU rate", images_skipped_measuring_);
+  stat.add("TF base_link to camera", std::string(toString(camera_tf_plan_.kind)) + ": " + camera_tf_plan_.why);
   stat.add("distance (m)", last_distance_m_);
   stat.add("height (m)", last_height_m_);
   stat.add("camera-IMU time offset on top of the calibration's (ms)", last_time_offset_ms_);

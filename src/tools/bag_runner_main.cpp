@@ -28,6 +28,7 @@
 #include "diekf/camera_model.h"
 #include "diekf/estimator.h"
 #include "diekf/eval/ground_truth.h"
+#include "diekf/grey_image.h"
 #include "diekf/eval/io.h"
 #include "diekf/eval/metrics.h"
 #include "diekf/eval/param_overlay.h"
@@ -148,33 +149,29 @@ double stampOf(const ros::Time& header_stamp, const ros::Time& record_time) {
   return header_stamp.isZero() ? record_time.toSec() : header_stamp.toSec();
 }
 
-/// Any supported encoding -> 8-bit grey (docs/conventions.md section 2).
-cv::Mat toGrey(const sensor_msgs::Image& msg) {
-  namespace enc = sensor_msgs::image_encodings;
+/// The image's pixels for the estimator (docs/conventions.md section 2): the message's own buffer in any supported
+/// encoding (no copy; Estimator::addImage converts to grey once, diekf::toGrey8); colour in RGB order is converted
+/// here, the estimator taking colour as BGR.
+cv::Mat imagePixels(const sensor_msgs::ImageConstPtr& msg) {
+  int type = -1;
+  diekf::ChannelOrder order = diekf::ChannelOrder::kBgr;
+  std::string error;
+  if (!diekf::describeImageBuffer(msg->encoding, msg->width, msg->height, msg->step, msg->is_bigendian != 0,
+                                  msg->data.size(), &type, &order, &error)) {
+    throw RunError("cannot decode image: " + error);
+  }
   cv_bridge::CvImageConstPtr cv;
   try {
-    cv = cv_bridge::toCvCopy(msg);
+    cv = cv_bridge::toCvShare(msg);
   } catch (const cv_bridge::Exception& e) {
     throw RunError(std::string("cannot decode image: ") + e.what());
   }
-  const std::string& e = msg.encoding;
-  cv::Mat grey;
-  if (e == enc::MONO8 || e == enc::TYPE_8UC1) {
-    grey = cv->image;
-  } else if (e == enc::MONO16 || e == enc::TYPE_16UC1) {
-    cv->image.convertTo(grey, CV_8U, 1.0 / 256.0);
-  } else if (e == enc::BGR8) {
-    cv::cvtColor(cv->image, grey, cv::COLOR_BGR2GRAY);
-  } else if (e == enc::RGB8) {
-    cv::cvtColor(cv->image, grey, cv::COLOR_RGB2GRAY);
-  } else if (e == enc::BGRA8) {
-    cv::cvtColor(cv->image, grey, cv::COLOR_BGRA2GRAY);
-  } else if (e == enc::RGBA8) {
-    cv::cvtColor(cv->image, grey, cv::COLOR_RGBA2GRAY);
-  } else {
-    throw RunError("unsupported image encoding '" + e + "' (mono8, mono16, bgr8, rgb8, bgra8, rgba8)");
+  if (order == diekf::ChannelOrder::kRgb && cv->image.channels() > 1) {
+    cv::Mat grey;
+    diekf::toGrey8(cv->image, order, &grey);
+    return grey;
   }
-  return grey;
+  return cv->image;  // shares the message's buffer: the caller keeps the message
 }
 
 diekf::eval::EstimateRow toRow(const diekf::FrameResult& r) {
@@ -368,7 +365,7 @@ int run(const RunnerOptions& o) {
     } else {
       const auto img = m.instantiate<sensor_msgs::Image>();
       if (!img) continue;
-      estimator.addImage(stampOf(img->header.stamp, m.getTime()) + shift_s, toGrey(*img));
+      estimator.addImage(stampOf(img->header.stamp, m.getTime()) + shift_s, imagePixels(img));
       ++images;
     }
     drain();

@@ -36,9 +36,13 @@ HERE = os.path.dirname(os.path.abspath(__file__))
 SOURCE_DIR = os.path.dirname(os.path.dirname(HERE))
 OPTIONS = {"build-dir": None, "devel-dir": None, "keep": None}
 
-LIBRARIES = ["libdiekf_core.so", "libdiekf_sim.so", "libdiekf_ros_helpers.so", "libdiekf_nodelet.so"]
-EXECUTABLES = ["diekf_node", "diekf_bag_runner", "diekf_simulate", "diekf_import"]
+LIBRARIES = ["libdiekf_core.so", "libdiekf_sim.so", "libdiekf_ros_helpers.so", "libdiekf_nodelet.so",
+             "libdiekf_mynteye_standin.so"]
+EXECUTABLES = ["diekf_node", "diekf_bag_runner", "diekf_simulate", "diekf_import", "mynteye_standin_node"]
+SCRIPTS = ["load_nodelet_after.py", "plot_results.py"]  # installed programs that are not ELF files
 SHARE_FILES = ["package.xml", "nodelet_plugins.xml", "launch/mynteye.launch", "launch/replay.launch",
+               "launch/mynteye_driver.launch", "launch/mynteye_standin.launch",
+               "launch/include/mynteye_driver_params.launch", "launch/include/mynteye_standin_device.launch",
                "config/estimator.yaml", "config/mynteye.yaml", "rviz/diekf.rviz", "msg/PlanarState.msg",
                "cmake/diekfConfig.cmake"]
 HEADERS = ["diekf/estimator.h", "diekf/param_source.h", "diekf/params.h", "diekf/types.h", "diekf/ros/conversions.h",
@@ -103,18 +107,20 @@ class InstallSpace(unittest.TestCase):
         self.assertTrue(os.path.isfile(os.path.join(self.prefix, "setup.bash")), self.install_log[-3000:])
         for lib in LIBRARIES:
             self.assertTrue(os.path.isfile(os.path.join(self.prefix, "lib", lib)), lib)
-        for exe in EXECUTABLES:
+        for exe in EXECUTABLES + SCRIPTS:
             path = os.path.join(self.prefix, "lib", PACKAGE, exe)
             self.assertTrue(os.path.isfile(path) and os.access(path, os.X_OK), path)
         for f in SHARE_FILES:
             self.assertTrue(os.path.isfile(os.path.join(self.prefix, "share", PACKAGE, f)), f)
         for h in HEADERS:
             self.assertTrue(os.path.isfile(os.path.join(self.prefix, "include", h)), h)
-        # The plugin description names a library that is installed.
+        # The plugin description names libraries that are installed.
         with open(os.path.join(self.prefix, "share", PACKAGE, "nodelet_plugins.xml")) as f:
             xml = f.read()
-        lib = xml.split('library path="', 1)[1].split('"', 1)[0]
-        self.assertTrue(os.path.isfile(os.path.join(self.prefix, lib + ".so")), lib)
+        libs = [part.split('"', 1)[0] for part in xml.split('library path="')[1:]]
+        self.assertEqual(len(libs), 2, xml)
+        for lib in libs:
+            self.assertTrue(os.path.isfile(os.path.join(self.prefix, lib + ".so")), lib)
 
     def test_1_parents(self):
         self.assertIsNotNone(self.parents_dropped, "no parent workspace list in the installed _setup_util.py")
@@ -210,7 +216,7 @@ def inside_main(prefix, work, forbidden):
     log("ldd: every library found")
 
     # 3. rosrun and the message module come from the install space.
-    for exe in EXECUTABLES:
+    for exe in EXECUTABLES + SCRIPTS:
         rc, out = run(["rosrun", "--prefix", "echo", PACKAGE, exe], 120)
         last = out.strip().split("\n")[-1] if out.strip() else ""
         check(rc == 0 and last and os.path.realpath(last) == os.path.realpath(os.path.join(libexec, exe)),

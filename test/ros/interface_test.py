@@ -37,6 +37,7 @@ OUTPUTS = {
     NODE + "/odometry_imu_rate": ("nav_msgs/Odometry", Odometry),
     NODE + "/twist": ("geometry_msgs/TwistWithCovarianceStamped", TwistWithCovarianceStamped),
     NODE + "/height": ("sensor_msgs/Range", Range),
+    NODE + "/range": ("sensor_msgs/Range", Range),
     NODE + "/path": ("nav_msgs/Path", Path),
     NODE + "/markers": ("visualization_msgs/MarkerArray", MarkerArray),
     NODE + "/residual_image": ("sensor_msgs/Image", Image),
@@ -53,6 +54,8 @@ class Interface(unittest.TestCase):
         self.tf = {}
         self.tf_static = {}
         self.diagnostics = []
+        self.odom_frames = []
+        self.odom_fast = []
         self.node = None
         self.player = None
         self.tmp = None
@@ -67,6 +70,10 @@ class Interface(unittest.TestCase):
         def callback(msg):
             with self.lock:
                 self.count[topic] += 1
+                if topic.endswith("/odometry"):
+                    self.odom_frames.append(msg)
+                elif topic.endswith("/odometry_imu_rate"):
+                    self.odom_fast.append(msg)
                 if topic.endswith("/state"):
                     self.statuses.append((time.time(), msg.status))
         return callback
@@ -142,9 +149,21 @@ class Interface(unittest.TestCase):
         print("\n[diekf rostest] messages per output: %s" % counts)
         n_state = counts[NODE + "/state"]
         self.assertGreater(n_state, 0.5 * 30 * duration_s)
-        for topic in (NODE + "/odometry", NODE + "/twist", NODE + "/height"):
+        for topic in (NODE + "/odometry", NODE + "/twist", NODE + "/height", NODE + "/range"):
             self.assertGreater(counts[topic], 0.9 * n_state, topic + " not published for every image")
-        self.assertGreater(counts[NODE + "/odometry_imu_rate"], 5 * n_state, "IMU-rate odometry too rare")
+        # ~odometry_imu_rate: the filter state predicted to every filtered IMU sample (100 Hz, 3.3 per image).
+        self.assertGreater(counts[NODE + "/odometry_imu_rate"], 2.5 * n_state, "IMU-rate odometry too rare")
+        with self.lock:
+            frame_odom, fast_odom = list(self.odom_frames), list(self.odom_fast)
+        stamps = np.array([m.header.stamp.to_sec() for m in fast_odom])
+        gaps = []
+        for m in frame_odom[len(frame_odom) // 2:]:
+            t = m.header.stamp.to_sec()
+            k = int(np.argmin(np.abs(stamps - t)))
+            if abs(stamps[k] - t) < 0.006:  # a prediction within one 100 Hz period of the image
+                gaps.append(abs(fast_odom[k].pose.pose.position.z - m.pose.pose.position.z))
+        self.assertGreater(len(gaps), 10, "no IMU-rate odometry near the images' stamps")
+        self.assertLess(max(gaps), 0.02, "IMU-rate odometry z departs from the image-rate odometry's: %s" % gaps)
         for topic in (NODE + "/path", NODE + "/markers", NODE + "/residual_image"):
             self.assertGreater(counts[topic], 0, topic + " never published while subscribed")
 

@@ -5,6 +5,8 @@
 #include <string>
 
 #include <gtest/gtest.h>
+#include <boost/make_shared.hpp>
+#include <sensor_msgs/image_encodings.h>
 
 #include "diekf/ros/body_odometry.h"
 #include "diekf/ros/conversions.h"
@@ -93,17 +95,86 @@ TEST(BodyOdometry, RollFromGravityAndYawFromGyro) {
   EXPECT_NEAR((R.transpose() * Vec3::UnitZ() + g_I).norm(), 0.0, 1e-9);
 }
 
-TEST(BodyOdometry, ImuRatePropagationFollowsAcceleration) {
+TEST(BodyOdometry, PredictedPoseFromTheFilterStateBetweenFrames) {
   BodyOdometry odom(downwardExtrinsics(), 1e-3, 500.0, 9.81);
   const diekf::ErrorCov P = diekf::ErrorCov::Identity() * 1e-4;
   odom.addImu(0.0, Vec3(0, 0, 9.81), Vec3::Zero());
   odom.addFrame(0.0, hoverState(1.0, Vec3::Zero(), Vec3(0, 0, 1)), P);
-  for (int k = 1; k <= 50; ++k) odom.addImu(k * 0.002, Vec3(1.0, 0, 9.81), Vec3::Zero());  // 1 m/s^2 along x
-  const diekf_ros::BodyPose& p = odom.imuRatePose();
-  EXPECT_NEAR(p.linear_velocity_mps.x(), 0.1, 1e-9);
-  EXPECT_NEAR(p.position_m.x(), 0.5 * 1.0 * 0.1 * 0.1, 2e-4);
+  for (int k = 1; k <= 50; ++k) odom.addImu(k * 0.002, Vec3(0, 0, 9.81), Vec3::Zero());
+  // The filter's state predicted to 0.1 s: 0.5 m/s along x, 4 cm higher (camera z points down), larger covariance.
+  const diekf::ErrorCov P_pred = diekf::ErrorCov::Identity() * 4e-4;
+  const diekf_ros::BodyPose p = odom.predictedPose(0.1, hoverState(1.04, Vec3(0.5, 0.0, 0.0), Vec3(0, 0, 1)), P_pred);
   EXPECT_NEAR(p.t_s, 0.1, 1e-12);
+  EXPECT_NEAR(p.position_m.x(), 0.5 * (0.0 + 0.5) * 0.1, 1e-9);  // trapezoid from the frame's velocity
+  EXPECT_NEAR(p.position_m.z(), 1.04 - 0.05, 1e-9);
+  EXPECT_NEAR(p.linear_velocity_mps.x(), 0.5, 1e-9);
+  EXPECT_GT(p.pose_covariance(2, 2), odom.framePose().pose_covariance(2, 2));  // from the predicted covariance
+  EXPECT_GT(p.twist_covariance(0, 0), odom.framePose().twist_covariance(0, 0));
+  // The frame-rate odometry is unchanged by a prediction.
+  EXPECT_NEAR(odom.framePose().position_m.x(), 0.0, 1e-12);
+  EXPECT_NEAR(odom.framePose().position_m.z(), 0.95, 1e-12);
   EXPECT_FALSE(odom.addImu(0.1, Vec3::Zero(), Vec3::Zero()));  // non-increasing stamp
+}
+
+TEST(BodyOdometry, ZContinuousAcrossRestartsAndGroundSteps) {
+  BodyOdometry odom(downwardExtrinsics(), 1e-3, 500.0, 9.81);
+  const diekf::ErrorCov P = diekf::ErrorCov::Identity() * 1e-4;
+  const Vec3 down(0, 0, 1);
+  double t = 0.0;
+  const auto frame = [&](double d, double climb_mps, bool usable) {
+    t += 1.0 / 30.0;
+    odom.addImu(t, Vec3(0, 0, 9.81), Vec3::Zero());
+    return odom.addFrame(t, hoverState(d, Vec3(0.0, 0.0, -climb_mps), down), P, usable).position_m.z();
+  };
+  // Climbing at 0.3 m/s: z follows the height, no step.
+  double z = 0.0;
+  for (int k = 0; k < 30; ++k) z = frame(1.0 + 0.3 * (k + 1) / 30.0, 0.3, true);
+  EXPECT_NEAR(z, 1.3 - 0.05, 1e-9);
+  EXPECT_EQ(odom.groundSteps(), 0);
+  // A box 0.3 m high under the hovering robot: the height drops in one frame, odom z does not.
+  for (int k = 0; k < 5; ++k) z = frame(1.3, 0.0, true);
+  const double z_before = z;
+  for (int k = 0; k < 5; ++k) z = frame(1.0, 0.0, true);
+  EXPECT_NEAR(z, z_before, 1e-9);
+  EXPECT_EQ(odom.groundSteps(), 1);
+  EXPECT_NEAR(odom.zOffset(), 0.3, 1e-9);
+  // A filter restart: re-initializing from the prior (0.33 m) z holds; once it has converged (to 1.05 m), z goes
+  // on from where it was.
+  odom.restart();
+  for (int k = 0; k < 10; ++k) EXPECT_NEAR(frame(0.33 + 0.05 * k, 0.0, false), z_before, 1e-9);
+  EXPECT_NEAR(frame(1.05, 0.0, true), z_before, 1e-9);
+  EXPECT_NEAR(frame(1.15, 3.0, true), z_before + 0.1, 1e-9);  // then follows the height again (3 m/s: no step)
+  // Off: the height itself.
+  BodyOdometry plain(downwardExtrinsics(), 1e-3, 500.0, 9.81);
+  plain.odom_z_step_m = 0.0;
+  plain.addImu(0.0, Vec3(0, 0, 9.81), Vec3::Zero());
+  plain.addFrame(0.0, hoverState(1.3, Vec3::Zero(), down), P);
+  plain.addImu(0.03, Vec3(0, 0, 9.81), Vec3::Zero());
+  EXPECT_NEAR(plain.addFrame(0.03, hoverState(1.0, Vec3::Zero(), down), P).position_m.z(), 0.95, 1e-9);
+}
+
+TEST(BodyOdometry, BaseLinkAwayFromTheImu) {
+  // base_link 10 cm behind and 5 cm below the IMU, turned by 90 degrees about z: p_base = R p_imu + t.
+  Eigen::Isometry3d T_base_imu = Eigen::Isometry3d::Identity();
+  T_base_imu.linear() = Eigen::AngleAxisd(M_PI / 2, Vec3::UnitZ()).toRotationMatrix();
+  T_base_imu.translation() = Vec3(0.1, 0.0, 0.05);  // the IMU's origin in base_link
+  BodyOdometry imu_frame(downwardExtrinsics(), 1e-3, 500.0, 9.81);
+  BodyOdometry base(downwardExtrinsics(), 1e-3, 500.0, 9.81, T_base_imu);
+  const diekf::ErrorCov P = diekf::ErrorCov::Identity() * 1e-4;
+  const State x = hoverState(2.0, Vec3(0.4, 0.0, 0.0), Vec3(0.0, 0.0, 1.0));
+  for (BodyOdometry* o : {&imu_frame, &base}) {
+    o->addImu(0.0, Vec3(0, 0, 9.81), Vec3::Zero());
+    o->addFrame(0.0, x, P);
+  }
+  const diekf_ros::BodyPose& pi = imu_frame.framePose();
+  const diekf_ros::BodyPose& pb = base.framePose();
+  const Eigen::Matrix3d R_OB = pb.orientation.toRotationMatrix();
+  // The IMU is where T_base_imu puts it, seen from base_link's pose; base_link is 5 cm lower.
+  EXPECT_NEAR((pb.position_m + R_OB * T_base_imu.translation() - pi.position_m).norm(), 0.0, 1e-9);
+  EXPECT_NEAR(pb.position_m.z(), pi.position_m.z() - 0.05, 1e-9);
+  EXPECT_TRUE((R_OB * T_base_imu.linear()).isApprox(pi.orientation.toRotationMatrix(), 1e-9));
+  // Same velocity (no rotation), expressed in base_link's axes.
+  EXPECT_NEAR((R_OB * pb.linear_velocity_mps - pi.orientation * pi.linear_velocity_mps).norm(), 0.0, 1e-9);
 }
 
 TEST(Conversions, ImageEncodingsToMono8) {
@@ -175,6 +246,45 @@ TEST(Conversions, MalformedImagesRejectedWithReason) {
   msg.encoding = "32FC1";
   EXPECT_FALSE(diekf_ros::imageToMono8(msg, &out, &error));
   EXPECT_NE(error.find("32FC1"), std::string::npos);
+}
+
+TEST(Conversions, ImageViewSharesTheMessageBuffer) {
+  // The nodelet's image path: the message's pixels are wrapped, not copied (cv_bridge::toCvShare), for every
+  // encoding; the one grey conversion happens in Estimator::addImage (diekf::toGrey8).
+  for (const char* encoding : {"mono8", "8UC1", "mono16", "bgr8", "rgb8", "bgra8", "rgba8"}) {
+    auto msg = boost::make_shared<sensor_msgs::Image>();
+    msg->encoding = encoding;
+    msg->width = 3;
+    msg->height = 2;
+    const int bytes = sensor_msgs::image_encodings::bitDepth(encoding) / 8 *
+                      sensor_msgs::image_encodings::numChannels(encoding);
+    msg->step = 3 * bytes + 4;  // padded rows
+    msg->data.assign(msg->step * 2, 0);
+    for (size_t i = 0; i < msg->data.size(); ++i) msg->data[i] = static_cast<uint8_t>(i * 7);
+    cv_bridge::CvImageConstPtr view;
+    diekf::ChannelOrder order;
+    std::string error;
+    ASSERT_TRUE(diekf_ros::imageView(msg, &view, &order, &error)) << encoding << ": " << error;
+    EXPECT_EQ(view->image.data, msg->data.data()) << encoding << ": copied";
+    EXPECT_EQ(static_cast<size_t>(view->image.step), msg->step) << encoding;
+    EXPECT_EQ(view->image.cols, 3);
+    EXPECT_EQ(order == diekf::ChannelOrder::kRgb, std::string(encoding).find("rgb") == 0) << encoding;
+    // Same grey as the copying conversion.
+    cv::Mat grey, through_view;
+    ASSERT_TRUE(diekf_ros::imageToMono8(*msg, &grey, &error)) << error;
+    ASSERT_TRUE(diekf::toGrey8(view->image, order, &through_view));
+    EXPECT_EQ(cv::norm(grey, through_view, cv::NORM_INF), 0.0) << encoding;
+  }
+  auto bad = boost::make_shared<sensor_msgs::Image>();
+  bad->encoding = "yuv422";
+  bad->width = bad->height = 2;
+  bad->step = 4;
+  bad->data.assign(8, 0);
+  cv_bridge::CvImageConstPtr view;
+  diekf::ChannelOrder order;
+  std::string error;
+  EXPECT_FALSE(diekf_ros::imageView(bad, &view, &order, &error));
+  EXPECT_NE(error.find("yuv422"), std::string::npos) << error;
 }
 
 TEST(Conversions, ClockJumpRestartsOnlyOnce) {

@@ -5,6 +5,7 @@
 
 #include <geometry_msgs/TwistWithCovarianceStamped.h>
 #include <nav_msgs/Odometry.h>
+#include <cv_bridge/cv_bridge.h>
 #include <opencv2/core.hpp>
 #include <sensor_msgs/CameraInfo.h>
 #include <sensor_msgs/Image.h>
@@ -15,12 +16,18 @@
 #include "diekf/PlanarState.h"
 #include "diekf/camera_model.h"
 #include "diekf/estimator.h"
+#include "diekf/grey_image.h"
 #include "diekf/ros/body_odometry.h"
 
 namespace diekf_ros {
 
-/// Grey 8-bit copy of an image in mono8, mono16 (scaled by 1/256), bgr8, rgb8, bgra8 or rgba8 (also 8UC1 and
-/// 16UC1). Returns false and says why for any other encoding or a malformed message.
+/// The image message's own pixels without a copy (cv_bridge::toCvShare; *view keeps the message alive), after
+/// checking its fields (diekf::describeImageBuffer): mono8, mono16, bgr8, rgb8, bgra8, rgba8 (also 8UC1 and 16UC1);
+/// `order` is the channel order of a colour image. False and why for any other encoding or a malformed message.
+bool imageView(const sensor_msgs::ImageConstPtr& msg, cv_bridge::CvImageConstPtr* view, diekf::ChannelOrder* order,
+               std::string* error);
+
+/// Grey 8-bit copy of an image in the encodings of imageView (diekf::toGrey8: 16-bit scaled by 1/256).
 bool imageToMono8(const sensor_msgs::Image& msg, cv::Mat* mono8, std::string* error);
 
 /// IMU message -> core sample (stamp in s, base_link frame). False if any value is non-finite.
@@ -44,6 +51,12 @@ bool fillOdometry(const BodyPose& pose, const std::string& odom_frame, const std
 /// field_of_view_rad, min/max range in m. False if non-finite.
 bool fillRange(const diekf::FrameResult& result, const std_msgs::Header& header, double field_of_view_rad,
                double min_range_m, double max_range_m, sensor_msgs::Range* msg);
+
+/// Distance from the camera to the plane along base_link's -z axis (`down_C`: that axis in C, unit), what a
+/// downward rangefinder on the camera measures (flight controllers compensate its tilt themselves). In the header's
+/// frame, the other fields as fillRange. False if non-finite or the axis is more than 80 deg off the plane normal.
+bool fillDownRange(const diekf::FrameResult& result, const std_msgs::Header& header, const Vec3& down_C,
+                   double field_of_view_rad, double min_range_m, double max_range_m, sensor_msgs::Range* msg);
 
 /// Checks a CameraInfo against the calibration: size, K (1 % relative) and distortion (1e-3 absolute, when the
 /// model matches). Returns true if they agree; otherwise `why` lists the differences.

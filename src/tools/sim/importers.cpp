@@ -12,6 +12,7 @@
 #include <opencv2/imgproc.hpp>
 #include <yaml-cpp/yaml.h>
 
+#include "diekf/grey_image.h"
 #include "diekf/sim/sequence_io.h"
 
 namespace diekf {
@@ -53,12 +54,11 @@ std::string shorten(const std::string& s) { return s.size() > 60 ? s.substr(0, 5
 cv::Mat readMono8(const std::string& path) {
   cv::Mat im = cv::imread(path, cv::IMREAD_UNCHANGED);
   if (im.empty()) throw std::runtime_error("cannot read image '" + path + "'");
-  if (im.depth() == CV_16U) im.convertTo(im, CV_8U, 1.0 / 256.0);
-  if (im.depth() != CV_8U) throw std::runtime_error("unsupported pixel depth in '" + path + "'");
-  if (im.channels() == 3) cv::cvtColor(im, im, cv::COLOR_BGR2GRAY);
-  else if (im.channels() == 4) cv::cvtColor(im, im, cv::COLOR_BGRA2GRAY);
-  else if (im.channels() != 1) throw std::runtime_error("unsupported channel count in '" + path + "'");
-  return im;
+  cv::Mat grey;  // imread gives colour in BGR order; 16-bit scaled by 1/256
+  if (!toGrey8(im, ChannelOrder::kBgr, &grey)) {
+    throw std::runtime_error("unsupported pixel depth or channel count in '" + path + "'");
+  }
+  return grey;
 }
 
 /// Loads a YAML file, dropping OpenCV's "%YAML:1.0" header line (EuRoC sensor.yaml) that yaml-cpp rejects.
