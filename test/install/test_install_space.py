@@ -37,7 +37,7 @@ SOURCE_DIR = os.path.dirname(os.path.dirname(HERE))
 OPTIONS = {"build-dir": None, "devel-dir": None, "keep": None}
 
 LIBRARIES = ["libdiekf_core.so", "libdiekf_sim.so", "libdiekf_ros_helpers.so", "libdiekf_nodelet.so"]
-EXECUTABLES = ["diekf_node", "diekf_bag_runner", "diekf_simulate", "diekf_import"]
+EXECUTABLES = ["diekf_node", "diekf_bag_runner", "diekf_replay", "diekf_simulate", "diekf_import"]
 SHARE_FILES = ["package.xml", "nodelet_plugins.xml", "launch/mynteye.launch", "launch/replay.launch",
                "config/estimator.yaml", "config/mynteye.yaml", "rviz/diekf.rviz", "msg/PlanarState.msg",
                "cmake/diekfConfig.cmake"]
