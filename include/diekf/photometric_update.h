@@ -82,6 +82,14 @@ State shiftedAlong(const State& x, const ObservedVec& m, double delta_s);
 Vec2 warpToReference(const State& x, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s, double px,
                      double py, WarpJacobian* J = nullptr, double state_lag_s = 0.0);
 
+/// The vector instruction set the photometric sweep (and the image preprocessing) was compiled for, as OpenCV's
+/// universal intrinsics resolved it in this build (CV_NEON / CV_SSE2 / CV_SIMD128, fixed at compile time):
+/// "NEON (AArch64, 128-bit, fused multiply-add)", "NEON (ARMv7, 128-bit)", "SSE2 (x86-64, 128-bit)" (with
+/// ", VEX-encoded" under -mavx and up: outside OpenCV's own build its headers use SSE2 whatever -march says), or
+/// "scalar C++ (no SIMD)" for the plain C++ fallback. The ARM builds refuse to compile without NEON unless
+/// DIEKF_ALLOW_SCALAR_SIMD is defined (src/core/photometric_update.cpp).
+const char* photometricSweepSimd();
+
 class PhotometricUpdate {
  public:
   PhotometricUpdate(const PhotometricParams& params, const PreprocessParams& preprocess);

@@ -325,13 +325,18 @@ ImagePreprocessor::ImagePreprocessor(const CameraModel& camera, const Preprocess
     return {first, it->second};
   };
 
+  // The tap choices (roundings of centres and footprints) must not depend on the last bits of the mapping:
+  // compilers contract a * b + c into one fused multiply-add on ARM (and on x86 with -march=native) but not on
+  // portable x86-64, and exact downscale factors (376 or 94 px from 752) put centres exactly on rounding ties.
+  // Snapping to 1/4096 raw px makes such ties exact on every platform (test LinearRampGradients).
+  auto snap = [](double x) { return std::round(x * 4096.0) / 4096.0; };
   for (int v = 0; v < H; ++v) {
     for (int u = 0; u < W; ++u) {
-      const Vec2 c = toRaw(u, v);
+      const Vec2 c = toRaw(u, v).unaryExpr(snap);
       const Vec2 du = toRaw(u + 0.5, v) - toRaw(u - 0.5, v);  // raw displacement per working px along x
       const Vec2 dv = toRaw(u, v + 0.5) - toRaw(u, v - 0.5);
-      double Fx = std::hypot(du.x(), dv.x());
-      double Fy = std::hypot(du.y(), dv.y());
+      double Fx = snap(std::hypot(du.x(), dv.x()));
+      double Fy = snap(std::hypot(du.y(), dv.y()));
       if (!std::isfinite(Fx)) Fx = 1.0;
       if (!std::isfinite(Fy)) Fy = 1.0;
       const double cxr = std::clamp(std::isfinite(c.x()) ? c.x() : 0.0, -1e6, 1e6);

@@ -9,7 +9,31 @@
 
 #include "gauss_newton.h"
 
+// The sweep and the preprocessing are written with OpenCV's universal intrinsics. On 32-bit ARM, NEON is optional
+// (ARMv7) and Debian's / Ubuntu's armhf compilers do not enable it by default: the intrinsics then silently fall back
+// to plain C++ emulation, several times slower. CMake adds -mfpu=neon-vfpv4 there (cmake/arm_neon.cmake); a build
+// for an ARM core without NEON has to say so (-DDIEKF_ARM_NEON=OFF defines DIEKF_ALLOW_SCALAR_SIMD).
+#if (defined(__arm__) || defined(__aarch64__)) && (!CV_NEON || CV_SIMD128_CPP) && !defined(DIEKF_ALLOW_SCALAR_SIMD)
+#error "ARM target without NEON: OpenCV's intrinsics would be scalar emulation. Compile with -mfpu=neon-vfpv4 (or neon), or configure with -DDIEKF_ARM_NEON=OFF to accept the scalar fallback."
+#endif
+
 namespace diekf {
+
+const char* photometricSweepSimd() {
+#if CV_SIMD128_CPP || !CV_SIMD128
+  return "scalar C++ (no SIMD)";
+#elif CV_NEON && defined(__aarch64__)
+  return "NEON (AArch64, 128-bit, fused multiply-add)";
+#elif CV_NEON
+  return "NEON (ARMv7, 128-bit)";
+#elif CV_SSE2 && defined(__AVX__)
+  return "SSE2 (x86-64, 128-bit, VEX-encoded)";
+#elif CV_SSE2
+  return "SSE2 (x86-64, 128-bit)";
+#else
+  return "128-bit SIMD (not NEON or SSE2)";
+#endif
+}
 
 // -------------------------------------------------------------------------------------------------------------
 // Warp (docs/algorithm.md §3.2, without its first-order approximations in time). Over the image interval the camera

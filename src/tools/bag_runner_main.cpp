@@ -9,6 +9,7 @@
 #include <fstream>
 #include <iostream>
 #include <map>
+#include <memory>
 #include <optional>
 #include <sstream>
 #include <string>
@@ -33,8 +34,10 @@
 #include "diekf/eval/metrics.h"
 #include "diekf/eval/param_overlay.h"
 #include "diekf/eval/runner_options.h"
+#include "diekf/eval/sequence_files.h"
 #include "diekf/param_source.h"
 #include "diekf/params.h"
+#include "diekf/photometric_update.h"
 
 namespace {
 
@@ -297,8 +300,14 @@ int run(const RunnerOptions& o) {
               << (config_used.empty() ? std::string("(built-in defaults)") : config_used) << "\n";
   }
 
+  if (!o.quiet) std::cerr << kProgram << ": photometric sweep SIMD: " << diekf::photometricSweepSimd() << "\n";
   diekf::Estimator estimator(camera, params);
   diekf::eval::EstimatesCsvWriter csv((out_dir / "estimates.csv").string());
+  // --export-sequence: the estimator's input of the first pass, for diekf_replay (docs/conventions.md section 7).
+  std::unique_ptr<diekf::eval::SequenceWriter> exported;
+  if (!o.export_sequence.empty()) {
+    exported = std::make_unique<diekf::eval::SequenceWriter>(o.export_sequence, o.camchain);
+  }
   // --frames-csv: per-image update diagnostics (not part of the estimates format of docs/conventions.md section 4).
   std::ofstream frames;
   if (o.frames_csv) {
@@ -361,11 +370,20 @@ int run(const RunnerOptions& o) {
       s.t_s = stampOf(imu->header.stamp, m.getTime()) + shift_s;
       s.accel_mps2 = diekf::Vec3(imu->linear_acceleration.x, imu->linear_acceleration.y, imu->linear_acceleration.z);
       s.gyro_radps = diekf::Vec3(imu->angular_velocity.x, imu->angular_velocity.y, imu->angular_velocity.z);
+      if (exported && pass == 0) exported->addImu(s);
       estimator.addImu(s);
     } else {
       const auto img = m.instantiate<sensor_msgs::Image>();
       if (!img) continue;
-      estimator.addImage(stampOf(img->header.stamp, m.getTime()) + shift_s, imagePixels(img));
+      const double t_s = stampOf(img->header.stamp, m.getTime()) + shift_s;
+      const cv::Mat pixels = imagePixels(img);
+      if (exported && pass == 0) {
+        // The exported sequence holds the 8-bit grey image the estimator works on (its one grey conversion).
+        cv::Mat grey;
+        diekf::toGrey8(pixels, diekf::ChannelOrder::kBgr, &grey);
+        exported->addImage(t_s, grey);
+      }
+      estimator.addImage(t_s, pixels);
       ++images;
     }
     drain();
@@ -387,6 +405,7 @@ int run(const RunnerOptions& o) {
   }
   drain();
   csv.close();
+  if (exported) exported->close();
   bag.close();
   if (rows.empty()) {
     throw RunError("no estimates: " + std::to_string(images) + " images on " + image_topic +

@@ -19,7 +19,8 @@ TEST(RunnerOptions, FullCommandLine) {
   const RunnerOptions o = parse({"--bag", "f.bag", "--camchain", "c.yaml", "--imu", "i.yaml", "--config", "p.yaml",
                                  "--mode", "ekf", "--image-topic", "/img", "--imu-topic=/imu", "--width", "120",
                                  "--set", "photometric/max_passes=5", "--set", "a=b", "--output", "out",
-                                 "--gt-velocity-window", "0.05", "--quiet", "--frames-csv"});
+                                 "--gt-velocity-window", "0.05", "--quiet", "--frames-csv", "--export-sequence",
+                                 "seq"});
   EXPECT_EQ(o.bag, "f.bag");
   EXPECT_EQ(o.camchain, "c.yaml");
   EXPECT_EQ(o.imu, "i.yaml");
@@ -34,8 +35,10 @@ TEST(RunnerOptions, FullCommandLine) {
   EXPECT_DOUBLE_EQ(o.gt_velocity_window_s, 0.05);
   EXPECT_TRUE(o.quiet);
   EXPECT_TRUE(o.frames_csv);
+  EXPECT_EQ(o.export_sequence, "seq");
   EXPECT_DOUBLE_EQ(o.eval_start_delay_s, 3.0);
   EXPECT_FALSE(parse({"--bag", "b", "--camchain", "c", "--output", "o"}).frames_csv);
+  EXPECT_TRUE(parse({"--bag", "b", "--camchain", "c", "--output", "o"}).export_sequence.empty());
 }
 
 TEST(RunnerOptions, ErrorsAreUsageErrors) {

@@ -38,7 +38,8 @@ OPTIONS = {"build-dir": None, "devel-dir": None, "keep": None}
 
 LIBRARIES = ["libdiekf_core.so", "libdiekf_sim.so", "libdiekf_ros_helpers.so", "libdiekf_nodelet.so",
              "libdiekf_mynteye_standin.so"]
-EXECUTABLES = ["diekf_node", "diekf_bag_runner", "diekf_simulate", "diekf_import", "mynteye_standin_node"]
+EXECUTABLES = ["diekf_node", "diekf_bag_runner", "diekf_replay", "diekf_simulate", "diekf_import",
+               "mynteye_standin_node"]
 SCRIPTS = ["load_nodelet_after.py", "plot_results.py"]  # installed programs that are not ELF files
 SHARE_FILES = ["package.xml", "nodelet_plugins.xml", "launch/mynteye.launch", "launch/replay.launch",
                "launch/mynteye_driver.launch", "launch/mynteye_standin.launch",

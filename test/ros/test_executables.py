@@ -22,7 +22,7 @@ import diekf_rostest_utils as util  # noqa: E402
 
 PACKAGE = "diekf"
 # Executables a build of the package always has (the tests' binaries and the benchmark come on top).
-REQUIRED = ["diekf_node", "diekf_simulate", "diekf_import", "diekf_bag_runner"]
+REQUIRED = ["diekf_node", "diekf_simulate", "diekf_import", "diekf_bag_runner", "diekf_replay"]
 BUILD_DIR = None  # --build-dir: the catkin build directory (make test passes it)
 
 

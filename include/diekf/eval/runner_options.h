@@ -28,6 +28,7 @@ struct RunnerOptions {
   int repeat = 1;                         ///< soak test: play the bag this many times back to back, stamps shifted
   bool quiet = false;                     ///< no progress on stderr
   bool frames_csv = false;                ///< also write output/frames.csv (per-image update diagnostics)
+  std::string export_sequence;            ///< also write what the estimator is fed to this folder (diekf_replay)
   bool help = false;
 };
 

@@ -61,6 +61,8 @@ Options:
                            only the first pass is kept for the evaluation; RSS printed to stderr after each pass
   --frames-csv             also write DIR/frames.csv: per image the update's photometric residual RMS, valid
                            pixel ratio, passes, whether it was applied, status and message (diagnostics)
+  --export-sequence DIR    also write the IMU samples and 8-bit images as the estimator is fed them (first pass)
+                           to DIR: events.csv, images/*.pgm, camchain.yaml; diekf_replay runs them without ROS
   --quiet                  no progress output on stderr
   --help                   this text
 Exit status: 0 on success, 1 on a bad command line, unreadable input or a processing error.
@@ -124,6 +126,8 @@ RunnerOptions parseRunnerOptions(int argc, const char* const* argv) {
       o.sets.push_back(kv);
     } else if (arg == "--output") {
       o.output = next();
+    } else if (arg == "--export-sequence") {
+      o.export_sequence = next();
     } else if (arg == "--sequence") {
       o.sequence = next();
     } else if (arg == "--gt-velocity-window") {

@@ -350,6 +350,81 @@ TEST(BagRunner, UnknownSetKeyIsRejected) {
   EXPECT_NE(r.err.find("no_such/key"), std::string::npos) << r.err;
 }
 
+RunResult runReplay(const std::string& args, const fs::path& dir) {
+  return runCommand(std::string("\"") + DIEKF_REPLAY_EXE + "\" " + args, dir);
+}
+
+/// estimates.csv lines without the update_ms column (wall time).
+std::vector<std::string> withoutUpdateMs(const fs::path& csv) {
+  std::vector<std::string> lines = readLines(csv);
+  for (std::string& l : lines) {
+    const std::size_t status = l.rfind(',');
+    const std::size_t ms = l.rfind(',', status - 1);
+    l = l.substr(0, ms) + l.substr(status);
+  }
+  return lines;
+}
+
+// The exported sequence, replayed without ROS by diekf_replay, gives the runner's estimates exactly (same events,
+// same order, same parameters).
+TEST(BagRunner, ExportedSequenceReplaysToTheRunnersEstimates) {
+  Dirs dirs;
+  const std::string bag = (dirs.root / "f.bag").string();
+  const int images = writeFlightBag(bag, 2.0, false);
+  const std::string camchain = writeCamchain(dirs.root);
+  const fs::path seq = dirs.root / "seq";
+  const std::string params = " --width 64 --set photometric/max_passes=2";
+  RunResult r = runRunner("--bag " + bag + " --camchain " + camchain + " --output " + (dirs.root / "runner").string() +
+                              params + " --export-sequence " + seq.string(),
+                          dirs.root);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.err.find("photometric sweep SIMD: "), std::string::npos) << r.err;
+  // The folder: calibration copy, one PGM per image, events in the runner's order.
+  EXPECT_EQ(readLines(seq / "camchain.yaml"), readLines(camchain));
+  const std::vector<std::string> events = readLines(seq / "events.csv");
+  ASSERT_FALSE(events.empty());
+  EXPECT_EQ(events[0], "# diekf sequence 1");
+  int image_events = 0, imu_events = 0;
+  for (const std::string& e : events) {
+    if (e.rfind("image,", 0) == 0) ++image_events;
+    if (e.rfind("imu,", 0) == 0) ++imu_events;
+  }
+  EXPECT_EQ(image_events, images);
+  EXPECT_GT(imu_events, 900);  // 500 Hz over 2 s
+  EXPECT_TRUE(fs::is_regular_file(seq / "images" / "000000.pgm"));
+
+  r = runReplay("--sequence " + seq.string() + " --output " + (dirs.root / "replay").string() + params, dirs.root);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(r.err.find("photometric sweep SIMD: "), std::string::npos) << r.err;
+  EXPECT_EQ(r.err.find("scalar"), std::string::npos) << r.err;
+  const std::vector<std::string> runner = withoutUpdateMs(dirs.root / "runner" / "estimates.csv");
+  ASSERT_GT(runner.size(), 30u);
+  EXPECT_EQ(withoutUpdateMs(dirs.root / "replay" / "estimates.csv"), runner);
+  // states.csv: one full-precision row per estimate.
+  EXPECT_EQ(readLines(dirs.root / "replay" / "states.csv").size(), runner.size());
+
+  // Another parameter set gives other estimates (the replay's options reach the estimator).
+  r = runReplay("--sequence " + seq.string() + " --output " + (dirs.root / "ekf").string() + params + " --mode ekf",
+                dirs.root);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  EXPECT_NE(withoutUpdateMs(dirs.root / "ekf" / "estimates.csv"), runner);
+  // --max-images stops early; --preload processes the same events.
+  r = runReplay("--sequence " + seq.string() + " --output " + (dirs.root / "pre").string() + params +
+                    " --preload --max-images 20",
+                dirs.root);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const std::vector<std::string> pre = withoutUpdateMs(dirs.root / "pre" / "estimates.csv");
+  ASSERT_EQ(pre.size(), 21u);  // header + one estimate per image
+  EXPECT_TRUE(std::equal(pre.begin(), pre.end(), runner.begin()));
+  // Errors: no sequence folder, unknown option.
+  r = runReplay("--sequence " + (dirs.root / "none").string(), dirs.root);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.err.find("events.csv"), std::string::npos) << r.err;
+  r = runReplay("--sequence " + seq.string() + " --bogus", dirs.root);
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.err.find("--bogus"), std::string::npos) << r.err;
+}
+
 int maxIterations(const fs::path& csv) {
   int max_it = -1;
   for (const diekf::eval::EstimateRow& r : diekf::eval::readEstimatesCsv(csv.string())) {
