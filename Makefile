@@ -38,7 +38,7 @@ APT_PACKAGES := build-essential cmake catkin ros-base-dev libnodeletlib-dev libc
   python3-tf2-msgs image-transport-tools clang libclang-rt-14-dev
 
 .PHONY: all deps workspace ws-path build test demo benchmark benchmark-core benchmark-callgrind fuzz sanitize soak rviz-check \
-  clean
+  cross-check clean
 
 all: build
 
@@ -121,6 +121,16 @@ rviz-check: build
 	fi
 	cd $(WS) && source devel/setup.bash && bash $(CURDIR)/scripts/rviz_check.sh $(CURDIR)/results/rviz
 
+# The ROS-free core on ARM: cross builds for aarch64 and armhf (NEON) against private sysroots of Debian packages,
+# the core's unit tests under qemu-user, the SIMD line, one simulated flight replayed on x86-64 and ARM and compared,
+# instructions per frame (cross/cross_check.sh; docs/performance.md, "ARM"). Not part of `make test`: about
+# 30 minutes the first time (packages, three builds, tests under emulation), 15 after. Results in results/cross-check/.
+CROSS_DIR ?= $(BUILD_ROOT)/cross
+CROSS_ARCHES ?= arm64 armhf
+cross-check: build
+	DIEKF_WS=$(WS) CROSS_DIR=$(CROSS_DIR) CROSS_ARCHES="$(CROSS_ARCHES)" JOBS=$(JOBS) SUDO=$(SUDO) \
+	  bash $(CURDIR)/cross/cross_check.sh $(CURDIR)/results/cross-check
+
 # Both workspaces of this checkout, and the ones an older Makefile put inside the package directory.
 clean:
-	rm -rf $(WS) $(SANITIZE_WS) $(LEGACY_TREES)
+	rm -rf $(WS) $(SANITIZE_WS) $(CROSS_DIR) $(LEGACY_TREES)

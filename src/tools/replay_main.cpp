@@ -39,6 +39,7 @@ the runner's order, on one thread. Prints the SIMD instruction set of the photom
   --output DIR        write DIR/estimates.csv (the runner's format) and DIR/states.csv (every state component,
                       17 significant digits); no output files without it
   --config FILE       estimator YAML (default: built-in defaults, equal to the package's config/estimator.yaml)
+  --imu FILE          Kalibr IMU YAML (noise densities); overrides the config's IMU keys, as in the runner
   --mode iekf|ekf|lk  update mode (default: the config's)
   --width PX          working image width, px
   --set KEY=VALUE     override one estimator parameter (repeatable; applied after the config)
@@ -51,7 +52,7 @@ the runner's order, on one thread. Prints the SIMD instruction set of the photom
 }
 
 struct Options {
-  std::string sequence, output, config, mode;
+  std::string sequence, output, config, imu, mode;
   int width_px = 0;
   std::vector<std::string> sets;
   long max_images = -1;
@@ -82,6 +83,8 @@ Options parse(int argc, char** argv) {
       o.output = value();
     } else if (a == "--config") {
       o.config = value();
+    } else if (a == "--imu") {
+      o.imu = value();
     } else if (a == "--mode") {
       o.mode = value();
     } else if (a == "--width") {
@@ -105,10 +108,11 @@ Options parse(int argc, char** argv) {
   return o;
 }
 
-/// The runner's order of parameter sources: config file, --set, then --mode and --width.
+/// The runner's order of parameter sources: config file, IMU file, --set, then --mode and --width.
 diekf::EstimatorParams loadParams(const Options& o) {
   diekf::EstimatorParams params;
   if (!o.config.empty()) diekf::loadEstimatorParams(diekf::YamlParamSource(o.config), &params);
+  if (!o.imu.empty()) diekf::loadKalibrImuYaml(o.imu, &params.imu);
   if (!o.sets.empty()) {
     diekf::eval::ParamOverlay overrides(nullptr);
     for (const std::string& kv : o.sets) overrides.addAssignment(kv);
