@@ -45,4 +45,13 @@ class RateMeter {
 /// samples are decimated).
 ImuParams designImuPreprocessing(const ImuParams& configured, double measured_rate_hz, std::string* summary = nullptr);
 
+/// The IMU preprocessing for a recording whose rate is measured before it is processed (diekf_bag_runner,
+/// diekf_replay): the configured parameters as they are when the measured rate is within `tolerance` (relative) of
+/// imu/input_rate_hz, so that a recording at the configured rate is processed exactly as configured; otherwise
+/// designImuPreprocessing for the measured rate (a 100 or 200 Hz IMU is not low-passed and decimated as if it ran at
+/// 500 Hz). A measured rate of 0 (too few samples to measure) keeps the configuration. `summary`: one line.
+/// Throws std::invalid_argument as designImuPreprocessing does.
+ImuParams imuPreprocessingForRecording(const ImuParams& configured, double measured_rate_hz, double tolerance,
+                                       std::string* summary = nullptr);
+
 }  // namespace diekf

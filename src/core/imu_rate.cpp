@@ -84,4 +84,23 @@ ImuParams designImuPreprocessing(const ImuParams& configured, double measured_ra
   return p;
 }
 
+ImuParams imuPreprocessingForRecording(const ImuParams& configured, double measured_rate_hz, double tolerance,
+                                       std::string* summary) {
+  std::ostringstream os;
+  os.precision(4);
+  if (!(measured_rate_hz > 0.0) || !std::isfinite(measured_rate_hz)) {
+    os << "IMU rate not measured (too few samples): imu/input_rate_hz " << configured.input_rate_hz
+       << " Hz as configured";
+    if (summary) *summary = os.str();
+    return configured;
+  }
+  if (std::abs(measured_rate_hz / configured.input_rate_hz - 1.0) <= tolerance) {
+    os << "IMU at " << measured_rate_hz << " Hz (measured), as configured (imu/input_rate_hz "
+       << configured.input_rate_hz << " Hz, decimation " << configured.decimation_factor << ")";
+    if (summary) *summary = os.str();
+    return configured;
+  }
+  return designImuPreprocessing(configured, measured_rate_hz, summary);
+}
+
 }  // namespace diekf

@@ -30,6 +30,7 @@
 #include "diekf/estimator.h"
 #include "diekf/eval/ground_truth.h"
 #include "diekf/grey_image.h"
+#include "diekf/imu_rate.h"
 #include "diekf/eval/io.h"
 #include "diekf/eval/metrics.h"
 #include "diekf/eval/param_overlay.h"
@@ -47,6 +48,10 @@ using diekf::eval::RunnerOptions;
 constexpr const char* kProgram = "diekf_bag_runner";
 constexpr const char* kDefaultImageTopic = "/mynteye/left/image_raw";
 constexpr const char* kDefaultImuTopic = "/mynteye/imu/data_raw";
+// IMU rate measured over this many seconds of stamps; within kImuRateTolerance (relative) of imu/input_rate_hz the
+// configuration is kept as it is (diekf::imuPreprocessingForRecording).
+constexpr double kImuRateWindowS = 1.0;
+constexpr double kImuRateTolerance = 0.05;
 
 /// A field of /proc/self/status in kB (VmRSS: resident set, VmHWM: its peak); -1 where unavailable.
 long procStatusKb(const std::string& key) {
@@ -233,7 +238,7 @@ int run(const RunnerOptions& o) {
   requireReadable("camchain", o.camchain);
   const diekf::CameraModel camera = diekf::CameraModel::fromKalibrYaml(o.camchain);
   std::string config_used;
-  const diekf::EstimatorParams params = loadParams(o, &config_used);
+  diekf::EstimatorParams params = loadParams(o, &config_used);
 
   rosbag::Bag bag;
   try {
@@ -300,6 +305,23 @@ int run(const RunnerOptions& o) {
               << (config_used.empty() ? std::string("(built-in defaults)") : config_used) << "\n";
   }
 
+  // The IMU's rate from its stamps (the first second), as the nodelet measures it at start-up: a recording at
+  // another rate than imu/input_rate_hz gets the low-pass and decimation designed for its rate.
+  {
+    diekf::RateMeter meter(kImuRateWindowS, 20);
+    rosbag::View imu_view(bag, rosbag::TopicQuery(imu_topic));
+    for (const rosbag::MessageInstance& m : imu_view) {
+      const auto imu = m.instantiate<sensor_msgs::Imu>();
+      if (imu && meter.add(stampOf(imu->header.stamp, m.getTime()))) break;
+    }
+    std::string summary;
+    try {
+      params.imu = diekf::imuPreprocessingForRecording(params.imu, meter.rateHz(), kImuRateTolerance, &summary);
+    } catch (const std::invalid_argument& e) {
+      throw RunError(imu_topic + ": " + e.what());
+    }
+    if (!o.quiet) std::cerr << kProgram << ": " << summary << "\n";
+  }
   if (!o.quiet) std::cerr << kProgram << ": photometric sweep SIMD: " << diekf::photometricSweepSimd() << "\n";
   diekf::Estimator estimator(camera, params);
   diekf::eval::EstimatesCsvWriter csv((out_dir / "estimates.csv").string());

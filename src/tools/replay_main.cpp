@@ -21,6 +21,7 @@
 #include "diekf/eval/param_overlay.h"
 #include "diekf/eval/sequence_files.h"
 #include "diekf/param_source.h"
+#include "diekf/imu_rate.h"
 #include "diekf/params.h"
 #include "diekf/photometric_update.h"
 
@@ -174,7 +175,19 @@ int run(const Options& o) {
   cv::setNumThreads(1);  // one core, as on the robot's estimator thread (and exact instruction counts)
   diekf::eval::SequenceReader reader(o.sequence);
   const diekf::CameraModel camera = diekf::CameraModel::fromKalibrYaml(reader.camchainPath());
-  const diekf::EstimatorParams params = loadParams(o);
+  diekf::EstimatorParams params = loadParams(o);
+  {
+    // The IMU rate from the first second of stamps, decided as diekf_bag_runner decides it.
+    diekf::eval::SequenceReader rate_reader(o.sequence);
+    diekf::RateMeter meter(1.0, 20);
+    diekf::eval::SequenceEvent e;
+    while (rate_reader.next(&e)) {
+      if (e.kind == diekf::eval::SequenceEvent::Kind::kImu && meter.add(e.imu.t_s)) break;
+    }
+    std::string summary;
+    params.imu = diekf::imuPreprocessingForRecording(params.imu, meter.rateHz(), 0.05, &summary);
+    if (!o.quiet) std::fprintf(stderr, "%s: %s\n", kProgram, summary.c_str());
+  }
   if (!o.quiet) {
     std::fprintf(stderr, "%s: photometric sweep SIMD: %s\n", kProgram, diekf::photometricSweepSimd());
     std::fprintf(stderr, "%s: %s: mode %s, working width %d px, config %s\n", kProgram, o.sequence.c_str(),

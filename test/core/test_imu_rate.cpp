@@ -154,5 +154,36 @@ TEST(ImuRate, DesignedPreprocessingFollowsTheFlightAt100And200And500Hz) {
   }
 }
 
+TEST(ImuRate, RecordingsAtTheConfiguredRateKeepTheConfigurationOthersGetTheirOwnDesign) {
+  // diekf_bag_runner and diekf_replay measure a recording's rate first: within the tolerance the configuration is
+  // used as it is (bit for bit the results of a run that trusts imu/input_rate_hz), a 100 or 200 Hz recording gets
+  // the design for its rate, and too few samples to measure keep the configuration.
+  const ImuParams configured;  // 500 Hz, decimation 5
+  std::string summary;
+  const ImuParams same = imuPreprocessingForRecording(configured, 499.99, 0.05, &summary);
+  EXPECT_EQ(same.input_rate_hz, configured.input_rate_hz);
+  EXPECT_EQ(same.decimation_factor, configured.decimation_factor);
+  EXPECT_NE(summary.find("as configured"), std::string::npos) << summary;
+  const ImuParams slow = imuPreprocessingForRecording(configured, 200.0, 0.05, &summary);
+  EXPECT_EQ(slow.input_rate_hz, 200.0);
+  EXPECT_EQ(slow.decimation_factor, 2);
+  EXPECT_EQ(slow.lowpass_cutoff_hz, configured.lowpass_cutoff_hz);
+  EXPECT_NE(summary.find("measured"), std::string::npos) << summary;
+  const ImuParams hundred = imuPreprocessingForRecording(configured, 100.0, 0.05, &summary);
+  EXPECT_EQ(hundred.decimation_factor, 1);
+  const ImuParams unknown = imuPreprocessingForRecording(configured, 0.0, 0.05, &summary);
+  EXPECT_EQ(unknown.input_rate_hz, configured.input_rate_hz);
+  EXPECT_NE(summary.find("not measured"), std::string::npos) << summary;
+  // A cut-off that cannot work at the measured rate is an error naming the key, as in the nodelet.
+  ImuParams high_cut = configured;
+  high_cut.lowpass_cutoff_hz = 60.0;
+  try {
+    imuPreprocessingForRecording(high_cut, 100.0, 0.05, &summary);
+    ADD_FAILURE() << "no error";
+  } catch (const std::invalid_argument& e) {
+    EXPECT_NE(std::string(e.what()).find("imu/lowpass_cutoff_hz"), std::string::npos) << e.what();
+  }
+}
+
 }  // namespace
 }  // namespace diekf
