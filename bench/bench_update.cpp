@@ -37,7 +37,7 @@ diekf::State startState(const TwoViewScene& s) {
 
 diekf::ErrorCov priorCov() {
   diekf::ErrorVec sd;
-  sd << 0.5, 0.5, 0.5, 0.5, 0.1, 0.1, 0.05, 0.05, 0.1, 0.1, 0.1, 0.01, 0.01, 0.01, 0.005, 0.005;
+  sd << 0.5, 0.5, 0.5, 0.5, 0.1, 0.1, 0.05, 0.05, 0.1, 0.1, 0.1, 0.01, 0.01, 0.01, 0.005, 0.005, 0.01;
   return sd.array().square().matrix().asDiagonal();
 }
 
@@ -65,8 +65,9 @@ void BM_PhotometricUpdateOnePass(benchmark::State& bs) { runPhotometricUpdate(bs
 BENCHMARK(BM_PhotometricUpdateOnePass)->Arg(90)->Arg(180)->Arg(376)->Unit(benchmark::kMicrosecond);
 
 // The same with the image timing of the default estimator (docs/algorithm.md sections 3.6-3.7): the camera-IMU
-// time offset and the rolling-shutter readout estimated, a 16 ms readout (each row warped at its own time).
-void BM_PhotometricUpdateOnePassTimed(benchmark::State& bs) {
+// time offset and the rolling-shutter readout estimated, a 16 ms readout (each row warped at its own time); and
+// with the focal-length scale estimated as well (section 3.8: its column's fit over a 5x5 grid per pass).
+void runTimedUpdate(benchmark::State& bs, bool focal_scale) {
   const TwoViewScene& s = sceneForWidth(static_cast<int>(bs.range(0)));
   diekf::PhotometricParams params;
   params.max_passes = 1;
@@ -80,6 +81,7 @@ void BM_PhotometricUpdateOnePassTimed(benchmark::State& bs) {
   diekf::ImageTiming timing;
   timing.estimate_offset = true;
   timing.estimate_readout = true;
+  timing.estimate_focal_scale = focal_scale;
   timing.rates_valid = true;
   timing.accel_C = diekf::Vec3(0.3, -0.2, -9.7);
   timing.rate_change_C = diekf::Vec3(0.02, -0.01, 0.03);
@@ -95,7 +97,10 @@ void BM_PhotometricUpdateOnePassTimed(benchmark::State& bs) {
   }
   bs.counters["px"] = s.K.width * s.K.height;
 }
+void BM_PhotometricUpdateOnePassTimed(benchmark::State& bs) { runTimedUpdate(bs, false); }
 BENCHMARK(BM_PhotometricUpdateOnePassTimed)->Arg(90)->Arg(180)->Arg(376)->Unit(benchmark::kMicrosecond);
+void BM_PhotometricUpdateOnePassCalibrated(benchmark::State& bs) { runTimedUpdate(bs, true); }
+BENCHMARK(BM_PhotometricUpdateOnePassCalibrated)->Arg(90)->Arg(180)->Arg(376)->Unit(benchmark::kMicrosecond);
 
 // The per-pass cost is (this - one pass) / 2.
 void BM_PhotometricUpdateThreePasses(benchmark::State& bs) { runPhotometricUpdate(bs, 3); }

@@ -25,6 +25,7 @@ struct InitParams {
   double sigma_bw0_radps = 0.01;                ///< 1-sigma of the initial gyroscope bias, rad/s
   double sigma_time_offset_s = 0.01;            ///< 1-sigma of the camera-IMU time offset around the calibration's, s
   double sigma_readout_s = 0.01;                ///< 1-sigma of the rolling-shutter readout around the configured, s
+  double sigma_focal_scale = 0.02;              ///< 1-sigma of the focal length's relative error (calibration), unitless
   double tracking_max_relative_sigma_d = 0.15;  ///< status turns tracking once sigma_d / d falls below this
   bool warm_restart = true;                     ///< automatic restarts start from the last tracked distance
   double warm_restart_max_age_s = 10.0;         ///< ... if it is at most this old, s
@@ -53,6 +54,7 @@ struct ProcessNoiseParams {
   double g_rad_per_sqrt_s = 0.001;              ///< random-walk density on gravity, rad/sqrt(s)
   double time_offset_s_per_sqrt_s = 1.0e-4;     ///< random-walk density on the camera-IMU time offset, s/sqrt(s)
   double readout_s_per_sqrt_s = 1.0e-5;         ///< random-walk density on the rolling-shutter readout, s/sqrt(s)
+  double focal_scale_per_sqrt_s = 1.0e-5;       ///< random-walk density on the focal-length scale, 1/sqrt(s)
 };
 
 struct PreprocessParams {
@@ -152,6 +154,8 @@ struct EstimatorParams {
   bool estimate_readout = true;                 ///< the rolling-shutter readout time as a filter state
   double max_readout_s = 0.05;                  ///< bound of the estimated readout (either sign), s
   double readout_start_sigma_time_offset_s = 0.003;  ///< the readout is estimated once the offset's 1-sigma is below, s
+  bool estimate_focal_scale = true;             ///< the focal length's relative error as a filter state (section 3.8)
+  double max_focal_scale = 0.1;                 ///< bound of the estimated focal-length scale (either sign), unitless
   /// Rolling shutter: readout time per raw image row, s; 0 = the camchain's line_delay_s (0 there: global shutter).
   double line_delay_s = 0.0;
   /// What the image stamp marks: the middle of the exposure of the middle row (the estimator's image time),

@@ -53,6 +53,7 @@ struct ImageTiming {
   const float* row_weight = nullptr;
   int rows = 0;                       ///< length of row_weight (the working image's height)
   bool estimate_readout = false;      ///< the update estimates x.readout_s
+  bool estimate_focal_scale = false;  ///< the update estimates x.focal_scale (its column: focalScaleMap)
 };
 
 /// The rate of what the warp sees when the pair is taken later: an image pair taken delta later than assumed
@@ -64,6 +65,19 @@ ObservedVec stateRateMap(const State& x, const Vec3& gyro_mean_C, const ImageTim
 /// The time offset's Jacobian column as a combination of the observed ones, J_t_d = J_obs m: stateRateMap
 /// when in.estimate_offset, else zero.
 ObservedVec timeOffsetMap(const State& x, const Vec3& gyro_mean_C, const ImageTiming& in, double dt_s);
+/// The focal-length scale's Jacobian column as a combination of the observed ones, J_focal ~ J_obs m_f
+/// (docs/algorithm.md section 3.8): scaling both focal lengths of K by (1 + e) moves every reference pixel by
+/// d p_r / d e = (p_r - c) - D_r H (q_x, q_y, 0); to first order in the interval that is a change of the
+/// homography, which the observed columns span, so m_f is the least-squares fit of J_obs m_f to it over a 5x5
+/// grid of the working image. `K` is the working intrinsics the warp uses (with the state's focal scale).
+/// Returns zero when the warp is undefined at the grid or the fit is singular.
+ObservedVec focalScaleMap(const State& x, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s,
+                          double state_lag_s);
+/// d p_r / d e of warpToReference's reference pixel when both focal lengths of K are scaled by (1 + e), at e = 0.
+Vec2 focalScaleDerivative(const State& x, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s, double px,
+                          double py, double state_lag_s = 0.0);
+/// K with both focal lengths scaled by (1 + focal_scale) (principal point kept).
+PinholeK scaledFocal(const PinholeK& K, double focal_scale);
 /// Per working-image row y (rows of the working image of intrinsics K_working, from the camera `cam`): the
 /// mean over the row's pixels of their raw (distorted) row, minus the middle raw row, over (raw rows - 1): the
 /// row's capture time per second of rolling-shutter readout (docs/algorithm.md section 3.7).

@@ -1,4 +1,4 @@
-// Filter state x = (alpha, vartheta, mu, g, b_a, b_w, t_d, readout), in the camera frame C, and its manifold operations.
+// Filter state x = (alpha, vartheta, mu, g, b_a, b_w, t_d, readout, focal_scale), in the camera frame C, and its manifold operations.
 #pragma once
 
 #include "diekf/types.h"
@@ -19,6 +19,9 @@ struct State {
   /// Rolling-shutter readout time of a frame, first to last raw row, s (0: global shutter; docs/algorithm.md
   /// section 3.7).
   double readout_s = 0.0;
+  /// Relative correction of the calibrated focal length, unitless: the camera's focal lengths are
+  /// (1 + focal_scale) times the calibration's (docs/algorithm.md section 3.8).
+  double focal_scale = 0.0;
 
   /// x [+] delta (vector parts add, S^2 parts use UnitVector::boxplus).
   State boxplus(const ErrorVec& delta) const;

@@ -15,15 +15,16 @@ using Mat32 = Eigen::Matrix<double, 3, 2>;
 using Mat23 = Eigen::Matrix<double, 2, 3>;
 
 /// Dimension of the error state (tangent space of the filter state).
-constexpr int kErrorDim = 16;
-/// The motion states (everything but the image timing: time offset, readout): the block published as
+constexpr int kErrorDim = 17;
+/// The motion states (everything but the sensors' calibration: time offset, readout, focal-length scale): the
+/// block published as
 /// PlanarState.covariance.
 constexpr int kMotionDim = 14;
 using ErrorVec = Eigen::Matrix<double, kErrorDim, 1>;
 using ErrorCov = Eigen::Matrix<double, kErrorDim, kErrorDim>;
 
-/// Offsets of the blocks in the 16-D error state
-/// [d_alpha, d_vartheta(3), d_mu(2), d_g(2), d_b_a(3), d_b_w(3), d_t_d, d_readout].
+/// Offsets of the blocks in the 17-D error state
+/// [d_alpha, d_vartheta(3), d_mu(2), d_g(2), d_b_a(3), d_b_w(3), d_t_d, d_readout, d_focal_scale].
 struct ErrIdx {
   static constexpr int kAlpha = 0;
   static constexpr int kVartheta = 1;
@@ -33,6 +34,7 @@ struct ErrIdx {
   static constexpr int kBw = 11;
   static constexpr int kTd = 14;  ///< camera-IMU time offset (docs/algorithm.md section 3.6)
   static constexpr int kRo = 15;  ///< rolling-shutter readout time of a frame (docs/algorithm.md section 3.7)
+  static constexpr int kFs = 16;  ///< relative error of the calibrated focal length (docs/algorithm.md section 3.8)
 };
 
 /// Skew-symmetric matrix [v]x with [v]x u = v x u.

@@ -158,9 +158,12 @@ struct Estimator::Impl {
     const double t_d_s = keep_t_d ? x.t_d_s : 0.0;
     const bool keep_readout = converged && params.estimate_readout && std::isfinite(x.readout_s);
     const double readout_s = keep_readout ? x.readout_s : configured_readout_s;
+    const bool keep_focal = converged && params.estimate_focal_scale && std::isfinite(x.focal_scale);
+    const double focal_scale = keep_focal ? x.focal_scale : 0.0;
     x = State();
     x.t_d_s = t_d_s;
     x.readout_s = readout_s;
+    x.focal_scale = focal_scale;
     x.alpha = in.alpha0_inv_m;
     x.vartheta = in.vartheta0_inv_s;
     x.mu = UnitVector(in.mu0);
@@ -175,6 +178,7 @@ struct Estimator::Impl {
     P.block<3, 3>(ErrIdx::kBw, ErrIdx::kBw) = Mat3::Identity() * in.sigma_bw0_radps * in.sigma_bw0_radps;
     P(ErrIdx::kTd, ErrIdx::kTd) = in.sigma_time_offset_s * in.sigma_time_offset_s;
     P(ErrIdx::kRo, ErrIdx::kRo) = in.sigma_readout_s * in.sigma_readout_s;
+    P(ErrIdx::kFs, ErrIdx::kFs) = in.sigma_focal_scale * in.sigma_focal_scale;
     have_reference = false;
     state_initialized = false;
     gyro_integral = Vec3::Zero();
@@ -507,6 +511,9 @@ struct Estimator::Impl {
           timing.estimate_readout = params.estimate_readout && settled &&
                                     (!params.estimate_time_offset || P(ErrIdx::kTd, ErrIdx::kTd) < gate_s * gate_s);
           timing.rates_valid = timing.estimate_offset || timing.estimate_readout || x.readout_s != 0.0;
+          // The focal-length scale (section 3.8) from the same time on: it is seen through the dynamics of the
+          // states it is taken for (the gyro bias and vartheta), which must have converged first.
+          timing.estimate_focal_scale = params.estimate_focal_scale && settled;
           if (timing.rates_valid) {
             timing.accel_C = imuAt(t_state_s).accel_mps2;
             timing.rate_change_C = imuAt(img.t_s).gyro_radps - ref_rate_C;
@@ -515,6 +522,7 @@ struct Estimator::Impl {
           stats = photometric.update(ref, cur, img_pre.workingK(), gyro_mean, dt, &x, &P, state_lag, timing);
           x.t_d_s = std::clamp(x.t_d_s, -params.max_time_offset_s, params.max_time_offset_s);
           x.readout_s = std::clamp(x.readout_s, -params.max_readout_s, params.max_readout_s);
+          x.focal_scale = std::clamp(x.focal_scale, -params.max_focal_scale, params.max_focal_scale);
           // alpha's step in prior sigmas: d must never jump by many sigma in one frame.
           const double step_sigma =
               std::abs(x.alpha - x_prior.alpha) / std::sqrt(std::max(1e-300, P_prior(ErrIdx::kAlpha, ErrIdx::kAlpha)));

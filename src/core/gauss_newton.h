@@ -35,6 +35,22 @@ struct ExtraColumn {
   double rhs = 0.0;
 };
 
+/// Further error-state columns that are fixed combinations S m_k of the observed ones, like the time offset's: the
+/// camera's calibration states (docs/algorithm.md section 3.8). m[k] = 0: column k is not estimated.
+struct CalibrationColumns {
+  static constexpr int kCount = 1;
+  static constexpr int kErr[kCount] = {ErrIdx::kFs};  ///< the focal-length scale
+  ObsVec m[kCount] = {ObsVec::Zero()};
+  void setZero() {
+    for (ObsVec& v : m) v.setZero();
+  }
+  bool allFinite() const {
+    for (const ObsVec& v : m)
+      if (!v.allFinite()) return false;
+    return true;
+  }
+};
+
 /// Outcome of an iterated update.
 struct IterationResult {
   bool ok = false;              ///< false: nothing was changed (linearisation refused or non-finite system)
@@ -50,7 +66,9 @@ struct IterationResult {
 /// A callback with a fourth argument `ObsVec* m` (zeroed before the call) may also say how the time offset
 /// enters: its Jacobian column is S m (a combination of the observed columns, docs/algorithm.md section 3.6),
 /// so the measurement rows over the error state are S H with H = [selection of the observed columns | m].
-/// A callback with a fifth argument `ExtraColumn* readout` may add the rolling-shutter readout's column.
+/// A callback with a fifth argument `ExtraColumn* readout` may add the rolling-shutter readout's column, and one
+/// with a sixth `CalibrationColumns* calib` (zeroed before the call) the calibration states' columns S m_k
+/// (section 3.8).
 ///
 /// Per pass: Lambda = L^T P^-1 L, delta = (A + Lambda)^-1 (b - L^T P^-1 e), e = x_j [-] x^-,
 /// x_{j+1} = x_j [+] delta; stop at |delta| < stop_threshold or after max_passes.
@@ -74,6 +92,7 @@ IterationResult iterateInformationForm(int max_passes, double stop_threshold, Li
   ObsMat A;
   ObsVec b;
   ObsVec m;
+  CalibrationColumns calib;
   ExtraColumn readout;
   ErrorCov info;
   ErrorVec rhs;
@@ -84,8 +103,13 @@ IterationResult iterateInformationForm(int max_passes, double stop_threshold, Li
     A.setZero();
     b.setZero();
     m.setZero();
+    calib.setZero();
     readout = ExtraColumn();
-    if constexpr (std::is_invocable_v<LinearizeFn&, const State&, ObsMat*, ObsVec*, ObsVec*, ExtraColumn*>) {
+    if constexpr (std::is_invocable_v<LinearizeFn&, const State&, ObsMat*, ObsVec*, ObsVec*, ExtraColumn*,
+                                      CalibrationColumns*>) {
+      if (!linearize(static_cast<const State&>(x_j), &A, &b, &m, &readout, &calib)) return result;
+    } else if constexpr (std::is_invocable_v<LinearizeFn&, const State&, ObsMat*, ObsVec*, ObsVec*,
+                                             ExtraColumn*>) {
       if (!linearize(static_cast<const State&>(x_j), &A, &b, &m, &readout)) return result;
     } else if constexpr (std::is_invocable_v<LinearizeFn&, const State&, ObsMat*, ObsVec*, ObsVec*>) {
       if (!linearize(static_cast<const State&>(x_j), &A, &b, &m)) return result;
@@ -93,7 +117,7 @@ IterationResult iterateInformationForm(int max_passes, double stop_threshold, Li
       if (!linearize(static_cast<const State&>(x_j), &A, &b)) return result;
     }
     A.template triangularView<Eigen::StrictlyLower>() = A.transpose();
-    if (!A.allFinite() || !b.allFinite() || !m.allFinite()) return result;
+    if (!A.allFinite() || !b.allFinite() || !m.allFinite() || !calib.allFinite()) return result;
 
     // Prior term. On the first pass e = 0 and L = I.
     if (pass == 0) {
@@ -121,6 +145,25 @@ IterationResult iterateInformationForm(int max_passes, double stop_threshold, Li
       info(ErrIdx::kTd, ErrIdx::kTd) += m.dot(Am);
       rhs(ErrIdx::kTd) += m.dot(b);
     }
+    // The calibration columns S m_k: like the time offset's, with their cross terms m_k^T A m_l and m^T A m_k.
+    for (int k = 0; k < CalibrationColumns::kCount; ++k) {
+      if (calib.m[k].isZero(0.0)) continue;
+      const int ek = CalibrationColumns::kErr[k];
+      const ObsVec Amk = A * calib.m[k];
+      for (int r = 0; r < kObsDim; ++r) {
+        info(kObsToErr[r], ek) += Amk(r);
+        info(ek, kObsToErr[r]) += Amk(r);
+      }
+      const double td_k = m.dot(Amk);
+      info(ErrIdx::kTd, ek) += td_k;
+      info(ek, ErrIdx::kTd) += td_k;
+      for (int l = 0; l < CalibrationColumns::kCount; ++l) {
+        if (l == k || calib.m[l].isZero(0.0)) continue;
+        info(CalibrationColumns::kErr[l], ek) += calib.m[l].dot(Amk);
+      }
+      info(ek, ek) += calib.m[k].dot(Amk);
+      rhs(ek) += calib.m[k].dot(b);
+    }
     // The readout's column (ExtraColumn): with the observed columns, with the time offset's S m, and its own.
     if (readout.active && readout.cross.allFinite() && std::isfinite(readout.diag) && std::isfinite(readout.rhs)) {
       for (int r = 0; r < kObsDim; ++r) {
@@ -130,6 +173,11 @@ IterationResult iterateInformationForm(int max_passes, double stop_threshold, Li
       const double td_ro = m.dot(readout.cross);
       info(ErrIdx::kTd, ErrIdx::kRo) += td_ro;
       info(ErrIdx::kRo, ErrIdx::kTd) += td_ro;
+      for (int k = 0; k < CalibrationColumns::kCount; ++k) {
+        const double k_ro = calib.m[k].dot(readout.cross);
+        info(CalibrationColumns::kErr[k], ErrIdx::kRo) += k_ro;
+        info(ErrIdx::kRo, CalibrationColumns::kErr[k]) += k_ro;
+      }
       info(ErrIdx::kRo, ErrIdx::kRo) += readout.diag;
       rhs(ErrIdx::kRo) += readout.rhs;
     }

@@ -292,6 +292,7 @@ const std::vector<Entry>& table() {
     t.push_back(real("init/sigma_bw0_radps", DIEKF_FIELD(double, init.sigma_bw0_radps), positive()));
     t.push_back(real("init/sigma_time_offset_s", DIEKF_FIELD(double, init.sigma_time_offset_s), positive(1.0)));
     t.push_back(real("init/sigma_readout_s", DIEKF_FIELD(double, init.sigma_readout_s), positive(1.0)));
+    t.push_back(real("init/sigma_focal_scale", DIEKF_FIELD(double, init.sigma_focal_scale), positive(0.5)));
     t.push_back(real("init/tracking_max_relative_sigma_d", DIEKF_FIELD(double, init.tracking_max_relative_sigma_d),
                      positive()));
     t.push_back(flag("init/warm_restart", DIEKF_FIELD(bool, init.warm_restart)));
@@ -322,6 +323,8 @@ const std::vector<Entry>& table() {
     t.push_back(real("process/time_offset_s_per_sqrt_s", DIEKF_FIELD(double, process.time_offset_s_per_sqrt_s),
                      nonNegative()));
     t.push_back(real("process/readout_s_per_sqrt_s", DIEKF_FIELD(double, process.readout_s_per_sqrt_s),
+                     nonNegative()));
+    t.push_back(real("process/focal_scale_per_sqrt_s", DIEKF_FIELD(double, process.focal_scale_per_sqrt_s),
                      nonNegative()));
     // preprocess
     t.push_back(integer("preprocess/working_width_px", DIEKF_FIELD(int, preprocess.working_width_px),
@@ -414,6 +417,8 @@ const std::vector<Entry>& table() {
     t.push_back(real("readout_start_sigma_time_offset_s", DIEKF_FIELD(double, readout_start_sigma_time_offset_s),
                      positive(1.0)));
     t.push_back(real("line_delay_s", DIEKF_FIELD(double, line_delay_s), between(0.0, 1e-3)));
+    t.push_back(flag("estimate_focal_scale", DIEKF_FIELD(bool, estimate_focal_scale)));
+    t.push_back(real("max_focal_scale", DIEKF_FIELD(double, max_focal_scale), between(0.0, 0.5)));
     t.push_back({"image_stamp", [](const ParamSource& s, EstimatorParams& p) {
                    std::string name;
                    if (s.get("image_stamp", &name)) p.image_stamp = stampFromName(s.origin(), "image_stamp", name);

@@ -144,9 +144,11 @@ State shiftedAlong(const State& x, const ObservedVec& m, double delta_s) {
   return out;
 }
 
-Vec2 warpToReference(const State& x, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s, double px,
-                     double py, WarpJacobian* J, double state_lag_s) {
-  const IntervalWarp iw(x, gyro_mean_C, dt_s, state_lag_s);
+namespace {
+/// The warp of pixel (px, py) with the interval's part `iw` built: the reference pixel, its Jacobian over the
+/// observed columns (J, may be null) and its derivative over the focal-length scale (d_focal, may be null).
+Vec2 warpWith(const IntervalWarp& iw, const PinholeK& K, double px, double py, WarpJacobian* J, Vec2* d_focal,
+              bool translation_only = false) {
   const Vec3 q((px - K.cx) / K.fx, (py - K.cy) / K.fy, 1.0);
   const Vec3 Q = iw.H * q;
   if (!iw.ok || !(Q.z() > kMinDepthRatio)) {
@@ -168,7 +170,81 @@ Vec2 warpToReference(const State& x, const PinholeK& K, const Vec3& gyro_mean_C,
                         (iw.c * iw.lag) * iw.a * (iw.mu.cross(Eaq).transpose() * iw.Ja);
     J->block<2, 3>(0, 5) = Dr * dQ_dbw;
   }
+  if (d_focal != nullptr) {
+    // p_r = K_e pi(H K_e^-1 p) with K_e's focal lengths (1 + e) K's: d/de at e = 0 is (p_r - c) + D_r H dq/de,
+    // dq/de = -(q_x, q_y, 0).
+    Mat23 Dr;
+    Dr << K.fx * iz, 0.0, (K.cx - p_r.x()) * iz, 0.0, K.fy * iz, (K.cy - p_r.y()) * iz;
+    *d_focal = Vec2(p_r.x() - K.cx, p_r.y() - K.cy) - Dr * (iw.H * Vec3(q.x(), q.y(), 0.0));
+    if (translation_only) {
+      // Less the same derivative of the rotation alone (H = E): what the focal length does to the flow of the
+      // gyro's rotation is the rotation model error's (section 6), not evidence about the focal length.
+      const Vec3 QE = iw.E * q;
+      if (!(QE.z() > kMinDepthRatio)) {
+        d_focal->setConstant(std::numeric_limits<double>::quiet_NaN());
+      } else {
+        const double izE = 1.0 / QE.z();
+        const Vec2 pE(K.fx * QE.x() * izE + K.cx, K.fy * QE.y() * izE + K.cy);
+        Mat23 DrE;
+        DrE << K.fx * izE, 0.0, (K.cx - pE.x()) * izE, 0.0, K.fy * izE, (K.cy - pE.y()) * izE;
+        *d_focal -= Vec2(pE.x() - K.cx, pE.y() - K.cy) - DrE * (iw.E * Vec3(q.x(), q.y(), 0.0));
+      }
+    }
+  }
   return p_r;
+}
+}  // namespace
+
+Vec2 warpToReference(const State& x, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s, double px,
+                     double py, WarpJacobian* J, double state_lag_s) {
+  const IntervalWarp iw(x, gyro_mean_C, dt_s, state_lag_s);
+  return warpWith(iw, K, px, py, J, nullptr);
+}
+
+PinholeK scaledFocal(const PinholeK& K, double focal_scale) {
+  PinholeK out = K;
+  out.fx = K.fx * (1.0 + focal_scale);
+  out.fy = K.fy * (1.0 + focal_scale);
+  return out;
+}
+
+Vec2 focalScaleDerivative(const State& x, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s, double px,
+                          double py, double state_lag_s) {
+  const IntervalWarp iw(x, gyro_mean_C, dt_s, state_lag_s);
+  Vec2 d(std::numeric_limits<double>::quiet_NaN(), std::numeric_limits<double>::quiet_NaN());
+  warpWith(iw, K, px, py, nullptr, &d);
+  return d;
+}
+
+ObservedVec focalScaleMap(const State& x, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s,
+                          double state_lag_s) {
+  const IntervalWarp iw(x, gyro_mean_C, dt_s, state_lag_s);
+  ObservedInfo JtJ = ObservedInfo::Zero();
+  ObservedVec Jtd = ObservedVec::Zero();
+  constexpr int kGrid = 5;
+  int used = 0;
+  for (int i = 0; i < kGrid; ++i) {
+    for (int j = 0; j < kGrid; ++j) {
+      const double px = (K.width - 1) * (0.05 + 0.9 * i / (kGrid - 1));
+      const double py = (K.height - 1) * (0.05 + 0.9 * j / (kGrid - 1));
+      WarpJacobian J;
+      Vec2 d;
+      const Vec2 p_r = warpWith(iw, K, px, py, &J, &d);
+      if (!p_r.allFinite() || !J.allFinite() || !d.allFinite()) continue;
+      JtJ.noalias() += J.transpose() * J;
+      Jtd.noalias() += J.transpose() * d;
+      ++used;
+    }
+  }
+  if (used < kGrid * kGrid / 2) return ObservedVec::Zero();
+  // Directions the grid's flow does not see (mu at vartheta = 0) get no share of the fit: a ridge far below the
+  // flow's scale.
+  const double ridge = 1e-9 * std::max(1e-300, JtJ.trace());
+  JtJ.diagonal().array() += ridge;
+  const Eigen::LDLT<ObservedInfo> ldlt(JtJ);
+  if (ldlt.info() != Eigen::Success) return ObservedVec::Zero();
+  const ObservedVec m = ldlt.solve(Jtd);
+  return m.allFinite() ? m : ObservedVec::Zero();
 }
 
 namespace {
@@ -878,16 +954,18 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
 
   // Prior covariance of what the image observes, H P H^T with H = [observed columns | m] (the time offset
   // enters as the combination m of the observed columns; for the innovation test of the first pass).
+  // The focal-length scale (section 3.8) enters the same way, as the combination m_f.
   const double t_d_prior_s = x->t_d_s;
   const ObservedVec m_prior = timeOffsetMap(*x, gyro_mean_C, timing, dt_s);
-  ObservedInfo P_obs;
-  ObservedVec P_obs_td;
-  for (int r = 0; r < internal::kObsDim; ++r) {
-    P_obs_td(r) = (*P)(internal::kObsToErr[r], ErrIdx::kTd);
-    for (int c = 0; c < internal::kObsDim; ++c) P_obs(r, c) = (*P)(internal::kObsToErr[r], internal::kObsToErr[c]);
-  }
-  P_obs += m_prior * P_obs_td.transpose() + P_obs_td * m_prior.transpose() +
-           (*P)(ErrIdx::kTd, ErrIdx::kTd) * m_prior * m_prior.transpose();
+  const ObservedVec mf_prior = timing.estimate_focal_scale
+                                   ? focalScaleMap(*x, scaledFocal(K, x->focal_scale), gyro_mean_C, dt_s, state_lag_s)
+                                   : ObservedVec::Zero();
+  Eigen::Matrix<double, internal::kObsDim, kErrorDim> H_obs = Eigen::Matrix<double, internal::kObsDim, kErrorDim>::Zero();
+  for (int r = 0; r < internal::kObsDim; ++r) H_obs(r, internal::kObsToErr[r]) = 1.0;
+  H_obs.col(ErrIdx::kTd) = m_prior;
+  H_obs.col(ErrIdx::kFs) = mf_prior;
+  const Eigen::Matrix<double, internal::kObsDim, kErrorDim> HP = H_obs * (*P);
+  ObservedInfo P_obs = HP * H_obs.transpose();
 
   const bool adaptive = params_.adaptive_noise;
   // Per-pixel noise the Huber threshold refers to: the smoothed estimate once there is one.
@@ -916,15 +994,19 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   PassSums sums;
   // Every pass writes the residual image; the RMS and the valid ratio are those of the last linearisation.
   auto linearize_at = [&](const State& x_j, internal::ObsMat* A, internal::ObsVec* b, internal::ObsVec* m,
-                          internal::ExtraColumn* readout) {
+                          internal::ExtraColumn* readout, internal::CalibrationColumns* calib) {
     // A time offset changed by e within the update: the image sees the state and the gyro window of e later.
     *m = timeOffsetMap(x_j, gyro_mean_C, timing, dt_s);
     const State x_seen = shiftedAlong(x_j, *m, x_j.t_d_s - t_d_prior_s);
+    // The iterate's focal lengths (section 3.8).
+    const PinholeK K_j = scaledFocal(K, x_j.focal_scale);
+    calib->m[0] = timing.estimate_focal_scale ? focalScaleMap(x_seen, K_j, gyro_mean_C, dt_s, state_lag_s)
+                                              : ObservedVec::Zero();
     // Rolling shutter: every row with the motion at its own time (the readout of the iterate).
     const bool rolling = timing.rates_valid && timing.row_weight != nullptr &&
                          (x_j.readout_s != 0.0 || timing.estimate_readout);
     const ObservedVec m_rows = rolling ? stateRateMap(x_seen, gyro_mean_C, timing, dt_s) : ObservedVec::Zero();
-    const int valid = accumulate(cur, K, gyro_mean_C, dt_s, state_lag_s, x_seen, huber_sigma, &sums,
+    const int valid = accumulate(cur, K_j, gyro_mean_C, dt_s, state_lag_s, x_seen, huber_sigma, &sums,
                                  rolling ? &m_rows : nullptr, rolling ? &timing : nullptr, x_j.readout_s);
     stats.valid_ratio = sums.candidates > 0 ? static_cast<double>(valid) / sums.candidates : 0.0;
     stats.rms_residual = valid > 0 ? std::sqrt(sums.sum_r2 / valid) : 0.0;
@@ -976,7 +1058,10 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     }
     // A frame the innovation test flags does not move the time offset: the offset is a slow property of the
     // sensors, and a wrong frame's innovation projected on m would be taken for it.
-    if (stats.gated) m->setZero();
+    if (stats.gated) {
+      m->setZero();
+      calib->setZero();
+    }
     if (rolling && sums.has_moments && !stats.gated) {
       // The readout's column w_y S m_rows (section 3.7) next to the observed ones, the rotation error
       // marginalised from the extended system.

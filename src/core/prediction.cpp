@@ -46,6 +46,7 @@ void propagate(const State& x, const Vec3& accel_C, const Vec3& gyro_C, double d
   out->b_w = x.b_w;
   out->t_d_s = x.t_d_s;
   out->readout_s = x.readout_s;
+  out->focal_scale = x.focal_scale;
   if (F == nullptr && G == nullptr) return;
 
   // Derivatives with respect to z = [alpha, vartheta, mu (2), g (2), a, w] (14 columns); the biases enter as
@@ -104,6 +105,7 @@ void propagate(const State& x, const Vec3& accel_C, const Vec3& gyro_C, double d
     F->block<3, 3>(I::kBw, I::kBw).setIdentity();
     (*F)(I::kTd, I::kTd) = 1.0;  // the time offset: a (slow) random walk
     (*F)(I::kRo, I::kRo) = 1.0;  // the readout: a (slow) random walk
+    (*F)(I::kFs, I::kFs) = 1.0;  // the focal-length scale: a (very slow) random walk
   }
   if (G != nullptr) {
     using I = ErrIdx;
@@ -200,6 +202,7 @@ void predict(const Vec3& accel_C, const Vec3& gyro_C, double dt_s, const ImuPara
   Pn.diagonal().segment<3>(ErrIdx::kBw) += sigma.segment<3>(NoiseIdx::kBwWalk).cwiseAbs2();
   Pn(ErrIdx::kTd, ErrIdx::kTd) += process.time_offset_s_per_sqrt_s * process.time_offset_s_per_sqrt_s * dt_s;
   Pn(ErrIdx::kRo, ErrIdx::kRo) += process.readout_s_per_sqrt_s * process.readout_s_per_sqrt_s * dt_s;
+  Pn(ErrIdx::kFs, ErrIdx::kFs) += process.focal_scale_per_sqrt_s * process.focal_scale_per_sqrt_s * dt_s;
   *P = 0.5 * (Pn + Pn.transpose());
 }
 

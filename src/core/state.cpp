@@ -14,6 +14,7 @@ State State::boxplus(const ErrorVec& delta) const {
   out.b_w = b_w + delta.segment<3>(ErrIdx::kBw);
   out.t_d_s = t_d_s + delta(ErrIdx::kTd);
   out.readout_s = readout_s + delta(ErrIdx::kRo);
+  out.focal_scale = focal_scale + delta(ErrIdx::kFs);
   return out;
 }
 
@@ -27,6 +28,7 @@ ErrorVec State::boxminus(const State& other) const {
   e.segment<3>(ErrIdx::kBw) = b_w - other.b_w;
   e(ErrIdx::kTd) = t_d_s - other.t_d_s;
   e(ErrIdx::kRo) = readout_s - other.readout_s;
+  e(ErrIdx::kFs) = focal_scale - other.focal_scale;
   return e;
 }
 
@@ -40,7 +42,7 @@ ErrorCov State::boxminusJacobian(const State& ref) const {
 bool State::allFinite() const {
   return std::isfinite(alpha) && vartheta.allFinite() && mu.quaternion().coeffs().allFinite() &&
          g.quaternion().coeffs().allFinite() && b_a.allFinite() && b_w.allFinite() && std::isfinite(t_d_s) &&
-         std::isfinite(readout_s);
+         std::isfinite(readout_s) && std::isfinite(focal_scale);
 }
 
 }  // namespace diekf

@@ -129,6 +129,8 @@ bool fillPlanarState(const diekf::FrameResult& r, const std_msgs::Header& header
   m.sigma_time_offset = std::sqrt(std::max(P(diekf::ErrIdx::kTd, diekf::ErrIdx::kTd), 0.0));
   m.readout_time = x.readout_s;
   m.sigma_readout_time = std::sqrt(std::max(P(diekf::ErrIdx::kRo, diekf::ErrIdx::kRo), 0.0));
+  m.focal_scale = x.focal_scale;
+  m.sigma_focal_scale = std::sqrt(std::max(P(diekf::ErrIdx::kFs, diekf::ErrIdx::kFs), 0.0));
   const double var_alpha = std::max(P(diekf::ErrIdx::kAlpha, diekf::ErrIdx::kAlpha), 0.0);
   m.sigma_distance = std::sqrt(var_alpha) / (x.alpha * x.alpha);
   m.sigma_height = std::sqrt(std::max((J_h * P * J_h.transpose())(0, 0), 0.0));

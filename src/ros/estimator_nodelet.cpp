@@ -837,6 +837,8 @@ void EstimatorNodelet::publishResult(const diekf::FrameResult& r) {
   last_height_m_ = state.height;
   last_time_offset_ms_ = 1e3 * state.time_offset;
   last_sigma_time_offset_ms_ = 1e3 * state.sigma_time_offset;
+  last_focal_scale_pct_ = 1e2 * state.focal_scale;
+  last_sigma_focal_scale_pct_ = 1e2 * state.sigma_focal_scale;
   if (r.update_applied) {
     last_update_ms_ = r.update_ms;
     last_nis_ = r.nis;
@@ -909,6 +911,8 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
   stat.add("height (m)", last_height_m_);
   stat.add("camera-IMU time offset on top of the calibration's (ms)", last_time_offset_ms_);
   stat.add("camera-IMU time offset 1-sigma (ms)", last_sigma_time_offset_ms_);
+  stat.add("focal length correction (%)", last_focal_scale_pct_);
+  stat.add("focal length correction 1-sigma (%)", last_sigma_focal_scale_pct_);
 }
 
 }  // namespace diekf_ros

@@ -335,7 +335,7 @@ int run(const RunnerOptions& o) {
   if (o.frames_csv) {
     frames.open(out_dir / "frames.csv");
     if (!frames) throw RunError("cannot write " + (out_dir / "frames.csv").string());
-    frames << "t,applied,passes,photometric_rms,valid_ratio,nis,noise_sigma,noise_correlation,nis_scale,gate_inflation,outlier_fraction,time_offset_ms,sigma_time_offset_ms,readout_ms,sigma_readout_ms,"
+    frames << "t,applied,passes,photometric_rms,valid_ratio,nis,noise_sigma,noise_correlation,nis_scale,gate_inflation,outlier_fraction,time_offset_ms,sigma_time_offset_ms,readout_ms,sigma_readout_ms,focal_scale_pct,sigma_focal_scale_pct,"
               "status,message\n";
     frames.precision(12);
   }
@@ -356,6 +356,8 @@ int run(const RunnerOptions& o) {
                << 1e3 * std::sqrt(std::max(0.0, result.covariance(diekf::ErrIdx::kTd, diekf::ErrIdx::kTd))) << ','
                << 1e3 * result.state.readout_s << ','
                << 1e3 * std::sqrt(std::max(0.0, result.covariance(diekf::ErrIdx::kRo, diekf::ErrIdx::kRo))) << ','
+               << 1e2 * result.state.focal_scale << ','
+               << 1e2 * std::sqrt(std::max(0.0, result.covariance(diekf::ErrIdx::kFs, diekf::ErrIdx::kFs))) << ','
                << diekf::toString(result.status) << ',' << msg << '\n';
       }
       if (keep_rows) {

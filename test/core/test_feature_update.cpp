@@ -13,7 +13,7 @@ using test_util::TwoViewScene;
 
 ErrorCov priorCov() {
   ErrorVec sd;
-  sd << 0.5, 0.5, 0.5, 0.5, 0.1, 0.1, 0.05, 0.05, 0.1, 0.1, 0.1, 0.01, 0.01, 0.01, 0.005, 0.005;
+  sd << 0.5, 0.5, 0.5, 0.5, 0.1, 0.1, 0.05, 0.05, 0.1, 0.1, 0.1, 0.01, 0.01, 0.01, 0.005, 0.005, 0.01;
   return sd.array().square().matrix().asDiagonal();
 }
 

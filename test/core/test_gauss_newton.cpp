@@ -110,6 +110,65 @@ TEST(InformationForm, TimeOffsetAndReadoutColumnsEqualTheDenseKalmanUpdate) {
   EXPECT_NE(x.readout_s, 0.0);
 }
 
+// With the focal-length scale's column S m_f as well (docs/algorithm.md section 3.8): the Kalman update with the
+// dense measurement matrix [S | S m | K S m | S m_f] over (observed, t_d, readout, focal scale).
+TEST(InformationForm, FocalScaleColumnEqualsTheDenseKalmanUpdate) {
+  std::mt19937 rng(9);
+  std::normal_distribution<double> n(0.0, 1.0);
+  ErrorCov B;
+  for (int r = 0; r < kErrorDim; ++r)
+    for (int c = 0; c < kErrorDim; ++c) B(r, c) = 0.2 * n(rng);
+  const ErrorCov P0 = B * B.transpose() + 0.05 * ErrorCov::Identity();
+  constexpr int kRows = 14;
+  Eigen::Matrix<double, kRows, internal::kObsDim> S;
+  Eigen::Matrix<double, kRows, 1> z, w;
+  for (int r = 0; r < kRows; ++r) {
+    for (int c = 0; c < internal::kObsDim; ++c) S(r, c) = n(rng);
+    z(r) = 0.3 * n(rng);
+    w(r) = -0.5 + r / (kRows - 1.0);
+  }
+  internal::ObsVec m, m_f;
+  for (int c = 0; c < internal::kObsDim; ++c) {
+    m(c) = n(rng);
+    m_f(c) = n(rng);
+  }
+  const double sigma = 0.2, inv_var = 1.0 / (sigma * sigma);
+  Eigen::Matrix<double, kRows, kErrorDim> H = Eigen::Matrix<double, kRows, kErrorDim>::Zero();
+  for (int c = 0; c < internal::kObsDim; ++c) H.col(internal::kObsToErr[c]) = S.col(c);
+  H.col(ErrIdx::kTd) = S * m;
+  H.col(ErrIdx::kRo) = w.asDiagonal() * (S * m);
+  H.col(ErrIdx::kFs) = S * m_f;
+  auto linearize = [&](const State&, internal::ObsMat* A, internal::ObsVec* b, internal::ObsVec* m_out,
+                       internal::ExtraColumn* readout, internal::CalibrationColumns* calib) {
+    *A = inv_var * S.transpose() * S;
+    *b = inv_var * S.transpose() * z;
+    *m_out = m;
+    calib->m[0] = m_f;
+    const internal::ObsMat A1 = inv_var * S.transpose() * w.asDiagonal() * S;
+    const internal::ObsMat A2 = inv_var * S.transpose() * w.cwiseAbs2().asDiagonal() * S;
+    const internal::ObsVec b1 = inv_var * S.transpose() * w.asDiagonal() * z;
+    readout->active = true;
+    readout->cross = A1 * m;
+    readout->diag = m.dot(A2 * m);
+    readout->rhs = m.dot(b1);
+    return true;
+  };
+  State x;
+  x.alpha = 2.0;
+  x.mu = UnitVector(Vec3(0.1, 0.2, 1.0));
+  const State x0 = x;
+  ErrorCov P = P0;
+  const internal::IterationResult res = internal::iterateInformationForm(1, 0.0, linearize, &x, &P);
+  ASSERT_TRUE(res.ok);
+  const Eigen::Matrix<double, kRows, kRows> R = sigma * sigma * Eigen::Matrix<double, kRows, kRows>::Identity();
+  const Eigen::Matrix<double, kErrorDim, kRows> K = P0 * H.transpose() * (H * P0 * H.transpose() + R).inverse();
+  const ErrorVec delta_kf = K * z;
+  const ErrorCov P_kf = (ErrorCov::Identity() - K * H) * P0;
+  EXPECT_LT((x.boxminus(x0) - delta_kf).norm(), 1e-9 * (1.0 + delta_kf.norm()));
+  EXPECT_LT((P - P_kf).norm(), 1e-9 * P_kf.norm());
+  EXPECT_NE(x.focal_scale, 0.0);
+}
+
 TEST(InformationForm, RefusalLeavesStateAndCovarianceUntouched) {
   State x;
   x.vartheta = Vec3(1.0, 2.0, 3.0);

@@ -62,6 +62,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          ia.sigma_mu0_rad == ib.sigma_mu0_rad && ia.sigma_g0_rad == ib.sigma_g0_rad &&
          ia.sigma_ba0_mps2 == ib.sigma_ba0_mps2 && ia.sigma_bw0_radps == ib.sigma_bw0_radps &&
          ia.sigma_time_offset_s == ib.sigma_time_offset_s && ia.sigma_readout_s == ib.sigma_readout_s &&
+         ia.sigma_focal_scale == ib.sigma_focal_scale &&
          ia.tracking_max_relative_sigma_d == ib.tracking_max_relative_sigma_d &&
          ia.warm_restart == ib.warm_restart && ia.warm_restart_max_age_s == ib.warm_restart_max_age_s &&
          ma.accel_noise_density == mb.accel_noise_density && ma.gyro_noise_density == mb.gyro_noise_density &&
@@ -74,6 +75,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          pa.vartheta_inv_s_per_sqrt_s == pb.vartheta_inv_s_per_sqrt_s &&
          pa.mu_rad_per_sqrt_s == pb.mu_rad_per_sqrt_s && pa.g_rad_per_sqrt_s == pb.g_rad_per_sqrt_s &&
          pa.time_offset_s_per_sqrt_s == pb.time_offset_s_per_sqrt_s && pa.readout_s_per_sqrt_s == pb.readout_s_per_sqrt_s &&
+         pa.focal_scale_per_sqrt_s == pb.focal_scale_per_sqrt_s &&
          ra.working_width_px == rb.working_width_px && ra.working_height_px == rb.working_height_px &&
          ra.blur_sigma_px == rb.blur_sigma_px && ra.normalize_brightness == rb.normalize_brightness &&
          ra.border_px == rb.border_px && ha.max_passes == hb.max_passes && ha.stop_threshold == hb.stop_threshold &&
@@ -110,7 +112,8 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          a.time_offset_start_s == b.time_offset_start_s && a.line_delay_s == b.line_delay_s &&
          a.image_stamp == b.image_stamp && a.exposure_time_s == b.exposure_time_s &&
          a.estimate_readout == b.estimate_readout && a.max_readout_s == b.max_readout_s &&
-         a.readout_start_sigma_time_offset_s == b.readout_start_sigma_time_offset_s;
+         a.readout_start_sigma_time_offset_s == b.readout_start_sigma_time_offset_s &&
+         a.estimate_focal_scale == b.estimate_focal_scale && a.max_focal_scale == b.max_focal_scale;
 }
 
 // Leaf keys ("a/b") of a YAML map.

@@ -31,7 +31,7 @@ State randomState(std::mt19937* rng) {
 
 ErrorCov priorCov() {
   ErrorVec sd;
-  sd << 0.5, 0.5, 0.5, 0.5, 0.1, 0.1, 0.05, 0.05, 0.1, 0.1, 0.1, 0.01, 0.01, 0.01, 0.005, 0.005;
+  sd << 0.5, 0.5, 0.5, 0.5, 0.1, 0.1, 0.05, 0.05, 0.1, 0.1, 0.1, 0.01, 0.01, 0.01, 0.005, 0.005, 0.01;
   return sd.array().square().matrix().asDiagonal();
 }
 
@@ -73,6 +73,43 @@ TEST(WarpToReference, JacobianMatchesFiniteDifferences) {
       }
     }
   }
+}
+
+// The focal-length scale (docs/algorithm.md section 3.8): d p_r / d e against central differences of the warp with
+// both focal lengths scaled by (1 +- h), and its fit by the observed columns (focalScaleMap): J m_f reproduces the
+// focal flow to first order, the residual is small against the flow itself.
+TEST(FocalScale, DerivativeMatchesFiniteDifferencesAndTheObservedColumnsSpanIt) {
+  std::mt19937 rng(17);
+  std::uniform_real_distribution<double> px(0.0, 180.0), py(0.0, 116.0);
+  std::normal_distribution<double> n(0.0, 1.0);
+  const PinholeK K = test_util::makeK(180, 116);
+  const double dt = 1.0 / 30.0, h = 1e-6;
+  double sum_res2 = 0.0, sum_d2 = 0.0;
+  for (const double lag : {0.0, 0.5 * dt}) {
+    for (int trial = 0; trial < 20; ++trial) {
+      const State x = randomState(&rng);
+      const Vec3 gyro = Vec3(n(rng), n(rng), n(rng)) * 1.5;
+      const ObservedVec m_f = focalScaleMap(x, K, gyro, dt, lag);
+      ASSERT_TRUE(m_f.allFinite());
+      for (int k = 0; k < 5; ++k) {
+        const double u = px(rng), v = py(rng);
+        const Vec2 d = focalScaleDerivative(x, K, gyro, dt, u, v, lag);
+        const Vec2 fd = (warpToReference(x, scaledFocal(K, h), gyro, dt, u, v, nullptr, lag) -
+                         warpToReference(x, scaledFocal(K, -h), gyro, dt, u, v, nullptr, lag)) /
+                        (2.0 * h);
+        ASSERT_TRUE(d.allFinite());
+        EXPECT_NEAR((fd - d).norm(), 0.0, 1e-5 * (1.0 + d.norm())) << "trial " << trial;
+        WarpJacobian J;
+        warpToReference(x, K, gyro, dt, u, v, &J, lag);
+        sum_res2 += (J * m_f - d).squaredNorm();
+        sum_d2 += d.squaredNorm();
+      }
+    }
+  }
+  const double relative = std::sqrt(sum_res2 / sum_d2);
+  std::printf("[focal scale] RMS residual of the observed columns' fit: %.2e of the focal flow\n", relative);
+  EXPECT_LT(relative, 0.05);
+  EXPECT_TRUE(scaledFocal(K, 0.0).fx == K.fx && scaledFocal(K, 0.1).cx == K.cx);
 }
 
 // The warp against the rigid-body geometry it models: a camera turning at a constant body rate and moving at

@@ -237,9 +237,10 @@ TEST(Prediction, CovarianceStepEqualsDenseFormula) {
                                          proc.alpha_rate_noise_sqrt_s * c.x.alpha *
                                              std::abs(c.x.mu.vector().dot(c.x.vartheta)) * std::sqrt(c.dt_s));
     ErrorCov expected = F * P0 * F.transpose() + G * sigma.cwiseAbs2().asDiagonal() * G.transpose();
-    // The time offset's random walk (not an IMU noise, so not in G).
+    // The time offset's, readout's and focal scale's random walks (not IMU noises, so not in G).
     expected(ErrIdx::kTd, ErrIdx::kTd) += proc.time_offset_s_per_sqrt_s * proc.time_offset_s_per_sqrt_s * c.dt_s;
     expected(ErrIdx::kRo, ErrIdx::kRo) += proc.readout_s_per_sqrt_s * proc.readout_s_per_sqrt_s * c.dt_s;
+    expected(ErrIdx::kFs, ErrIdx::kFs) += proc.focal_scale_per_sqrt_s * proc.focal_scale_per_sqrt_s * c.dt_s;
     State x = c.x;
     ErrorCov P = P0;
     predict(c.accel_C, c.gyro_C, c.dt_s, imu, proc, &x, &P);

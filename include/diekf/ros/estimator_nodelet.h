@@ -171,6 +171,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
   double last_update_ms_ = 0.0, update_ms_sum_ = 0.0, update_ms_max_ = 0.0;
   double last_nis_ = 0.0, last_noise_sigma_ = 0.0, last_noise_correlation_ = 0.0, last_outlier_fraction_ = 0.0;
   double last_time_offset_ms_ = 0.0, last_sigma_time_offset_ms_ = 0.0;
+  double last_focal_scale_pct_ = 0.0, last_sigma_focal_scale_pct_ = 0.0;  // focal length correction, %
   std::uint64_t gated_updates_ = 0;
   uint64_t update_count_ = 0;
   double last_distance_m_ = 0.0, last_height_m_ = 0.0;
