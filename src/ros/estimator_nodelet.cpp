@@ -26,23 +26,6 @@ namespace {
 
 constexpr double kWarnPeriodS = 5.0;  // ROS_WARN_THROTTLE period, s
 
-geometry_msgs::TransformStamped toTransform(const Eigen::Isometry3d& T_parent_child, const ros::Time& stamp,
-                                            const std::string& parent, const std::string& child) {
-  geometry_msgs::TransformStamped t;
-  t.header.stamp = stamp;
-  t.header.frame_id = parent;
-  t.child_frame_id = child;
-  t.transform.translation.x = T_parent_child.translation().x();
-  t.transform.translation.y = T_parent_child.translation().y();
-  t.transform.translation.z = T_parent_child.translation().z();
-  const Eigen::Quaterniond q(T_parent_child.linear());
-  t.transform.rotation.w = q.w();
-  t.transform.rotation.x = q.x();
-  t.transform.rotation.y = q.y();
-  t.transform.rotation.z = q.z();
-  return t;
-}
-
 
 }  // namespace
 
@@ -170,13 +153,7 @@ void EstimatorNodelet::tryCalibrationFromCameraInfo() {
     calibration_source_ = waiting;
     return;
   }
-  Eigen::Isometry3d T_cam_imu = Eigen::Isometry3d::Identity();
-  T_cam_imu.translation() =
-      Eigen::Vector3d(T.transform.translation.x, T.transform.translation.y, T.transform.translation.z);
-  T_cam_imu.linear() = Eigen::Quaterniond(T.transform.rotation.w, T.transform.rotation.x, T.transform.rotation.y,
-                                          T.transform.rotation.z)
-                           .normalized()
-                           .toRotationMatrix();
+  const Eigen::Isometry3d T_cam_imu = isometryFromMsg(T.transform);
   try {
     camera_ = std::make_unique<diekf::CameraModel>(
         cameraModelFromCameraInfo(*latest_camera_info_, T_cam_imu, settings_.camera_info_topic));
@@ -343,8 +320,8 @@ void EstimatorNodelet::updateCameraTf() {
       return;
     case CameraTfPlan::Kind::kDirect:
     case CameraTfPlan::Kind::kAttachToRoot:
-      static_tf_broadcaster_->sendTransform(toTransform(plan.T_parent_child, ros::Time::now(), plan.parent,
-                                                        plan.child));
+      static_tf_broadcaster_->sendTransform(transformToMsg(plan.T_parent_child, ros::Time::now(), plan.parent,
+                                                            plan.child));
       NODELET_INFO("diekf: TF: publishing %s -> %s: %s", plan.parent.c_str(), plan.child.c_str(), plan.why.c_str());
       break;
     case CameraTfPlan::Kind::kAlreadyConnected:
