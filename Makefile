@@ -34,7 +34,7 @@ APT_PACKAGES := build-essential cmake catkin ros-base-dev libnodeletlib-dev libc
   libyaml-cpp-dev libgtest-dev libgmock-dev libbenchmark-dev python3-matplotlib python3-numpy python3-yaml \
   ros-message-generation ros-message-runtime libdiagnostic-updater-dev libstd-srvs-dev \
   libnav-msgs-dev libshape-msgs-dev libvisualization-msgs-dev libdiagnostic-msgs-dev \
-  libtf2-geometry-msgs-dev python3-rosbag python3-rostest python3-roslaunch libnodeletlib-tools ros-base-python-dev rosbash valgrind \
+  libtf2-geometry-msgs-dev libtf2-eigen-dev python3-rosbag python3-rostest python3-roslaunch libnodeletlib-tools ros-base-python-dev rosbash valgrind \
   python3-tf2-msgs image-transport-tools clang libclang-rt-14-dev
 
 .PHONY: all deps workspace ws-path build test demo benchmark benchmark-core benchmark-callgrind fuzz sanitize soak rviz-check \

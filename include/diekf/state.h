@@ -37,4 +37,16 @@ struct State {
   bool allFinite() const;
 };
 
+// Uncertainty of the derived quantities, first order in the error state (the one definition for the estimator's
+// checks, its results and the ROS messages; docs/algorithm.md section 8).
+/// 1-sigma of the distance d = 1/alpha: sigma_alpha / alpha^2, m.
+double sigmaDistance_m(const State& x, const ErrorCov& P);
+/// Relative 1-sigma of the distance, sigma_d / d = sigma_alpha / alpha (dimensionless).
+double relativeSigmaDistance(const State& x, const ErrorCov& P);
+/// Covariance of the velocity v = vartheta / alpha (C frame): J P J^T with J = [-vartheta/alpha^2, I/alpha] over
+/// (alpha, vartheta), (m/s)^2.
+Mat3 velocityCovariance(const State& x, const ErrorCov& P);
+/// 1-sigma of each velocity axis (C frame), m/s.
+Vec3 sigmaVelocity_mps(const State& x, const ErrorCov& P);
+
 }  // namespace diekf

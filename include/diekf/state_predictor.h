@@ -1,7 +1,7 @@
 // The filter's state predicted between images: the last posterior (FrameResult) propagated with the filter's own
 // prediction model (prediction.h) and the same filtered IMU samples the estimator uses (ImuPreprocessor), for
 // outputs faster than the images (the nodelet's ~odometry_imu_rate). Not a second dead-reckoner: the same state,
-// the same inputs, the same step as Estimator::propagateTo, on copies; the estimator itself is not touched.
+// the same inputs, the same step as ImuPropagator::propagateTo, on copies; the estimator itself is not touched.
 #pragma once
 
 #include <deque>
@@ -27,7 +27,7 @@ class StatePredictor {
 
   /// The posterior predicted to t_s, which must not be before it: over the filtered samples as the estimator
   /// steps them (interpolated; a gap longer than two periods held and its noise inflated as in
-  /// Estimator::propagateTo), and beyond the newest filtered sample with that sample held, for at most
+  /// ImuPropagator::propagateTo), and beyond the newest filtered sample with that sample held, for at most
   /// `max_hold_s` (the low-pass delay and one period). False before a posterior, for an earlier t_s, or beyond the
   /// hold. Incremental: consecutive calls with increasing t_s cost one step per new sample.
   bool predict(double t_s, State* x, ErrorCov* P);

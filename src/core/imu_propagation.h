@@ -3,7 +3,9 @@
 #pragma once
 
 #include <algorithm>
+#include <cmath>
 
+#include "diekf/params.h"
 #include "diekf/prediction.h"
 
 namespace diekf {
@@ -30,6 +32,27 @@ double forEachImuPiece(const Buffer& buf, double t_from_s, double t_to_s, double
     if (s.t_s <= t_to_s) ++i;
   }
   return t;
+}
+
+/// One piece (t0, t0 + dt] of forEachImuPiece fed `input`: one prediction step (prediction.h), or across a
+/// bridged gap (dt longer than two nominal periods) steps of at most one period with the IMU white-noise
+/// densities raised to sqrt(density^2 + sigma_gap^2 dt) (input.gap_*: an unknown acceleration and rate change,
+/// constant over the gap, add variance (sigma dt)^2). The one step rule of the estimator (ImuPropagator) and of
+/// the predictions between images (StatePredictor).
+inline void predictImuPiece(const ImuSample& input, double dt, double nominal_dt_s, const EstimatorParams& params,
+                            State* x, ErrorCov* P) {
+  const bool gap = dt > 2.0 * nominal_dt_s;
+  const int steps = gap ? static_cast<int>(std::ceil(dt / nominal_dt_s)) : 1;
+  const double h = dt / steps;
+  ImuParams imu = params.imu;
+  if (gap) {
+    const InputParams& in = params.input;
+    imu.accel_noise_density = std::sqrt(imu.accel_noise_density * imu.accel_noise_density +
+                                        in.gap_accel_sigma_mps2 * in.gap_accel_sigma_mps2 * dt);
+    imu.gyro_noise_density = std::sqrt(imu.gyro_noise_density * imu.gyro_noise_density +
+                                       in.gap_gyro_sigma_radps * in.gap_gyro_sigma_radps * dt);
+  }
+  for (int k = 0; k < steps; ++k) predict(input.accel_mps2, input.gyro_radps, h, imu, params.process, x, P);
 }
 
 }  // namespace internal

@@ -1,5 +1,6 @@
 #include "diekf/state.h"
 
+#include <algorithm>
 #include <cmath>
 
 namespace diekf {
@@ -43,6 +44,29 @@ bool State::allFinite() const {
   return std::isfinite(alpha) && vartheta.allFinite() && mu.quaternion().coeffs().allFinite() &&
          g.quaternion().coeffs().allFinite() && b_a.allFinite() && b_w.allFinite() && std::isfinite(t_d_s) &&
          std::isfinite(readout_s) && std::isfinite(focal_scale);
+}
+
+double sigmaDistance_m(const State& x, const ErrorCov& P) {
+  // d = 1/alpha  =>  sigma_d = sigma_alpha / alpha^2.
+  const double var_alpha = std::max(0.0, P(ErrIdx::kAlpha, ErrIdx::kAlpha));
+  return std::sqrt(var_alpha) / (x.alpha * x.alpha);
+}
+
+double relativeSigmaDistance(const State& x, const ErrorCov& P) {
+  return std::sqrt(std::max(0.0, P(ErrIdx::kAlpha, ErrIdx::kAlpha))) / x.alpha;
+}
+
+Mat3 velocityCovariance(const State& x, const ErrorCov& P) {
+  // v = vartheta / alpha  =>  dv = dvartheta / alpha - vartheta / alpha^2 dalpha.
+  Eigen::Matrix<double, 3, 4> J;
+  J.col(0) = -x.vartheta / (x.alpha * x.alpha);
+  J.rightCols<3>() = Mat3::Identity() / x.alpha;
+  const Eigen::Matrix4d S = P.block<4, 4>(ErrIdx::kAlpha, ErrIdx::kAlpha);  // alpha, vartheta
+  return J * S * J.transpose();
+}
+
+Vec3 sigmaVelocity_mps(const State& x, const ErrorCov& P) {
+  return velocityCovariance(x, P).diagonal().cwiseMax(0.0).cwiseSqrt();
 }
 
 }  // namespace diekf

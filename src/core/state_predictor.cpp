@@ -44,22 +44,11 @@ void StatePredictor::reset(bool clear_imu) {
 }
 
 void StatePredictor::propagateOver(double t_to) {
-  // As Estimator::propagateTo: each piece between sample stamps fed the mean of the interpolation; across a gap
-  // the sample after it held and its unknown motion added as noise.
+  // The step rule of ImuPropagator::propagateTo (predictImuPiece): each piece between sample stamps fed the mean
+  // of the interpolation; across a gap the sample after it held and its unknown motion added as noise.
   internal::forEachImuPiece(filtered_, t_, t_to, 2.0 * nominal_dt_s_,
                             [&](double t0_s, double t1_s, const ImuSample& s) {
-    const double dt = t1_s - t0_s;
-    const bool gap = dt > 2.0 * nominal_dt_s_;
-    const int steps = gap ? static_cast<int>(std::ceil(dt / nominal_dt_s_)) : 1;
-    ImuParams imu = params_.imu;
-    if (gap) {
-      const InputParams& in = params_.input;
-      imu.accel_noise_density = std::sqrt(imu.accel_noise_density * imu.accel_noise_density +
-                                          in.gap_accel_sigma_mps2 * in.gap_accel_sigma_mps2 * dt);
-      imu.gyro_noise_density = std::sqrt(imu.gyro_noise_density * imu.gyro_noise_density +
-                                         in.gap_gyro_sigma_radps * in.gap_gyro_sigma_radps * dt);
-    }
-    for (int k = 0; k < steps; ++k) diekf::predict(s.accel_mps2, s.gyro_radps, dt / steps, imu, params_.process, &x_, &P_);
+    internal::predictImuPiece(s, t1_s - t0_s, nominal_dt_s_, params_, &x_, &P_);
     t_ = t1_s;
   });
 }

@@ -25,14 +25,6 @@ double heightAbovePlane(const diekf::State& x, const Vec3& point_C_m, Row14* jac
   return num / c;
 }
 
-Mat3 velocityCovariance(const diekf::State& x, const ErrorCov& P) {
-  Eigen::Matrix<double, 3, 4> J;
-  J.col(0) = -x.vartheta / (x.alpha * x.alpha);
-  J.rightCols<3>() = Mat3::Identity() / x.alpha;
-  const Eigen::Matrix4d P_av = P.block<4, 4>(ErrIdx::kAlpha, ErrIdx::kAlpha);
-  return J * P_av * J.transpose();
-}
-
 bool BodyPose::allFinite() const {
   return std::isfinite(t_s) && position_m.allFinite() && orientation.coeffs().allFinite() &&
          linear_velocity_mps.allFinite() && angular_velocity_radps.allFinite() && pose_covariance.allFinite() &&

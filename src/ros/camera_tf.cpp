@@ -5,19 +5,11 @@
 #include <geometry_msgs/TransformStamped.h>
 #include <tf2/exceptions.h>
 
+#include "diekf/ros/conversions.h"
+
 namespace diekf_ros {
 
 namespace {
-
-Eigen::Isometry3d toIsometry(const geometry_msgs::TransformStamped& t) {
-  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
-  T.translation() = Eigen::Vector3d(t.transform.translation.x, t.transform.translation.y, t.transform.translation.z);
-  T.linear() = Eigen::Quaterniond(t.transform.rotation.w, t.transform.rotation.x, t.transform.rotation.y,
-                                  t.transform.rotation.z)
-                   .normalized()
-                   .toRotationMatrix();
-  return T;
-}
 
 bool contains(const std::vector<std::string>& v, const std::string& s) {
   return std::find(v.begin(), v.end(), s) != v.end();
@@ -86,7 +78,7 @@ CameraTfPlan planCameraTf(const tf2::BufferCore& buffer, const std::string& root
     }
   }
   try {
-    const Eigen::Isometry3d T_root_cam = toIsometry(buffer.lookupTransform(root, camera_frame, ros::Time(0)));
+    const Eigen::Isometry3d T_root_cam = isometryFromMsg(buffer.lookupTransform(root, camera_frame, ros::Time(0)).transform);
     plan.kind = CameraTfPlan::Kind::kAttachToRoot;
     plan.parent = base_frame;
     plan.child = root;

@@ -5,6 +5,7 @@
 #include <sstream>
 
 #include <sensor_msgs/image_encodings.h>
+#include <tf2_eigen/tf2_eigen.h>
 
 namespace diekf_ros {
 
@@ -14,19 +15,10 @@ namespace {
 
 geometry_msgs::Vector3 toVector3(const Vec3& v) {
   geometry_msgs::Vector3 m;
-  m.x = v.x();
-  m.y = v.y();
-  m.z = v.z();
-  return m;
+  return tf2::toMsg(v, m);
 }
 
-geometry_msgs::Point toPoint(const Vec3& v) {
-  geometry_msgs::Point m;
-  m.x = v.x();
-  m.y = v.y();
-  m.z = v.z();
-  return m;
-}
+geometry_msgs::Point toPoint(const Vec3& v) { return tf2::toMsg(v); }
 
 template <typename Array>
 void copyCovariance(const Mat6& C, Array* out) {
@@ -35,6 +27,26 @@ void copyCovariance(const Mat6& C, Array* out) {
 }
 
 }  // namespace
+
+Eigen::Isometry3d isometryFromMsg(const geometry_msgs::Transform& t) {
+  Vec3 p;
+  tf2::fromMsg(t.translation, p);
+  Eigen::Quaterniond q;
+  tf2::fromMsg(t.rotation, q);
+  Eigen::Isometry3d T = Eigen::Isometry3d::Identity();
+  T.translation() = p;
+  T.linear() = q.normalized().toRotationMatrix();
+  return T;
+}
+
+geometry_msgs::TransformStamped transformToMsg(const Eigen::Isometry3d& T_parent_child, const ros::Time& stamp,
+                                               const std::string& parent, const std::string& child) {
+  geometry_msgs::TransformStamped t = tf2::eigenToTransform(T_parent_child);
+  t.header.stamp = stamp;
+  t.header.frame_id = parent;
+  t.child_frame_id = child;
+  return t;
+}
 
 bool imageView(const sensor_msgs::ImageConstPtr& msg, cv_bridge::CvImageConstPtr* view, diekf::ChannelOrder* order,
                std::string* error) {
@@ -79,8 +91,8 @@ bool imageToMono8(const sensor_msgs::Image& msg, cv::Mat* mono8, std::string* er
 bool imuFromMsg(const sensor_msgs::Imu& msg, diekf::ImuSample* sample) {
   diekf::ImuSample s;
   s.t_s = msg.header.stamp.toSec();
-  s.accel_mps2 = Vec3(msg.linear_acceleration.x, msg.linear_acceleration.y, msg.linear_acceleration.z);
-  s.gyro_radps = Vec3(msg.angular_velocity.x, msg.angular_velocity.y, msg.angular_velocity.z);
+  tf2::fromMsg(msg.linear_acceleration, s.accel_mps2);
+  tf2::fromMsg(msg.angular_velocity, s.gyro_radps);
   if (!std::isfinite(s.t_s) || !s.accel_mps2.allFinite() || !s.gyro_radps.allFinite()) return false;
   *sample = s;
   return true;
@@ -111,7 +123,7 @@ bool fillPlanarState(const diekf::FrameResult& r, const std_msgs::Header& header
   if (!x.allFinite() || !P.allFinite()) return false;
   Row14 J_h;
   const double h = heightAbovePlane(x, Vec3::Zero(), &J_h);
-  const Vec3 sigma_v = velocityCovariance(x, P).diagonal().cwiseMax(0.0).cwiseSqrt();
+  const Vec3 sigma_v = diekf::sigmaVelocity_mps(x, P);
   diekf::PlanarState m;
   m.header = header;
   m.distance = x.distance_m();
@@ -131,8 +143,7 @@ bool fillPlanarState(const diekf::FrameResult& r, const std_msgs::Header& header
   m.sigma_readout_time = std::sqrt(std::max(P(diekf::ErrIdx::kRo, diekf::ErrIdx::kRo), 0.0));
   m.focal_scale = x.focal_scale;
   m.sigma_focal_scale = std::sqrt(std::max(P(diekf::ErrIdx::kFs, diekf::ErrIdx::kFs), 0.0));
-  const double var_alpha = std::max(P(diekf::ErrIdx::kAlpha, diekf::ErrIdx::kAlpha), 0.0);
-  m.sigma_distance = std::sqrt(var_alpha) / (x.alpha * x.alpha);
+  m.sigma_distance = diekf::sigmaDistance_m(x, P);
   m.sigma_height = std::sqrt(std::max((J_h * P * J_h.transpose())(0, 0), 0.0));
   m.sigma_velocity = toVector3(sigma_v);
   m.sigma_normal = std::sqrt(std::max(P.block<2, 2>(diekf::ErrIdx::kMu, diekf::ErrIdx::kMu).trace(), 0.0));
@@ -161,10 +172,7 @@ bool fillOdometry(const BodyPose& pose, const std::string& odom_frame, const std
   m.header.frame_id = odom_frame;
   m.child_frame_id = base_frame;
   m.pose.pose.position = toPoint(pose.position_m);
-  m.pose.pose.orientation.w = pose.orientation.w();
-  m.pose.pose.orientation.x = pose.orientation.x();
-  m.pose.pose.orientation.y = pose.orientation.y();
-  m.pose.pose.orientation.z = pose.orientation.z();
+  m.pose.pose.orientation = tf2::toMsg(pose.orientation);
   copyCovariance(pose.pose_covariance, &m.pose.covariance);
   m.twist.twist.linear = toVector3(pose.linear_velocity_mps);
   m.twist.twist.angular = toVector3(pose.angular_velocity_radps);

@@ -18,6 +18,7 @@
 #include "diekf/ros/conversions.h"
 #include "diekf/ros/driver_settings.h"
 #include "diekf/ros/ros_param_source.h"
+#include "diekf/stamp_check.h"
 
 namespace diekf_ros {
 
@@ -25,22 +26,6 @@ namespace {
 
 constexpr double kWarnPeriodS = 5.0;  // ROS_WARN_THROTTLE period, s
 
-geometry_msgs::TransformStamped toTransform(const Eigen::Isometry3d& T_parent_child, const ros::Time& stamp,
-                                            const std::string& parent, const std::string& child) {
-  geometry_msgs::TransformStamped t;
-  t.header.stamp = stamp;
-  t.header.frame_id = parent;
-  t.child_frame_id = child;
-  t.transform.translation.x = T_parent_child.translation().x();
-  t.transform.translation.y = T_parent_child.translation().y();
-  t.transform.translation.z = T_parent_child.translation().z();
-  const Eigen::Quaterniond q(T_parent_child.linear());
-  t.transform.rotation.w = q.w();
-  t.transform.rotation.x = q.x();
-  t.transform.rotation.y = q.y();
-  t.transform.rotation.z = q.z();
-  return t;
-}
 
 }  // namespace
 
@@ -168,13 +153,7 @@ void EstimatorNodelet::tryCalibrationFromCameraInfo() {
     calibration_source_ = waiting;
     return;
   }
-  Eigen::Isometry3d T_cam_imu = Eigen::Isometry3d::Identity();
-  T_cam_imu.translation() =
-      Eigen::Vector3d(T.transform.translation.x, T.transform.translation.y, T.transform.translation.z);
-  T_cam_imu.linear() = Eigen::Quaterniond(T.transform.rotation.w, T.transform.rotation.x, T.transform.rotation.y,
-                                          T.transform.rotation.z)
-                           .normalized()
-                           .toRotationMatrix();
+  const Eigen::Isometry3d T_cam_imu = isometryFromMsg(T.transform);
   try {
     camera_ = std::make_unique<diekf::CameraModel>(
         cameraModelFromCameraInfo(*latest_camera_info_, T_cam_imu, settings_.camera_info_topic));
@@ -204,7 +183,7 @@ std::vector<std::string> EstimatorNodelet::nodeletParamKeys() {
           "camera_tf_root", "camera_tf_wait_s", "imu_frame", "driver_node",
           "publish_odometry_imu_rate", "odometry_imu_rate_raw", "odom_z_step_m", "imu_pose_in_base",
           "image_queue_size", "imu_queue_size", "expected_imu_rate_hz",
-          "expected_image_rate_hz", "imu_rate_measure_s", "rate_tolerance", "time_jump_reset_s", "late_image_warn_s",
+          "expected_image_rate_hz", "imu_rate_measure_s", "rate_tolerance", "late_image_warn_s",
           "residual_image_gain", "path_max_poses", "gravity_arrow_m", "plane_marker_size_m", "diagnostic_period_s",
           "diagnostic_period"};
 }
@@ -239,7 +218,6 @@ void EstimatorNodelet::loadSettings() {
   pnh_.param("expected_image_rate_hz", s.expected_image_rate_hz, s.expected_image_rate_hz);
   pnh_.param("imu_rate_measure_s", s.imu_rate_measure_s, s.imu_rate_measure_s);
   pnh_.param("rate_tolerance", s.rate_tolerance, s.rate_tolerance);
-  pnh_.param("time_jump_reset_s", s.time_jump_reset_s, s.time_jump_reset_s);
   pnh_.param("late_image_warn_s", s.late_image_warn_s, s.late_image_warn_s);
   pnh_.param("residual_image_gain", s.residual_image_gain, s.residual_image_gain);
   pnh_.param("path_max_poses", s.path_max_poses, s.path_max_poses);
@@ -255,7 +233,6 @@ void EstimatorNodelet::loadSettings() {
   require(s.expected_image_rate_hz > 0.0, "expected_image_rate_hz", "> 0");
   require(s.imu_rate_measure_s >= 0.0 && s.imu_rate_measure_s <= 30.0, "imu_rate_measure_s", "in [0, 30] s");
   require(s.rate_tolerance > 0.0 && s.rate_tolerance < 1.0, "rate_tolerance", "in (0, 1)");
-  require(s.time_jump_reset_s > 0.0, "time_jump_reset_s", "> 0");
   require(s.diagnostic_period_s > 0.0, "diagnostic_period_s", "> 0");
   require(s.path_max_poses >= 0, "path_max_poses", ">= 0");
   require(s.camera_tf_wait_s >= 0.0, "camera_tf_wait_s", ">= 0");
@@ -343,8 +320,8 @@ void EstimatorNodelet::updateCameraTf() {
       return;
     case CameraTfPlan::Kind::kDirect:
     case CameraTfPlan::Kind::kAttachToRoot:
-      static_tf_broadcaster_->sendTransform(toTransform(plan.T_parent_child, ros::Time::now(), plan.parent,
-                                                        plan.child));
+      static_tf_broadcaster_->sendTransform(transformToMsg(plan.T_parent_child, ros::Time::now(), plan.parent,
+                                                            plan.child));
       NODELET_INFO("diekf: TF: publishing %s -> %s: %s", plan.parent.c_str(), plan.child.c_str(), plan.why.c_str());
       break;
     case CameraTfPlan::Kind::kAlreadyConnected:
@@ -369,7 +346,7 @@ void EstimatorNodelet::checkClock() {
   const double now_s = ros::Time::now().toSec();
   const double jump_s = last_ros_now_s_ - now_s;
   const double newest_stamp_s = std::max(last_imu_stamp_s_, last_image_stamp_s_);
-  const bool restart = clockJumpNeedsRestart(last_ros_now_s_, now_s, newest_stamp_s, settings_.time_jump_reset_s);
+  const bool restart = clockJumpNeedsRestart(last_ros_now_s_, now_s, newest_stamp_s, params_.input.time_jump_reset_s);
   last_ros_now_s_ = now_s;
   if (restart) {
     NODELET_WARN("diekf: ROS time jumped back by %.3f s (bag loop / simulated clock reset): restarting the filter",
@@ -399,14 +376,15 @@ void EstimatorNodelet::imuCallback(const sensor_msgs::ImuConstPtr& msg) {
   const double t = sample.t_s;
   if (last_imu_stamp_s_ >= 0.0) {
     const double dt = t - last_imu_stamp_s_;
-    if (dt < -settings_.time_jump_reset_s) {
+    const diekf::StampStep step = diekf::classifyStampStep(last_imu_stamp_s_, t, params_.input.time_jump_reset_s);
+    if (step == diekf::StampStep::kJumpBack) {
       NODELET_WARN("diekf: IMU time jumped back by %.3f s (bag loop or clock reset): restarting the filter", -dt);
       requestRestart("IMU time jumped backwards", true);
       last_image_stamp_s_ = -1.0;
       if (settings_.imu_rate_measure_s > 0.0) startImuRateMeasurement();  // a restarted driver may run at another rate
-    } else if (dt <= 0.0) {
+    } else if (step != diekf::StampStep::kForward) {
       NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: %s IMU message (stamp %.6f s, previous %.6f s) dropped",
-                            dt == 0.0 ? "duplicated" : "out-of-order", t, last_imu_stamp_s_);
+                            step == diekf::StampStep::kDuplicate ? "duplicated" : "out-of-order", t, last_imu_stamp_s_);
       std::lock_guard<std::mutex> lock(stats_mutex_);
       ++imu_dropped_;
       return;
@@ -454,14 +432,15 @@ void EstimatorNodelet::imageCallback(const sensor_msgs::ImageConstPtr& msg) {
   const double t = msg->header.stamp.toSec();
   if (last_image_stamp_s_ >= 0.0) {
     const double dt = t - last_image_stamp_s_;
-    if (dt < -settings_.time_jump_reset_s) {
+    const diekf::StampStep step = diekf::classifyStampStep(last_image_stamp_s_, t, params_.input.time_jump_reset_s);
+    if (step == diekf::StampStep::kJumpBack) {
       NODELET_WARN("diekf: image time jumped back by %.3f s: restarting the filter", -dt);
       requestRestart("image time jumped backwards", true);
       last_imu_stamp_s_ = -1.0;
       if (settings_.imu_rate_measure_s > 0.0) startImuRateMeasurement();
-    } else if (dt <= 0.0) {
+    } else if (step != diekf::StampStep::kForward) {
       NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: %s image (stamp %.6f s, previous %.6f s) dropped",
-                            dt == 0.0 ? "duplicated" : "out-of-order", t, last_image_stamp_s_);
+                            step == diekf::StampStep::kDuplicate ? "duplicated" : "out-of-order", t, last_image_stamp_s_);
       std::lock_guard<std::mutex> lock(stats_mutex_);
       ++images_dropped_;
       return;

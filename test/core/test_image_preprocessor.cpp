@@ -3,6 +3,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
 #include <stdexcept>
 #include <string>
 
@@ -11,6 +12,7 @@
 #include "diekf/image_preprocessor.h"
 
 #include "mynt_camera.h"
+#include "opencv_resample_route.h"
 
 namespace diekf {
 namespace {
@@ -195,6 +197,47 @@ TEST(ImagePreprocessor, ResamplingMatchesSmoothImageAtMappedCentre) {
       }
     EXPECT_GT(checked, K.width * K.height / 2) << width;
     EXPECT_LT(worst, 1.2) << "working width " << width;  // u8 rounding of input and output, curvature
+  }
+}
+
+// The hand-written resampling against the library routes (cv::resize INTER_AREA and cv::remap in either order;
+// docs/performance.md, "Resampling: hand-written tables or OpenCV"), all against the mean of the scene over each
+// working pixel's footprint through the distortion (8 x 8 sub-samples of the function the raw image samples), on
+// a texture with detail down to a few raw pixels.
+TEST(ImagePreprocessor, ResamplingAgainstOpenCvRoutes) {
+  const CameraModel cam = myntEyeCamera();
+  auto f = [](double x, double y) {
+    return 128.0 + 50.0 * std::sin(0.031 * x + 0.017 * y) * std::cos(0.023 * y - 0.011 * x) +
+           40.0 * std::sin(0.21 * x) * std::sin(0.17 * y) + 20.0 * std::sin(0.9 * x + 0.4 * y);
+  };
+  cv::Mat raw(480, 752, CV_8UC1);
+  for (int y = 0; y < raw.rows; ++y)
+    for (int x = 0; x < raw.cols; ++x) raw.at<uint8_t>(y, x) = cv::saturate_cast<uint8_t>(f(x, y));
+  for (int width : {90, 180, 376}) {
+    PreprocessParams p;
+    p.working_width_px = width;
+    ImagePreprocessor pre(cam, p);
+    PreprocessedFrame out;
+    pre.process(raw, 0.0, &out);
+    cv::Mat area_remap, remap_area;
+    testing_routes::OpenCvAreaThenRemap(cam, pre.workingK()).run(raw, &area_remap);
+    testing_routes::OpenCvRemapThenArea(cam, pre.workingK()).run(raw, &remap_area);
+    const cv::Mat ref = testing_routes::footprintAverage(cam, pre.workingK(), f);
+    double rms_hand, worst_hand, rms_ar, worst_ar, rms_ra, worst_ra;
+    int n;
+    testing_routes::compareToReference(out.gray8, ref, &rms_hand, &worst_hand, &n);
+    testing_routes::compareToReference(area_remap, ref, &rms_ar, &worst_ar, &n);
+    testing_routes::compareToReference(remap_area, ref, &rms_ra, &worst_ra, &n);
+    std::printf("width %d (%d px compared), RMS / max error in grey levels: hand-written %.3f / %.2f, "
+                "area then remap %.3f / %.2f, remap then area %.3f / %.2f\n",
+                width, n, rms_hand, worst_hand, rms_ar, worst_ar, rms_ra, worst_ra);
+    EXPECT_GT(n, pre.workingK().width * pre.workingK().height / 2);
+    // Measured (docs/performance.md): the hand-written tables are 5-7x closer to the footprint mean than area then
+    // remap (which costs 8-27x the whole preprocessing at 90 and 180 px); remap then area is closer still at 90 and
+    // 180 px but costs 20-50x the whole preprocessing there.
+    EXPECT_LT(rms_hand, 0.5 * rms_ar) << "width " << width;
+    EXPECT_LT(rms_hand, 2.0) << "width " << width;
+    EXPECT_LT(rms_ra, rms_ar) << "width " << width;
   }
 }
 

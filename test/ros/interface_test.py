@@ -4,7 +4,8 @@ nodelet in process) on a short simulated bag replayed with rosbag play.
 
 Checks: every advertised output topic publishes with its documented type; the TF tree odom -> base_link ->
 camera exists and the static part matches the calibration; /diagnostics carries the filter status; the ~reset
-service (std_srvs/Trigger) brings the filter back to initializing, then tracking again.
+service (std_srvs/Trigger) brings the filter back to initializing, then tracking again; keys of the node's
+namespace that nothing reads are warned about with the namespace, the key and the closest known key.
 """
 import os
 import subprocess
@@ -58,11 +59,14 @@ class Interface(unittest.TestCase):
         self.odom_fast = []
         self.node = None
         self.player = None
+        self.node_log = None  # the node's console output (file)
         self.tmp = None
 
     def tearDown(self):
         util.stop(self.player)
         util.stop(self.node)
+        if self.node_log is not None:
+            self.node_log.close()
         if self.tmp:
             util.cleanup(self.tmp)
 
@@ -99,18 +103,32 @@ class Interface(unittest.TestCase):
         util.upload_params(NODE, util.package_file("config", "estimator.yaml"))
         util.upload_params(NODE, util.package_file("config", "mynteye.yaml"),
                            {"camchain_file": camchain, "imu_file": imu_yaml, "publish_odometry_imu_rate": True})
+        # A misspelt estimator key and a key the nodelet no longer reads (now the estimator's input/...).
+        util.upload_params(NODE, None, {"photometric/max_pases": 2, "time_jump_reset_s": 1.0})
         for topic, (_, cls) in OUTPUTS.items():
             rospy.Subscriber(topic, cls, self.counter(topic), queue_size=100)
         rospy.Subscriber("/tf", TFMessage, self.on_tf(self.tf), queue_size=100)
         rospy.Subscriber("/tf_static", TFMessage, self.on_tf(self.tf_static), queue_size=10)
         rospy.Subscriber("/diagnostics", DiagnosticArray, self.on_diagnostics, queue_size=10)
 
-        self.node = util.start([util.executable("diekf_node", required=True), "__name:=diekf"])
+        log_path = os.path.join(self.tmp, "node.log")
+        self.node_log = open(log_path, "w")
+        self.node = subprocess.Popen([util.executable("diekf_node", required=True), "__name:=diekf"],
+                                     stdout=self.node_log, stderr=subprocess.STDOUT)
         self.assertTrue(util.wait_for(lambda: util.has_subscriber("/mynteye/imu/data_raw") and
                                       util.has_subscriber("/mynteye/left/image_raw"), 20.0),
                         "diekf_node did not subscribe to the MYNT EYE topics")
         rospy.wait_for_service(NODE + "/reset", timeout=10.0)
         time.sleep(1.0)
+
+        # Unknown keys: one warning each, naming the namespace, the key and the closest known key.
+        def warned(key, closest):
+            with open(log_path) as f:
+                text = f.read()
+            return "%s: unknown parameter key '%s' ignored (closest known key: '%s')" % (NODE, key, closest) in text
+        self.assertTrue(util.wait_for(lambda: warned("photometric/max_pases", "photometric/max_passes") and
+                                      warned("time_jump_reset_s", "input/time_jump_reset_s"), 10.0),
+                        "no unknown-key warnings in the node's output:\n" + open(log_path).read()[-2000:])
 
         # Types of everything the node advertises, as the master sees them.
         advertised = dict(rospy.get_published_topics(NODE))

@@ -29,8 +29,8 @@ using Row14 = Eigen::Matrix<double, 1, diekf::kErrorDim>;
 /// Jacobian w.r.t. the 14-D error state. The camera's own height is point = 0.
 double heightAbovePlane(const diekf::State& x, const Vec3& point_C_m, Row14* jacobian = nullptr);
 
-/// Covariance (m^2/s^2) of the camera velocity v = vartheta / alpha in C, first order from the filter covariance.
-Mat3 velocityCovariance(const diekf::State& x, const ErrorCov& P);
+/// Covariance (m^2/s^2) of the camera velocity v = vartheta / alpha in C: the core's (diekf/state.h).
+using diekf::velocityCovariance;
 
 /// Pose, twist and covariances of base_link in odom. Covariance order (ROS): x, y, z, roll, pitch, yaw.
 struct BodyPose {

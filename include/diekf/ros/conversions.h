@@ -3,6 +3,9 @@
 
 #include <string>
 
+#include <Eigen/Geometry>
+#include <geometry_msgs/Transform.h>
+#include <geometry_msgs/TransformStamped.h>
 #include <geometry_msgs/TwistWithCovarianceStamped.h>
 #include <nav_msgs/Odometry.h>
 #include <cv_bridge/cv_bridge.h>
@@ -20,6 +23,13 @@
 #include "diekf/ros/body_odometry.h"
 
 namespace diekf_ros {
+
+/// A TF transform as an isometry (tf2_eigen's message conversions; the quaternion normalised: TF's are only
+/// nearly unit).
+Eigen::Isometry3d isometryFromMsg(const geometry_msgs::Transform& t);
+/// An isometry as the stamped TF transform parent -> child (tf2::eigenToTransform).
+geometry_msgs::TransformStamped transformToMsg(const Eigen::Isometry3d& T_parent_child, const ros::Time& stamp,
+                                               const std::string& parent, const std::string& child);
 
 /// The image message's own pixels without a copy (cv_bridge::toCvShare; *view keeps the message alive), after
 /// checking its fields (diekf::describeImageBuffer): mono8, mono16, bgr8, rgb8, bgra8, rgba8 (also 8UC1 and 16UC1);

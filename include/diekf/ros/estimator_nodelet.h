@@ -64,7 +64,6 @@ struct NodeletSettings {
   double imu_rate_measure_s = 0.5;            ///< IMU stamps measured at start-up for the rate, s (0: imu/input_rate_hz)
   double expected_image_rate_hz = 30.0;       ///< for the /diagnostics rate check, Hz
   double rate_tolerance = 0.3;                ///< accepted relative deviation of the input rates
-  double time_jump_reset_s = 1.0;             ///< a stamp this far backwards restarts the filter, s
   double late_image_warn_s = 0.25;            ///< warn when an image is older than the newest IMU by more, s
   double residual_image_gain = 64.0;          ///< grey levels per normalised-intensity unit in ~residual_image
   int path_max_poses = 3000;                  ///< poses kept in ~path

@@ -1,0 +1,150 @@
+#include "image_update.h"
+
+#include <algorithm>
+#include <cmath>
+#include <cstdio>
+#include <sstream>
+
+#include <opencv2/core.hpp>
+
+namespace diekf {
+namespace internal {
+
+PhotometricParams ImageUpdate::photometricParamsFor(const EstimatorParams& p) {
+  PhotometricParams pp = p.photometric;
+  if (p.mode == UpdateMode::kEkf) pp.max_passes = 1;
+  return pp;
+}
+
+ImageUpdate::ImageUpdate(const CameraModel& camera, const EstimatorParams& params, const ImagePreprocessor& pre)
+    : params_(params),
+      pre_(pre),
+      photometric_(photometricParamsFor(params), params.preprocess),
+      feature_(params.feature, photometricParamsFor(params)) {
+  photometric_.setPreprocessNoise(pre.noiseVarianceGain(), pre.noiseCorrelationAreaPx());
+  // Rolling shutter (docs/algorithm.md section 3.7): each working row's mean raw row through the distortion.
+  readout_row_weight_ = readoutRowWeights(camera, pre.workingK());
+}
+
+bool ImageUpdate::usable(const cv::Mat& gray8, std::string* why) const {
+  cv::Scalar mean, stddev;
+  cv::meanStdDev(gray8, mean, stddev);
+  const int total = gray8.rows * gray8.cols;
+  int clipped = 0;
+  for (int y = 0; y < gray8.rows; ++y) {
+    const uint8_t* row = gray8.ptr<uint8_t>(y);
+    for (int x = 0; x < gray8.cols; ++x) clipped += (row[x] == 0 || row[x] == 255) ? 1 : 0;
+  }
+  const double unclipped = total > 0 ? 1.0 - static_cast<double>(clipped) / total : 0.0;
+  std::ostringstream os;
+  if (unclipped < params_.input.min_unclipped_ratio) {
+    os << "image unusable: " << static_cast<int>(std::lround(100.0 * (1.0 - unclipped)))
+       << " % of the pixels black or saturated (mean grey " << std::lround(mean[0]) << ")";
+  } else if (!(stddev[0] >= params_.input.min_image_contrast_grey)) {
+    os << "image unusable: no texture (grey-level std " << stddev[0] << " below "
+       << params_.input.min_image_contrast_grey << ")";
+  } else {
+    return true;
+  }
+  *why = os.str();
+  return false;
+}
+
+// The time offset (docs/algorithm.md section 3.6): the state's rates at its time and the change of the filtered
+// rate over the interval. Only once the distance has converged and time_offset_start_s later (and not from frames
+// the innovation test flags: PhotometricUpdate): before that the state's rates in m are unknown themselves, and
+// the offset absorbed the start-up transient (a 15 ms offset was estimated at 36 ms within 0.5 s of a start at
+// 1 m/s, then divergence; on a clean fast flight a dash just after convergence moved it to -37 ms, truth 0). Not
+// while degraded was tried too: realistic flights are often degraded (exposure steps), and a wrong offset keeps
+// the status degraded, so it was never corrected (5 sigma off). A rolling shutter (section 3.7) needs the same
+// rates for its rows' times.
+ImageTiming ImageUpdate::timingFor(double t_img_s, const ImuPropagator& imu, const HealthMonitor& health,
+                                   const State& x, const ErrorCov& P) const {
+  ImageTiming timing;
+  const bool settled = health.converged() && t_img_s - health.convergedSince() >= params_.time_offset_start_s;
+  timing.estimate_offset = params_.estimate_time_offset && settled;
+  timing.row_weight = readout_row_weight_.data();
+  timing.rows = static_cast<int>(readout_row_weight_.size());
+  // The readout once the offset is known to a few ms (when it is estimated): early on, with both uncertain, a
+  // large offset was partly taken for a readout (19 ms of readout for a 20 ms offset on a global-shutter flight,
+  // the offset then 10 s late).
+  const double gate_s = params_.readout_start_sigma_time_offset_s;
+  timing.estimate_readout = params_.estimate_readout && settled &&
+                            (!params_.estimate_time_offset || P(ErrIdx::kTd, ErrIdx::kTd) < gate_s * gate_s);
+  timing.rates_valid = timing.estimate_offset || timing.estimate_readout || x.readout_s != 0.0;
+  // The focal-length scale (section 3.8) from the same time on: it is seen through the dynamics of the states it
+  // is taken for (the gyro bias and vartheta), which must have converged first.
+  timing.estimate_focal_scale = params_.estimate_focal_scale && settled;
+  if (timing.rates_valid) {
+    timing.accel_C = imu.imuAt(imu.stateTime()).accel_mps2;
+    timing.rate_change_C = imu.rateChangeSinceReference(t_img_s);
+    timing.gravity_mps2 = params_.imu.gravity_mps2;
+  }
+  return timing;
+}
+
+UpdateStats ImageUpdate::apply(const PreprocessedFrame& ref, const PreprocessedFrame& cur, double t_img_s,
+                               const ImuPropagator& imu, double last_imu_gap_end_s, HealthMonitor* health,
+                               State* x_io, ErrorCov* P_io, std::string* skip_reason) {
+  State& x = *x_io;
+  ErrorCov& P = *P_io;
+  UpdateStats stats;
+  const double dt = cur.t_s - ref.t_s;
+  const double state_lag = std::max(0.0, cur.t_s - imu.stateTime());  // the state's time before the image, s
+  // Mean gyro over the whole interval: what was integrated so far plus the samples up to the image.
+  const Vec3 gyro_mean = imu.meanGyroOverInterval(t_img_s);
+  if (dt > params_.input.max_frame_interval_s) {
+    std::ostringstream os;
+    os << "update skipped: " << dt << " s since the reference image (max_frame_interval_s = "
+       << params_.input.max_frame_interval_s << " s); this image is the new reference";
+    *skip_reason = os.str();
+  } else if (ref.t_s < last_imu_gap_end_s) {
+    // The gyro over the interval is unknown (held across the gap): the warp cannot be predicted.
+    *skip_reason = "update skipped: the image interval spans a bridged IMU gap; this image is the new reference";
+    health->noteDegraded(t_img_s, "IMU gap bridged: covariance grown, one image pair skipped");
+  } else if (params_.mode == UpdateMode::kFeature) {
+    stats = feature_.update(ref, cur, pre_.workingK(), gyro_mean, dt, &x, &P, state_lag);
+  } else {
+    const State x_prior = x;
+    const ErrorCov P_prior = P;
+    const ImageTiming timing = timingFor(t_img_s, imu, *health, x, P);
+    stats = photometric_.update(ref, cur, pre_.workingK(), gyro_mean, dt, &x, &P, state_lag, timing);
+    x.t_d_s = std::clamp(x.t_d_s, -params_.max_time_offset_s, params_.max_time_offset_s);
+    x.readout_s = std::clamp(x.readout_s, -params_.max_readout_s, params_.max_readout_s);
+    x.focal_scale = std::clamp(x.focal_scale, -params_.max_focal_scale, params_.max_focal_scale);
+    // alpha's step in prior sigmas: d must never jump by many sigma in one frame.
+    const double step_sigma =
+        std::abs(x.alpha - x_prior.alpha) / std::sqrt(std::max(1e-300, P_prior(ErrIdx::kAlpha, ErrIdx::kAlpha)));
+    if (stats.applied && !(stats.rms_residual <= params_.divergence.max_photometric_rms)) {
+      // The images do not fit the plane model (occlusion, unrelated or corrupt image): keep the prior.
+      x = x_prior;
+      P = P_prior;
+      stats.applied = false;
+      std::ostringstream os;
+      os << "update rejected: photometric RMS " << stats.rms_residual << " above "
+         << params_.divergence.max_photometric_rms;
+      *skip_reason = os.str();
+      health->noteDegraded(t_img_s, *skip_reason);
+    } else if (stats.applied && !(step_sigma <= params_.divergence.max_step_sigma)) {
+      x = x_prior;
+      P = P_prior;
+      stats.applied = false;
+      std::ostringstream os;
+      os << "update rejected: it moved the inverse distance by " << step_sigma << " prior sigmas (max_step_sigma = "
+         << params_.divergence.max_step_sigma << ")";
+      *skip_reason = os.str();
+      health->noteDegraded(t_img_s, *skip_reason);
+    } else if (stats.applied && stats.gated) {
+      char why[kMessageCapacity];
+      std::snprintf(why, sizeof(why), "update gated: NIS %.3g above %.3g, measurement down-weighted x%.3g", stats.nis,
+                    params_.photometric.gate_nis, stats.gate_inflation);
+      health->noteDegraded(t_img_s, why);
+    }
+    if (stats.applied && std::isfinite(stats.nis)) health->noteInnovation(t_img_s, dt, stats.nis);
+  }
+  if (skip_reason->empty() && !stats.applied) *skip_reason = "update skipped: too few valid pixels or non-finite system";
+  return stats;
+}
+
+}  // namespace internal
+}  // namespace diekf

@@ -1,0 +1,64 @@
+// Internal part of the estimator (docs/algorithm.md section 9): the update of the state from one image pair
+// (reference -> current working image). Decides whether an image can be used at all, runs the photometric
+// (or feature) update with the pair's timing, and guards it: an update whose residual or inverse-distance step
+// is implausible is undone; a gated or rejected update and an inconsistent innovation are reported to the
+// health monitor.
+#pragma once
+
+#include <string>
+#include <vector>
+
+#include "diekf/camera_model.h"
+#include "diekf/feature_update.h"
+#include "diekf/image_preprocessor.h"
+#include "diekf/params.h"
+#include "diekf/photometric_update.h"
+#include "diekf/state.h"
+#include "health_monitor.h"
+#include "imu_propagator.h"
+
+namespace diekf {
+namespace internal {
+
+class ImageUpdate {
+ public:
+  /// `params` must outlive the update (the estimator's own copy); `pre` is the estimator's preprocessor (its
+  /// working intrinsics and noise propagation).
+  ImageUpdate(const CameraModel& camera, const EstimatorParams& params, const ImagePreprocessor& pre);
+
+  /// The photometric parameters the estimator runs with (mode ekf: one pass).
+  static PhotometricParams photometricParamsFor(const EstimatorParams& p);
+
+  /// Whether the working image carries enough texture for an update (input.min_unclipped_ratio,
+  /// input.min_image_contrast_grey); says why not.
+  bool usable(const cv::Mat& gray8, std::string* why) const;
+
+  /// Updates (x, P), at the propagator's state time, from the pair (ref, cur) with cur taken at t_img_s (IMU
+  /// clock). Skips the pair (a new reference follows) when it is too far apart (input.max_frame_interval_s) or
+  /// spans a bridged IMU gap (its first sample after the gap at last_imu_gap_end_s); undoes an applied update
+  /// whose photometric RMS is above divergence.max_photometric_rms or whose inverse-distance step is above
+  /// divergence.max_step_sigma prior sigmas. *skip_reason says why the update was not applied (empty: applied).
+  UpdateStats apply(const PreprocessedFrame& ref, const PreprocessedFrame& cur, double t_img_s,
+                    const ImuPropagator& imu, double last_imu_gap_end_s, HealthMonitor* health, State* x,
+                    ErrorCov* P, std::string* skip_reason);
+
+  /// Forgets the photometric noise estimates (a new run).
+  void resetNoiseModel() { photometric_.resetNoiseModel(); }
+  /// Residual image of the last photometric update.
+  const cv::Mat& residualImage() const { return photometric_.residualImage(); }
+
+ private:
+  /// The timing of the pair (docs/algorithm.md sections 3.6, 3.7): which of the time offset and the readout
+  /// are estimated in this update, and the rates they need.
+  ImageTiming timingFor(double t_img_s, const ImuPropagator& imu, const HealthMonitor& health, const State& x,
+                        const ErrorCov& P) const;
+
+  const EstimatorParams& params_;
+  const ImagePreprocessor& pre_;
+  PhotometricUpdate photometric_;
+  FeatureUpdate feature_;
+  std::vector<float> readout_row_weight_;  // per working row: its capture time per second of readout
+};
+
+}  // namespace internal
+}  // namespace diekf

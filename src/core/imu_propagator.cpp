@@ -1,0 +1,117 @@
+#include "imu_propagator.h"
+
+#include <algorithm>
+#include <cmath>
+
+#include "diekf/prediction.h"
+#include "imu_propagation.h"
+
+namespace diekf {
+namespace internal {
+
+namespace {
+constexpr size_t kImuBufferCapacity = 1024;  // filtered samples (about 10 s at 100 Hz)
+}  // namespace
+
+ImuPropagator::ImuPropagator(const EstimatorParams& params) : params_(params), buffer_(kImuBufferCapacity) {}
+
+bool ImuPropagator::push(const ImuSample& filtered) {
+  if (!buffer_.empty() && filtered.t_s <= buffer_.back().t_s) return false;
+  buffer_.push(filtered);
+  return true;
+}
+
+void ImuPropagator::startAt(double t_s) {
+  t_state_s_ = t_s;
+  dropUsed();
+}
+
+void ImuPropagator::dropUsed() {
+  // Keep the last sample at or before the state's time: the next piece interpolates from it.
+  while (buffer_.size() > 1 && buffer_[1].t_s <= t_state_s_) buffer_.pop();
+}
+
+double ImuPropagator::filteredPeriod() const {
+  return std::max(1, params_.imu.decimation_factor) / std::max(1e-9, params_.imu.input_rate_hz);
+}
+
+Vec3 ImuPropagator::gyroIntegral(double t0_s, double t1_s) const {
+  Vec3 sum = Vec3::Zero();
+  forEachImuPiece(buffer_, t0_s, t1_s, 2.0 * filteredPeriod(),
+                  [&](double a_s, double b_s, const ImuSample& in) { sum += in.gyro_radps * (b_s - a_s); });
+  return sum;
+}
+
+// Each step is fed the mean of the linear interpolation between the samples around it (forEachImuPiece); across
+// a bridged IMU gap the sample after it is held (zero-order hold) and the gap is integrated in steps of at most
+// one nominal period, its noise inflated (predictImuPiece).
+void ImuPropagator::propagateTo(double t_target_s, State* x, ErrorCov* P) {
+  const double nominal_dt_s = filteredPeriod();
+  forEachImuPiece(buffer_, t_state_s_, t_target_s, 2.0 * nominal_dt_s,
+                  [&](double t0_s, double t1_s, const ImuSample& s) {
+    const double dt = t1_s - t0_s;
+    predictImuPiece(s, dt, nominal_dt_s, params_, x, P);
+    gyro_integral_ += s.gyro_radps * dt;
+    gyro_time_s_ += dt;
+  });
+  t_state_s_ = t_target_s;
+  dropUsed();
+}
+
+void ImuPropagator::setReference(double t_s) {
+  ref_rate_C_ = imuAt(t_s).gyro_radps;
+  clearInterval();
+}
+
+void ImuPropagator::clearInterval() {
+  gyro_integral_.setZero();
+  gyro_time_s_ = 0.0;
+}
+
+Vec3 ImuPropagator::meanGyroOverInterval(double t_img_s) const {
+  const double rest_s = t_img_s - t_state_s_;
+  const double total_s = gyro_time_s_ + rest_s;
+  return total_s > 0.0 ? Vec3((gyro_integral_ + gyroIntegral(t_state_s_, t_img_s)) / total_s) : Vec3::Zero();
+}
+
+ImuSample ImuPropagator::imuAt(double t_s) const {
+  ImuSample out;
+  out.t_s = t_s;
+  if (buffer_.empty()) return out;
+  size_t i = 0;
+  while (i < buffer_.size() && buffer_[i].t_s < t_s) ++i;
+  if (i == 0 || i == buffer_.size()) {
+    const ImuSample& s = buffer_[i == 0 ? 0 : buffer_.size() - 1];
+    out.accel_mps2 = s.accel_mps2;
+    out.gyro_radps = s.gyro_radps;
+    return out;
+  }
+  const ImuSample& a = buffer_[i - 1];
+  const ImuSample& b = buffer_[i];
+  const double u = b.t_s > a.t_s ? (t_s - a.t_s) / (b.t_s - a.t_s) : 1.0;
+  out.accel_mps2 = a.accel_mps2 + u * (b.accel_mps2 - a.accel_mps2);
+  out.gyro_radps = a.gyro_radps + u * (b.gyro_radps - a.gyro_radps);
+  return out;
+}
+
+bool ImuPropagator::gravityFromAccel(double up_to_t_s, UnitVector* g) const {
+  Vec3 sum = Vec3::Zero();
+  int n = 0;
+  for (size_t i = buffer_.size(); i-- > 0;) {
+    const ImuSample& s = buffer_[i];
+    if (s.t_s > up_to_t_s) continue;
+    if (up_to_t_s - s.t_s > 0.5) break;
+    sum += s.accel_mps2;
+    ++n;
+  }
+  if (n == 0) return false;
+  const Vec3 f = sum / n;
+  const double g0 = params_.imu.gravity_mps2;
+  if (!f.allFinite() || std::abs(f.norm() - g0) > 0.1 * g0) return false;
+  // Specific force at rest points up, gravity down.
+  *g = UnitVector(-f);
+  return true;
+}
+
+}  // namespace internal
+}  // namespace diekf

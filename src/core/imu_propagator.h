@@ -1,0 +1,71 @@
+// Internal part of the estimator (docs/algorithm.md section 9): the filtered IMU samples, the state's time, and
+// the prediction between images. Also integrates the gyro over the current image interval, which the image
+// update's warp needs (its rotation), and answers "what did the IMU read at time t".
+#pragma once
+
+#include "diekf/params.h"
+#include "diekf/state.h"
+#include "diekf/types.h"
+#include "diekf/unit_vector.h"
+#include "ring.h"
+
+namespace diekf {
+namespace internal {
+
+class ImuPropagator {
+ public:
+  /// `params` must outlive the propagator (the estimator's own copy).
+  explicit ImuPropagator(const EstimatorParams& params);
+
+  // --- The buffer of filtered samples (C frame, delay-compensated stamps, increasing) ---
+  /// Appends a filtered sample; false (and ignored) unless it is newer than the newest one.
+  bool push(const ImuSample& filtered);
+  void clear() { buffer_.clear(); }
+  bool empty() const { return buffer_.empty(); }
+  const ImuSample& oldest() const { return buffer_[0]; }
+  const ImuSample& newest() const { return buffer_.back(); }
+
+  // --- The state's time and the prediction ---
+  double stateTime() const { return t_state_s_; }
+  /// The state is at t_s from now on (a start: no propagation before it); samples no longer needed dropped.
+  void startAt(double t_s);
+  /// Propagates (x, P) from the state's time to t_target_s (prediction.h's predict over the samples, split at
+  /// their stamps; a bridged gap held and its noise inflated) and accumulates the gyro over the interval.
+  void propagateTo(double t_target_s, State* x, ErrorCov* P);
+
+  // --- The image interval (reference image -> current image) ---
+  /// A new reference image at t_s: the interval's gyro integral restarts, the rate at t_s is remembered.
+  void setReference(double t_s);
+  /// Forgets the gyro integrated so far (a filter restart).
+  void clearInterval();
+  /// Mean filtered gyro (C) over the interval from the reference image to t_img_s: what was integrated so far
+  /// plus the samples from the state's time up to t_img_s, rad/s.
+  Vec3 meanGyroOverInterval(double t_img_s) const;
+  /// Filtered gyro at t_s minus the one at the reference image, rad/s.
+  Vec3 rateChangeSinceReference(double t_s) const { return imuAt(t_s).gyro_radps - ref_rate_C_; }
+
+  /// The filtered sample at t_s: linear interpolation between the buffered samples around it (the nearest one
+  /// outside the buffer's span).
+  ImuSample imuAt(double t_s) const;
+  /// Gravity direction from the mean specific force of the filtered samples of the 0.5 s up to up_to_t_s, if
+  /// the vehicle is near rest (|mean| within 10 % of g): g = -f/|f|. False otherwise.
+  bool gravityFromAccel(double up_to_t_s, UnitVector* g) const;
+
+ private:
+  /// Nominal period of the filtered samples, s.
+  double filteredPeriod() const;
+  /// Integral of the filtered gyro over (t0, t1] with the interpolation of propagateTo, rad.
+  Vec3 gyroIntegral(double t0_s, double t1_s) const;
+  /// Drops the samples before the last one at or before the state's time.
+  void dropUsed();
+
+  const EstimatorParams& params_;
+  Ring<ImuSample> buffer_;
+  double t_state_s_ = 0.0;
+  Vec3 gyro_integral_ = Vec3::Zero();  // integral of the filtered gyro (C) since the reference image, rad
+  double gyro_time_s_ = 0.0;           // time covered by gyro_integral_, s
+  Vec3 ref_rate_C_ = Vec3::Zero();     // filtered rate at the reference image, rad/s
+};
+
+}  // namespace internal
+}  // namespace diekf

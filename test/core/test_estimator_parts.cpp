@@ -1,0 +1,256 @@
+// The parts of the estimator one at a time (docs/algorithm.md section 9): the stamp rule shared with the ROS
+// layer, the uncertainty of the derived quantities, the health monitor's status state machine and divergence
+// checks, the restart policy's priors, and the IMU propagator's interval bookkeeping.
+#include <gtest/gtest.h>
+
+#include <cmath>
+#include <string>
+
+#include "../../src/core/health_monitor.h"
+#include "../../src/core/imu_propagator.h"
+#include "../../src/core/restart_policy.h"
+#include "diekf/stamp_check.h"
+#include "diekf/state.h"
+
+namespace diekf {
+namespace {
+
+using internal::FrameFacts;
+using internal::HealthMonitor;
+using internal::ImuPropagator;
+using internal::RestartPolicy;
+
+TEST(StampCheck, ClassifiesAgainstTheJumpThreshold) {
+  EXPECT_EQ(classifyStampStep(10.0, 10.01, 1.0), StampStep::kForward);
+  EXPECT_EQ(classifyStampStep(10.0, 10.0, 1.0), StampStep::kDuplicate);
+  EXPECT_EQ(classifyStampStep(10.0, 9.5, 1.0), StampStep::kOutOfOrder);
+  EXPECT_EQ(classifyStampStep(10.0, 9.0, 1.0), StampStep::kOutOfOrder);  // exactly the threshold: not a jump
+  EXPECT_EQ(classifyStampStep(10.0, 8.9, 1.0), StampStep::kJumpBack);
+  EXPECT_EQ(classifyStampStep(-HUGE_VAL, 0.0, 1.0), StampStep::kForward);  // no previous stamp yet
+}
+
+State sampleState() {
+  State x;
+  x.alpha = 0.8;
+  x.vartheta = Vec3(0.3, -0.2, 0.1);
+  return x;
+}
+
+ErrorCov sampleCovariance() {
+  ErrorCov P = ErrorCov::Identity() * 1e-4;
+  P(ErrIdx::kAlpha, ErrIdx::kAlpha) = 4e-3;
+  P(ErrIdx::kAlpha, ErrIdx::kVartheta) = P(ErrIdx::kVartheta, ErrIdx::kAlpha) = 1e-4;  // positive definite
+  P(ErrIdx::kVartheta + 1, ErrIdx::kVartheta + 1) = 2e-3;
+  return P;
+}
+
+// The first-order uncertainties against finite differences of d = 1/alpha and v = vartheta/alpha.
+TEST(DerivedUncertainty, MatchesFiniteDifferences) {
+  const State x = sampleState();
+  const ErrorCov P = sampleCovariance();
+  const double h = 1e-6;
+  const double dd_dalpha = (1.0 / (x.alpha + h) - 1.0 / (x.alpha - h)) / (2.0 * h);
+  EXPECT_NEAR(sigmaDistance_m(x, P), std::abs(dd_dalpha) * std::sqrt(P(0, 0)), 1e-8);
+  EXPECT_NEAR(relativeSigmaDistance(x, P), sigmaDistance_m(x, P) / x.distance_m(), 1e-12);
+  Eigen::Matrix<double, 3, 4> J;
+  for (int k = 0; k < 4; ++k) {
+    State a = x, b = x;
+    if (k == 0) {
+      a.alpha += h;
+      b.alpha -= h;
+    } else {
+      a.vartheta[k - 1] += h;
+      b.vartheta[k - 1] -= h;
+    }
+    J.col(k) = (a.velocity_mps() - b.velocity_mps()) / (2.0 * h);
+  }
+  const Mat3 C_fd = J * P.topLeftCorner<4, 4>() * J.transpose();
+  ASSERT_GT(C_fd.diagonal().minCoeff(), 0.0);
+  EXPECT_LT((velocityCovariance(x, P) - C_fd).cwiseAbs().maxCoeff(), 1e-8);
+  EXPECT_LT((sigmaVelocity_mps(x, P) - C_fd.diagonal().cwiseSqrt()).cwiseAbs().maxCoeff(), 1e-8);
+}
+
+FilterStatus frame(HealthMonitor* m, double t_s, const State& x, const ErrorCov& P, std::string* msg,
+                   const std::string& reset_here = "") {
+  static const std::string empty;
+  FrameFacts f;
+  f.t_s = t_s;
+  f.reset_here = &reset_here;
+  f.usable = true;
+  f.usable_why = &empty;
+  f.had_reference = true;
+  f.skip_reason = &empty;
+  f.last_reset_reason = &empty;
+  char buf[internal::kMessageCapacity] = "";
+  const FilterStatus s = m->frameStatus(f, x, P, buf, sizeof(buf));
+  *msg = buf;
+  return s;
+}
+
+// Every transition of the state machine listed in health_monitor.h (and docs/algorithm.md section 9).
+TEST(HealthMonitor, StatusTransitions) {
+  EstimatorParams params;
+  HealthMonitor m(params);
+  m.startRun();
+  State x = sampleState();
+  ErrorCov P_wide = ErrorCov::Identity();  // sigma_d / d = 1 / 0.8 / ... far above the tracking threshold
+  ErrorCov P_tight = ErrorCov::Identity() * 1e-6;
+  std::string msg;
+  // any -> reset: a restart at this image.
+  EXPECT_EQ(frame(&m, 0.0, x, P_wide, &msg, "distance 99 m outside"), FilterStatus::kReset);
+  EXPECT_EQ(msg, "distance 99 m outside");
+  // An input restart announced: the next frame reports reset with its reason, once.
+  m.announceReset("IMU time jumped back by 5 s");
+  EXPECT_EQ(frame(&m, 0.1, x, P_wide, &msg), FilterStatus::kReset);
+  EXPECT_EQ(msg, "IMU time jumped back by 5 s");
+  // reset -> initializing: no update applied yet.
+  EXPECT_EQ(frame(&m, 0.2, x, P_tight, &msg), FilterStatus::kInitializing);
+  EXPECT_EQ(msg, "waiting for a valid image update");
+  // Still initializing with an update but a wide distance.
+  m.countUpdate(true);
+  EXPECT_EQ(frame(&m, 0.3, x, P_wide, &msg), FilterStatus::kInitializing);
+  EXPECT_NE(msg.find("converging"), std::string::npos) << msg;
+  EXPECT_FALSE(m.converged());
+  // initializing -> tracking: sigma_d / d below the threshold.
+  EXPECT_EQ(frame(&m, 0.4, x, P_tight, &msg), FilterStatus::kTracking);
+  EXPECT_TRUE(m.converged());
+  EXPECT_EQ(m.convergedSince(), 0.4);
+  // Converged stays converged even if sigma grows again (until the next run).
+  EXPECT_EQ(frame(&m, 0.5, x, P_wide, &msg), FilterStatus::kTracking);
+  // tracking -> degraded for degraded_hold_s after a failed consistency check, then back to tracking.
+  m.noteDegraded(1.0, "update gated: test");
+  EXPECT_EQ(frame(&m, 1.0, x, P_tight, &msg), FilterStatus::kDegraded);
+  EXPECT_EQ(msg, "update gated: test");
+  EXPECT_EQ(frame(&m, 1.0 + params.divergence.degraded_hold_s, x, P_tight, &msg), FilterStatus::kDegraded);
+  EXPECT_EQ(frame(&m, 1.01 + params.divergence.degraded_hold_s, x, P_tight, &msg), FilterStatus::kTracking);
+  EXPECT_EQ(m.status(), FilterStatus::kTracking);
+  // A new run: initializing again.
+  m.startRun();
+  EXPECT_FALSE(m.converged());
+  EXPECT_EQ(frame(&m, 3.0, x, P_tight, &msg), FilterStatus::kInitializing);
+}
+
+TEST(HealthMonitor, SmoothedNisDegrades) {
+  EstimatorParams params;
+  HealthMonitor m(params);
+  m.startRun();
+  m.countUpdate(true);
+  std::string msg;
+  const State x = sampleState();
+  const ErrorCov P = ErrorCov::Identity() * 1e-6;
+  EXPECT_EQ(frame(&m, 0.0, x, P, &msg), FilterStatus::kTracking);
+  m.noteInnovation(0.1, 0.033, 8.0);  // its mean: consistent
+  EXPECT_EQ(frame(&m, 0.1, x, P, &msg), FilterStatus::kTracking);
+  for (int i = 0; i < 100; ++i) m.noteInnovation(0.2 + 0.033 * i, 0.033, 40.0);  // 5x the mean, above 3x
+  EXPECT_EQ(frame(&m, 3.5, x, P, &msg), FilterStatus::kDegraded);
+  EXPECT_NE(msg.find("smoothed NIS"), std::string::npos) << msg;
+}
+
+TEST(HealthMonitor, DivergenceChecks) {
+  EstimatorParams params;
+  params.divergence.bad_frames_before_reset = 3;
+  HealthMonitor m(params);
+  m.startRun();
+  const State good = sampleState();
+  const ErrorCov P = sampleCovariance();
+  std::string reason;
+  m.checkDivergence(good, P, true, true, "", &reason);
+  EXPECT_TRUE(reason.empty()) << reason;
+  State far = good;
+  far.alpha = 1.0 / 80.0;
+  m.checkDivergence(far, P, true, true, "", &reason);
+  EXPECT_NE(reason.find("distance 80 m outside"), std::string::npos) << reason;
+  reason.clear();
+  ErrorCov P_bad = P;
+  P_bad(2, 2) = -1.0;
+  m.checkDivergence(good, P_bad, true, true, "", &reason);
+  EXPECT_NE(reason.find("negative variance"), std::string::npos) << reason;
+  reason.clear();
+  // Bad frames count only after an applied update of the run, and only on usable images.
+  for (int i = 0; i < 5; ++i) m.checkDivergence(good, P, false, true, "skipped", &reason);
+  EXPECT_TRUE(reason.empty()) << "no update applied in this run yet: " << reason;
+  m.countUpdate(true);
+  m.checkDivergence(good, P, true, true, "", &reason);
+  for (int i = 0; i < 5; ++i) m.checkDivergence(good, P, false, false, "unusable", &reason);
+  EXPECT_TRUE(reason.empty()) << reason;
+  EXPECT_EQ(m.badFrames(), 0);
+  for (int i = 0; i < 3; ++i) m.checkDivergence(good, P, false, true, "update rejected: test", &reason);
+  EXPECT_EQ(reason, "3 consecutive frames with a bad or skipped update (last: update rejected: test)");
+}
+
+TEST(RestartPolicy, WarmPriorFromAStateAtLeastALagOld) {
+  EstimatorParams params;
+  RestartPolicy policy(params);
+  State x;
+  ErrorCov P;
+  policy.coldStart(false, 0.0, &x, &P);
+  EXPECT_EQ(x.alpha, params.init.alpha0_inv_m);
+  EXPECT_FALSE(policy.warmStarted());
+  // Healthy states offered at 0.0 .. 2.0 s, one every 0.1 s; kept one per kSnapshotSpacingS (0.25 s): those of
+  // 0.0, 0.3, 0.6, 0.9, 1.2, 1.5 and 1.8 s.
+  for (int i = 0; i <= 20; ++i) {
+    State good = x;
+    good.alpha = 1.0 + i;  // d = 1 / (1 + i): which one is used is visible
+    policy.rememberGood(0.1 * i, good);
+  }
+  // A fault at 2.0 s: the newest kept snapshot at least 1 s old is the one of 0.9 s (alpha 10).
+  policy.applyWarmPrior(2.0, &x, &P);
+  EXPECT_TRUE(policy.warmStarted());
+  EXPECT_DOUBLE_EQ(x.alpha, 10.0);
+  const double sigma = params.init.warm_restart_sigma_alpha_relative * 10.0;
+  EXPECT_DOUBLE_EQ(P(ErrIdx::kAlpha, ErrIdx::kAlpha), sigma * sigma);
+  // Too old: no warm prior.
+  State y;
+  ErrorCov Q;
+  policy.coldStart(false, 0.0, &y, &Q);
+  policy.applyWarmPrior(2.0 + params.init.warm_restart_max_age_s + 1.0, &y, &Q);
+  EXPECT_FALSE(policy.warmStarted());
+  EXPECT_EQ(y.alpha, params.init.alpha0_inv_m);
+  // Forgotten history: no warm prior.
+  policy.forgetHistory();
+  policy.applyWarmPrior(2.0, &y, &Q);
+  EXPECT_FALSE(policy.warmStarted());
+  // A converged run keeps its time offset across a cold start, an unconverged one does not.
+  y.t_d_s = 0.012;
+  policy.coldStart(true, 0.0, &y, &Q);
+  EXPECT_EQ(y.t_d_s, 0.012);
+  policy.coldStart(false, 0.0, &y, &Q);
+  EXPECT_EQ(y.t_d_s, 0.0);
+  policy.noteRestart("test");
+  EXPECT_EQ(policy.count(), 1);
+  EXPECT_EQ(policy.lastReason(), "test");
+}
+
+TEST(ImuPropagator, IntervalMeanGyroAndInterpolation) {
+  EstimatorParams params;
+  params.imu.input_rate_hz = 100.0;
+  params.imu.decimation_factor = 1;
+  ImuPropagator imu(params);
+  const Vec3 w(0.1, -0.2, 0.3);
+  for (int i = 0; i <= 100; ++i) {
+    ImuSample s;
+    s.t_s = 0.01 * i;
+    s.gyro_radps = w * (1.0 + 0.01 * i);  // rate rising linearly in time
+    s.accel_mps2 = Vec3(0.0, 0.0, -9.81);
+    ASSERT_TRUE(imu.push(s));
+  }
+  ImuSample stale;
+  stale.t_s = 0.5;
+  EXPECT_FALSE(imu.push(stale)) << "older than the newest sample";
+  EXPECT_LT((imu.imuAt(0.255).gyro_radps - w * 1.255).norm(), 1e-12);
+  State x;
+  ErrorCov P = ErrorCov::Identity() * 1e-4;
+  imu.startAt(0.2);
+  imu.setReference(0.2);
+  EXPECT_LT((imu.rateChangeSinceReference(0.6) - w * 0.4).norm(), 1e-12);
+  imu.propagateTo(0.45, &x, &P);
+  EXPECT_EQ(imu.stateTime(), 0.45);
+  // Mean over (0.2, 0.6] of the linear rate: its value at 0.4 s, whatever part was already propagated.
+  EXPECT_LT((imu.meanGyroOverInterval(0.6) - w * 1.4).norm(), 1e-12);
+  UnitVector g;
+  ASSERT_TRUE(imu.gravityFromAccel(0.6, &g));
+  EXPECT_LT((g.vector() - Vec3(0.0, 0.0, 1.0)).norm(), 1e-12);
+}
+
+}  // namespace
+}  // namespace diekf
