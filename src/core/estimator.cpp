@@ -14,6 +14,7 @@
 
 #include "diekf/feature_update.h"
 #include "diekf/grey_image.h"
+#include "diekf/fixed_pattern.h"
 #include "diekf/image_preprocessor.h"
 #include "diekf/imu_filter.h"
 #include "diekf/photometric_update.h"
@@ -109,6 +110,10 @@ struct Estimator::Impl {
         imu_pre(cam.T_cam_imu, p.imu),
         img_pre(cam, preprocessParamsFor(p)),
         photometric(photometricParamsFor(p), p.preprocess),
+        fixed_pattern(p.fixed_pattern, img_pre.workingSize().width, img_pre.workingSize().height,
+                      p.fixed_pattern.vignetting_file.empty()
+                          ? cv::Mat()
+                          : loadFlatField(p.fixed_pattern.vignetting_file, cam, preprocessParamsFor(p))),
         feature(p.feature, photometricParamsFor(p)),
         imu_buffer(kImuBufferCapacity),
         images(static_cast<size_t>(std::max(1, p.max_queued_images))),
@@ -430,7 +435,8 @@ struct Estimator::Impl {
     char msg[kMessageCapacity] = "";  // the result's message, formatted without allocation
 
     PreprocessedFrame& cur = frames[1 - ref_index];
-    img_pre.process(img.gray, img.t_s, &cur);
+    const bool pattern_on = params.fixed_pattern.enabled || !params.fixed_pattern.vignetting_file.empty();
+    img_pre.process(img.gray, img.t_s, &cur, pattern_on ? &fixed_pattern : nullptr);
     std::string usable_why;
     const bool usable = imageUsable(cur.gray8, &usable_why);
 
@@ -512,6 +518,7 @@ struct Estimator::Impl {
             timing.rate_change_C = imuAt(img.t_s).gyro_radps - ref_rate_C;
             timing.gravity_mps2 = params.imu.gravity_mps2;
           }
+          photometric.setPixelConfidence(fixed_pattern.confidence());
           stats = photometric.update(ref, cur, img_pre.workingK(), gyro_mean, dt, &x, &P, state_lag, timing);
           x.t_d_s = std::clamp(x.t_d_s, -params.max_time_offset_s, params.max_time_offset_s);
           x.readout_s = std::clamp(x.readout_s, -params.max_readout_s, params.max_readout_s);
@@ -554,6 +561,12 @@ struct Estimator::Impl {
               noteDegraded(img.t_s, why);
             }
           }
+          // The camera-fixed pattern learns by how far the ground moved: the rotation (gyro) always, the
+          // translation once the filter has converged and accepted the image (docs/noise_model.md section 11).
+          const bool trusted = stats.applied && !stats.gated && converged;
+          if (fixed_pattern.learn(imageMotionPx(trusted ? x.vartheta : Vec3::Zero(), gyro_mean - x.b_w,
+                                                img_pre.workingK(), dt)))
+            img_pre.reapplyPattern(&fixed_pattern, &cur);  // the next pair: one correction in both images
         }
       }
       if (skip_reason.empty() && !stats.applied) skip_reason = "update skipped: too few valid pixels or non-finite system";
@@ -581,6 +594,8 @@ struct Estimator::Impl {
     r.nis_scale = std::isfinite(stats.nis_scale) ? stats.nis_scale : 1.0;
     r.outlier_fraction = std::isfinite(stats.outlier_fraction) ? stats.outlier_fraction : 0.0;
     r.valid_ratio = std::isfinite(stats.valid_ratio) ? stats.valid_ratio : 0.0;
+    r.fixed_pattern_active = fixed_pattern.active();
+    r.fixed_pattern_fraction = fixed_pattern.strongFraction();
     if (stats.applied) ++updates_since_reset;
 
     std::string reason;
@@ -651,6 +666,12 @@ struct Estimator::Impl {
       std::snprintf(msg + used, sizeof(msg) - used, "%soutliers: %.0f %% of the image down-weighted",
                     used > 0 ? "; " : "", 100.0 * r.outlier_fraction);
     }
+    if (r.fixed_pattern_fraction >= params.fixed_pattern.report_fraction && params.fixed_pattern.report_fraction > 0.0) {
+      // A strong camera-fixed pattern (docs/noise_model.md section 11): an IR projector, the drone's shadow, dirt.
+      const size_t used = std::strlen(msg);
+      std::snprintf(msg + used, sizeof(msg) - used, "%sfixed pattern (projector, shadow, dirt?) on %.0f %% of the image",
+                    used > 0 ? "; " : "", 100.0 * r.fixed_pattern_fraction);
+    }
     pending_reset_reason.clear();
     if (r.status == FilterStatus::kTracking && stats.applied && bad_frames == 0) rememberGood(img.t_s);
     status = r.status;
@@ -714,6 +735,7 @@ struct Estimator::Impl {
   ImuPreprocessor imu_pre;
   ImagePreprocessor img_pre;
   PhotometricUpdate photometric;
+  FixedPattern fixed_pattern;  // camera-fixed gain and offset fields (docs/noise_model.md section 11)
   FeatureUpdate feature;
 
   Ring<ImuSample> imu_buffer;   // filtered samples in C, delay-compensated stamps

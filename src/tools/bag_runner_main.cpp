@@ -314,7 +314,7 @@ int run(const RunnerOptions& o) {
     frames.open(out_dir / "frames.csv");
     if (!frames) throw RunError("cannot write " + (out_dir / "frames.csv").string());
     frames << "t,applied,passes,photometric_rms,valid_ratio,nis,noise_sigma,noise_correlation,nis_scale,gate_inflation,outlier_fraction,time_offset_ms,sigma_time_offset_ms,readout_ms,sigma_readout_ms,"
-              "status,message\n";
+              "fixed_pattern_active,fixed_pattern_fraction,status,message\n";
     frames.precision(12);
   }
   std::vector<diekf::eval::EstimateRow> rows;
@@ -334,6 +334,7 @@ int run(const RunnerOptions& o) {
                << 1e3 * std::sqrt(std::max(0.0, result.covariance(diekf::ErrIdx::kTd, diekf::ErrIdx::kTd))) << ','
                << 1e3 * result.state.readout_s << ','
                << 1e3 * std::sqrt(std::max(0.0, result.covariance(diekf::ErrIdx::kRo, diekf::ErrIdx::kRo))) << ','
+               << (result.fixed_pattern_active ? 1 : 0) << ',' << result.fixed_pattern_fraction << ','
                << diekf::toString(result.status) << ',' << msg << '\n';
       }
       if (keep_rows) {
