@@ -250,6 +250,63 @@ CLUTTER_RUNS = [
 ]
 
 
+# The camera-fixed pattern rows (issue 13): (label, diekf_simulate options) on the clutter flight, default estimator
+# with the pattern removal on (docs/noise_model.md section 11); coverage from the simulation's patterns.yaml.
+PATTERN_RUNS = [
+    ("shadow", ["--shadow"]),
+    ("projector", ["--projector-dots", "1500"]),
+    ("lens dirt", ["--lens-dirt", "6"]),
+    ("vignetting 0.6", ["--vignetting", "0.6"]),
+]
+
+
+def run_pattern(bin_dir, args, k, label, extra, runs_dir, sim_extra, runner_args, results):
+    """Simulates flight k with a camera-fixed pattern and runs the default estimator on it
+    (results["patternK/label"], with patterns.yaml's coverage under "pattern"). Returns False when the simulator
+    does not know the options (no more pattern rows are tried)."""
+    name = "flight%d_%s" % (k, label.replace(" ", "_").replace(".", ""))
+    seq_dir = os.path.join(runs_dir, name, "sequence")
+    if not (args.reuse_bags and os.path.isfile(os.path.join(seq_dir, "sequence.bag"))):
+        if not simulate(bin_dir, "flight%d" % k, args.duration, args.seed, seq_dir, extra + sim_extra, required=False):
+            log_path = os.path.join(seq_dir, "simulate.log")
+            if simulator_rejected(log_path, extra[0]):
+                print("benchmark_table.py: this diekf_simulate has no %s option (see %s); skipping the pattern rows "
+                      "(or use --no-patterns)" % (extra[0], log_path), flush=True)
+                return False
+            print("benchmark_table.py: %s simulation of flight%d failed, see %s; row skipped" % (label, k, log_path),
+                  flush=True)
+            return True
+    ev = run_estimator(bin_dir, seq_dir, None, name, os.path.join(runs_dir, name, "default"), runner_args, args.plots)
+    ev["pattern"] = read_simple_yaml(os.path.join(seq_dir, "patterns.yaml"))
+    ev["pattern"]["options"] = " ".join(extra)
+    results["pattern%d/%s" % (k, label)] = ev
+    if not args.keep_bags:
+        os.remove(os.path.join(seq_dir, "sequence.bag"))
+    return True
+
+
+def table_patterns(results, k):
+    """One row per camera-fixed pattern run of flight k, and the flight without one (its iekf run)."""
+    lines = ["| flight | pattern (diekf_simulate options) | image covered, mean (%) | distance RMSE (cm) | "
+             "velocity RMSE (cm/s) | normal error RMS (deg) | diverged |",
+             "|---|---|---|---|---|---|---|"]
+    rows = [("clean", results.get("flight%d/iekf" % k))]
+    rows += [(label, results.get("pattern%d/%s" % (k, label))) for label, _ in PATTERN_RUNS]
+    for label, ev in rows:
+        if not ev:
+            continue
+        if ev.get("failed"):
+            lines.append("| %d | %s | – | failed | failed | – | – |" % (k, label))
+            continue
+        p = ev.get("pattern", {})
+        cover = "–" if label == "clean" else (pct(p["pattern_coverage_mean"]) if "pattern_coverage_mean" in p else "–")
+        opts = label if label == "clean" else "%s (`%s`)" % (label, p.get("options", ""))
+        lines.append("| %d | %s | %s | %s | %s | %s | %s |" % (
+            k, opts, cover, cm(ev.get("rmse_distance_m")), cm(ev.get("rmse_velocity_mps")),
+            num(ev.get("rms_normal_deg")), "yes" if ev.get("diverged") else "no"))
+    return "\n".join(lines)
+
+
 def read_simple_yaml(path):
     """The top-level `key: number` lines of a YAML file (enough for clutter.yaml's summary)."""
     out = {}
@@ -421,6 +478,8 @@ def main(argv=None):
                              "the default estimator on them (two extra flights) [on]")
     parser.add_argument("--no-clutter", dest="clutter", action="store_false", help="skip the clutter rows")
     parser.add_argument("--clutter-flight", type=int, default=4, help="the flight of the clutter rows [4]")
+    parser.add_argument("--no-patterns", dest="patterns", action="store_false",
+                        help="skip the camera-fixed pattern rows (shadow, projector, lens dirt, vignetting)")
     parser.add_argument("--timing", dest="timing", action="store_true", default=True,
                         help="time-offset and rolling-shutter rows on --timing-flight (default)")
     parser.add_argument("--no-timing", dest="timing", action="store_false", help="skip the timing rows")
@@ -474,6 +533,16 @@ def main(argv=None):
             args.clutter_flight, " / ".join(label for label, _ in CLUTTER_RUNS)), flush=True)
         for label, extra in CLUTTER_RUNS:
             if not run_clutter(bin_dir, args, args.clutter_flight, label, extra, runs_dir, sim_extra, runner_args,
+                               results):
+                break
+
+    if args.patterns:
+        if args.clutter_flight not in PAPER:
+            sys.exit("benchmark_table.py: --clutter-flight is 1..7, got %d" % args.clutter_flight)
+        print("Camera-fixed patterns: flight%d with %s, default estimator" % (
+            args.clutter_flight, " / ".join(label for label, _ in PATTERN_RUNS)), flush=True)
+        for label, extra in PATTERN_RUNS:
+            if not run_pattern(bin_dir, args, args.clutter_flight, label, extra, runs_dir, sim_extra, runner_args,
                                results):
                 break
 
@@ -538,6 +607,14 @@ def main(argv=None):
                "image whose nearest surface is a mover or a box (occlusion.csv / clutter.yaml of the simulation); "
                "\"while present\": over the images more than 1 % covered by the mover. Default estimator; the "
                "clean row is the flight's D-IEKF run of Table I.", "", table_clutter(results, args.clutter_flight), ""]
+    if args.patterns and any(key.startswith("pattern") for key in results):
+        md += ["## Camera-fixed patterns (flight%d)" % args.clutter_flight, "",
+               "Issue 13: photometric patterns that travel with the camera (docs/simulator.md, \"Camera-fixed "
+               "patterns\"): the drone's shadow (moving with the attitude), an IR projector's 1500 dots, out-of-focus "
+               "lens dirt, strong vignetting. Covered: the image share whose fixed gain is off 1 by more than 10 %% "
+               "(patterns.yaml). Default estimator with the online pattern removal (docs/noise_model.md section 11); "
+               "the clean row is the flight's D-IEKF run of Table I.", "",
+               table_patterns(results, args.clutter_flight), ""]
     if args.timing and any(key.startswith("timing") for key in results):
         md += ["## Timing: camera-IMU time offset and rolling shutter (flight%d)" % args.timing_flight, "",
                "Issue 16: images taken later than their stamps say by an offset the camchain does not know "

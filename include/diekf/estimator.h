@@ -39,7 +39,10 @@ struct FrameResult {
   double noise_correlation = 0.0;    ///< pixels per independent measurement used; 0: none
   double nis_scale = 1.0;            ///< innovation-based noise inflation used (>= 1)
   double gate_inflation = 1.0;       ///< noise inflation applied by the innovation gate (1: passed)
-  double outlier_fraction = 0.0;     ///< share of the pixels' weight removed by the outlier weights (0..1)
+  double outlier_fraction = 0.0;     ///< share of the pixels' weight removed by the outlier weights and the
+                                     ///< fixed pattern's confidence (0..1)
+  bool fixed_pattern_active = false; ///< the camera-fixed pattern model corrects the images (start-up done)
+  double fixed_pattern_fraction = 0.0;  ///< share of the image under a strong camera-fixed pattern (0..1)
   std::string message;               ///< why initializing / reset / skipped (empty when tracking normally)
   int resets = 0;                    ///< filter restarts since construction (automatic and requested)
   std::string last_reset_reason;     ///< why the filter last restarted (empty if it never did)

@@ -22,6 +22,8 @@
 
 namespace diekf {
 
+class FixedPattern;
+
 struct PreprocessedFrame {
   double t_s = 0.0;       ///< stamp on the IMU clock, s
   cv::Mat gray8;          ///< CV_8UC1 undistorted working image before blur (feature baseline, debug)
@@ -53,7 +55,13 @@ class ImagePreprocessor {
   /// `raw`: CV_8UC1 at the calibration resolution. Throws std::invalid_argument on a wrong size or type.
   /// The Mats of `out` are written in place when they already have the right size and type (no allocation);
   /// do not keep a shallow copy of a frame you pass here again (swap frames or clone instead).
-  void process(const cv::Mat& raw, double t_s, PreprocessedFrame* out);
+  /// `pattern` (optional): the camera-fixed pattern model, applied to the blurred image before the brightness
+  /// normalisation (FixedPattern::apply; it also keeps the uncorrected image for FixedPattern::learn).
+  void process(const cv::Mat& raw, double t_s, PreprocessedFrame* out, FixedPattern* pattern = nullptr);
+  /// `frame` (the last one process() gave `pattern`) corrected again with the pattern's current fields
+  /// (FixedPattern::reapply), normalised and differentiated again: after the fields changed, so that the next
+  /// pair sees one correction in both images. No-op when the pattern cannot (nothing kept, or disabled).
+  void reapplyPattern(FixedPattern* pattern, PreprocessedFrame* frame) const;
 
  private:
   // ---- Resampling lookup table (built once in the constructor; see image_preprocessor.cpp). ----
@@ -94,6 +102,8 @@ class ImagePreprocessor {
   };
 
   void resample(const uint8_t* src, float* dst, uint8_t* g8) const;
+  /// Steps 3 and 4 of process(): brightness normalisation from the moments of intensity - pivot, gradients.
+  void normalizeAndGradients(double sum, double sum_sq, float pivot, PreprocessedFrame* out) const;
 
   PreprocessParams params_;
   PinholeK raw_K_;

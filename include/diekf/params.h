@@ -93,6 +93,23 @@ struct PhotometricParams {
   double outlier_window_fraction = 0.04;        ///< side of the neighbourhood as a fraction of the image width
 };
 
+/// Camera-fixed photometric structure (docs/noise_model.md section 11, FixedPattern): per working pixel the image
+/// is I = g R + a (ground radiance R; gain g: vignetting, the drone's shadow, lens dirt; additive a: projector
+/// dots, glare), learned from the temporal statistics of the working image while the ground moves through it.
+struct FixedPatternParams {
+  bool enabled = true;                          ///< learn and remove the fixed pattern
+  double decorrelation_px = 2.0;                ///< ground motion in the working image giving a new sample, px
+  double memory_samples = 150.0;                ///< forgetting time constant, in independent samples
+  double startup_samples = 30.0;                ///< samples gathered before anything is corrected
+  double significance_sigma = 3.0;              ///< a pixel's gain/offset is kept only this many sigmas above noise
+  double min_gain = 0.3;                        ///< confidence (g / min_gain)^2 below this relative gain, unitless
+  int refresh_frames = 8;                       ///< learning frames between recomputations of the fields
+  double report_fraction = 0.05;                ///< image share of strong pattern reported in the status (0..1)
+  /// Optional offline flat field: a cv::FileStorage file (YAML/XML) with a matrix `gain` (relative response per
+  /// raw pixel at the calibration resolution, any scale); empty: none. Divided out before the online model.
+  std::string vignetting_file;
+};
+
 struct FeatureParams {
   int max_corners = 50;                         ///< corners detected in the reference image
   double quality_level = 0.01;                  ///< goodFeaturesToTrack quality level
@@ -142,6 +159,7 @@ struct EstimatorParams {
   ProcessNoiseParams process;
   PreprocessParams preprocess;
   PhotometricParams photometric;
+  FixedPatternParams fixed_pattern;
   FeatureParams feature;
   DivergenceParams divergence;
   InputParams input;

@@ -122,6 +122,10 @@ class PhotometricUpdate {
   /// Noise propagation of the preprocessing (ImagePreprocessor::noiseVarianceGain / noiseCorrelationAreaPx):
   /// the floors of the per-pixel variance and of the correlation area. Defaults 1 and 1.
   void setPreprocessNoise(double variance_gain, double correlation_area_px);
+  /// Per-pixel confidence (CV_32FC1 in [0, 1], the image size; not owned, must outlive the next update) that
+  /// multiplies the pixels' weights in the next updates, with the outlier weights when there are any
+  /// (FixedPattern::confidence, docs/noise_model.md section 11); null: none.
+  void setPixelConfidence(const cv::Mat* confidence) { confidence_ = confidence; }
   /// Forgets the smoothed noise estimates (the next update starts from its own residuals).
   void resetNoiseModel() {
     noise_ = NoiseEstimate();
@@ -186,6 +190,9 @@ class PhotometricUpdate {
   std::vector<double> weight_colsum_;  ///< running column sums of the vertical window
   std::vector<float> weight_median_buf_;  ///< window means of every 2nd pixel, for their median
   bool use_weight_map_ = false;  ///< weight_map_ applies to the sweeps of the current update
+  const cv::Mat* confidence_ = nullptr;  ///< per-pixel confidence (setPixelConfidence), not owned
+  cv::Mat combined_map_;                 ///< CV_32FC1 outlier weights times the confidence
+  const cv::Mat* active_map_ = nullptr;  ///< the weights the sweeps of the current update use (null: none)
   bool weight_map_has_outliers_ = false;  ///< some weight of weight_map_ is below 1
   Vec3 last_rate_C_ = Vec3::Zero();  ///< rotation rate of the previous update's interval, rad/s (camera frame)
   bool last_rate_valid_ = false;

@@ -7,6 +7,7 @@
 #include <sstream>
 
 #include "diekf/grey_image.h"
+#include "diekf/fixed_pattern.h"
 #include "diekf/image_preprocessor.h"
 #include "diekf/imu_filter.h"
 #include "diekf/stamp_check.h"
@@ -65,6 +66,10 @@ struct Estimator::Impl {
         params(p),
         imu_pre(cam.T_cam_imu, p.imu),
         img_pre(cam, preprocessParamsFor(p)),
+        fixed_pattern(p.fixed_pattern, img_pre.workingSize().width, img_pre.workingSize().height,
+                      p.fixed_pattern.vignetting_file.empty()
+                          ? cv::Mat()
+                          : loadFlatField(p.fixed_pattern.vignetting_file, cam, preprocessParamsFor(p))),
         imu(params),
         update(cam, params, img_pre),
         health(params),
@@ -142,7 +147,8 @@ struct Estimator::Impl {
 
     // Preprocessing.
     PreprocessedFrame& cur = frames[1 - ref_index];
-    img_pre.process(img.gray, img.t_s, &cur);
+    const bool pattern_on = params.fixed_pattern.enabled || !params.fixed_pattern.vignetting_file.empty();
+    img_pre.process(img.gray, img.t_s, &cur, pattern_on ? &fixed_pattern : nullptr);
     std::string usable_why;
     const bool usable = update.usable(cur.gray8, &usable_why);
 
@@ -175,7 +181,16 @@ struct Estimator::Impl {
       // Keep the reference and the gyro integral: the next usable image is compared with the old reference.
       skip_reason = usable_why;
     } else if (have_reference) {
+      update.setPixelConfidence(fixed_pattern.confidence());
       stats = update.apply(frames[ref_index], cur, img.t_s, imu, last_imu_gap_end_s, &health, &x, &P, &skip_reason);
+      if (update.lastPairPhotometric()) {
+        // The camera-fixed pattern learns by how far the ground moved: the rotation (gyro) always, the translation
+        // once the filter has converged and accepted the image (docs/noise_model.md section 11).
+        const bool trusted = stats.applied && !stats.gated && health.converged();
+        if (fixed_pattern.learn(imageMotionPx(trusted ? x.vartheta : Vec3::Zero(), update.lastGyroMean() - x.b_w,
+                                              img_pre.workingK(), update.lastInterval())))
+          img_pre.reapplyPattern(&fixed_pattern, &cur);  // the next pair: one correction in both images
+      }
     }
     if (state_initialized && imu.stateTime() < img.t_s) imu.propagateTo(img.t_s, &x, &P);  // from the midpoint
     const bool had_reference = have_reference;
@@ -189,6 +204,8 @@ struct Estimator::Impl {
     const auto t1 = std::chrono::steady_clock::now();
     r.update_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
     fillStats(stats, &r);
+    r.fixed_pattern_active = fixed_pattern.active();
+    r.fixed_pattern_fraction = fixed_pattern.strongFraction();
     health.countUpdate(stats.applied);
 
     // Health checks and restarts.
@@ -228,6 +245,12 @@ struct Estimator::Impl {
     facts.warm_started = restarts.warmStarted();
     facts.outlier_fraction = r.outlier_fraction;
     r.status = health.frameStatus(facts, x, P, msg, sizeof(msg));
+    if (r.fixed_pattern_fraction >= params.fixed_pattern.report_fraction && params.fixed_pattern.report_fraction > 0.0) {
+      // A strong camera-fixed pattern (docs/noise_model.md section 11): an IR projector, the drone's shadow, dirt.
+      const size_t used = std::strlen(msg);
+      std::snprintf(msg + used, sizeof(msg) - used, "%sfixed pattern (projector, shadow, dirt?) on %.0f %% of the image",
+                    used > 0 ? "; " : "", 100.0 * r.fixed_pattern_fraction);
+    }
     if (r.status == FilterStatus::kTracking && stats.applied && health.badFrames() == 0)
       restarts.rememberGood(img.t_s, x);
 
@@ -305,6 +328,7 @@ struct Estimator::Impl {
   EstimatorParams params;
   ImuPreprocessor imu_pre;           // raw IMU -> filtered samples in C
   ImagePreprocessor img_pre;         // raw image -> working image
+  FixedPattern fixed_pattern;        // camera-fixed gain and offset fields (docs/noise_model.md section 11)
   internal::ImuPropagator imu;       // filtered samples, state time, prediction
   internal::ImageUpdate update;      // update from an image pair
   internal::HealthMonitor health;    // checks and status

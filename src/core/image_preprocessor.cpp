@@ -22,6 +22,7 @@
 // unit variance; a uniform image gives zeros; sums accumulated in the vertical blur pass), and central-difference
 // gradients fused with the normalisation in one pass over the rows.
 #include "diekf/image_preprocessor.h"
+#include "diekf/fixed_pattern.h"
 
 #include <algorithm>
 #include <cmath>
@@ -456,7 +457,7 @@ void ImagePreprocessor::resample(const uint8_t* src, float* dst, uint8_t* g8) co
   }
 }
 
-void ImagePreprocessor::process(const cv::Mat& raw, double t_s, PreprocessedFrame* out) {
+void ImagePreprocessor::process(const cv::Mat& raw, double t_s, PreprocessedFrame* out, FixedPattern* pattern) {
   if (out == nullptr) throw std::invalid_argument("ImagePreprocessor::process: null output frame");
   if (raw.type() != CV_8UC1 || raw.cols != raw_K_.width || raw.rows != raw_K_.height || raw.dims != 2) {
     throw std::invalid_argument("ImagePreprocessor::process: expected CV_8UC1 " + std::to_string(raw_K_.width) +
@@ -533,9 +534,24 @@ void ImagePreprocessor::process(const cv::Mat& raw, double t_s, PreprocessedFram
     }
   }
 
+  // 2b. The camera-fixed pattern (docs/noise_model.md section 11), on the blurred image in grey levels; the
+  //     moments are those of the corrected image.
+  if (pattern != nullptr) {
+    pivot = 0.f;
+    pattern->apply(I, &sum, &sum_sq);
+  }
+
+  normalizeAndGradients(sum, sum_sq, pivot, out);
+  out->t_s = t_s;
+  out->valid = true;
+}
+
+void ImagePreprocessor::normalizeAndGradients(double sum, double sum_sq, float pivot, PreprocessedFrame* out) const {
   // 3. Brightness normalisation, fused with 4. the central-difference gradients (0 on the 1-pixel border):
   //    row y+1 is normalised just before the gradients of row y read it.
   float scale = 1.f / 255.f, offset = 0.f;
+  const int W = working_K_.width, H = working_K_.height;
+  float* I = out->intensity.ptr<float>();
   if (params_.normalize_brightness) {
     const int N = W * H;
     const double mean_c = sum / N;  // mean of I - pivot
@@ -574,8 +590,13 @@ void ImagePreprocessor::process(const cv::Mat& raw, double t_s, PreprocessedFram
   }
   std::fill(gx + (H - 1) * W, gx + H * W, 0.f);
   std::fill(gy + (H - 1) * W, gy + H * W, 0.f);
-  out->t_s = t_s;
-  out->valid = true;
+}
+
+void ImagePreprocessor::reapplyPattern(FixedPattern* pattern, PreprocessedFrame* frame) const {
+  if (pattern == nullptr || frame == nullptr || !frame->valid) return;
+  double sum = 0.0, sum_sq = 0.0;
+  if (!pattern->reapply(frame->intensity.ptr<float>(), &sum, &sum_sq)) return;
+  normalizeAndGradients(sum, sum_sq, 0.f, frame);
 }
 
 }  // namespace diekf

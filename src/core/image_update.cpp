@@ -93,6 +93,9 @@ UpdateStats ImageUpdate::apply(const PreprocessedFrame& ref, const PreprocessedF
   const double state_lag = std::max(0.0, cur.t_s - imu.stateTime());  // the state's time before the image, s
   // Mean gyro over the whole interval: what was integrated so far plus the samples up to the image.
   const Vec3 gyro_mean = imu.meanGyroOverInterval(t_img_s);
+  last_pair_photometric_ = false;
+  last_gyro_mean_ = gyro_mean;
+  last_interval_s_ = dt;
   if (dt > params_.input.max_frame_interval_s) {
     std::ostringstream os;
     os << "update skipped: " << dt << " s since the reference image (max_frame_interval_s = "
@@ -108,6 +111,7 @@ UpdateStats ImageUpdate::apply(const PreprocessedFrame& ref, const PreprocessedF
     const State x_prior = x;
     const ErrorCov P_prior = P;
     const ImageTiming timing = timingFor(t_img_s, imu, *health, x, P);
+    last_pair_photometric_ = true;
     stats = photometric_.update(ref, cur, pre_.workingK(), gyro_mean, dt, &x, &P, state_lag, timing);
     x.t_d_s = std::clamp(x.t_d_s, -params_.max_time_offset_s, params_.max_time_offset_s);
     x.readout_s = std::clamp(x.readout_s, -params_.max_readout_s, params_.max_readout_s);

@@ -42,6 +42,15 @@ class ImageUpdate {
                     const ImuPropagator& imu, double last_imu_gap_end_s, HealthMonitor* health, State* x,
                     ErrorCov* P, std::string* skip_reason);
 
+  /// Per-pixel confidence for the next photometric updates (PhotometricUpdate::setPixelConfidence; the camera-fixed
+  /// pattern's, docs/noise_model.md section 11); null: none.
+  void setPixelConfidence(const cv::Mat* confidence) { photometric_.setPixelConfidence(confidence); }
+  /// Whether the last apply() ran the photometric update on its pair (not skipped, not the feature mode), and that
+  /// pair's mean raw gyro (rad/s) and interval (s).
+  bool lastPairPhotometric() const { return last_pair_photometric_; }
+  const Vec3& lastGyroMean() const { return last_gyro_mean_; }
+  double lastInterval() const { return last_interval_s_; }
+
   /// Forgets the photometric noise estimates (a new run).
   void resetNoiseModel() { photometric_.resetNoiseModel(); }
   /// Residual image of the last photometric update.
@@ -58,6 +67,9 @@ class ImageUpdate {
   PhotometricUpdate photometric_;
   FeatureUpdate feature_;
   std::vector<float> readout_row_weight_;  // per working row: its capture time per second of readout
+  bool last_pair_photometric_ = false;
+  Vec3 last_gyro_mean_ = Vec3::Zero();
+  double last_interval_s_ = 0.0;
 };
 
 }  // namespace internal

@@ -365,6 +365,25 @@ const std::vector<Entry>& table() {
                      DIEKF_FIELD(double, photometric.outlier_threshold_sigma), between(0.0, 1000.0)));
     t.push_back(real("photometric/outlier_window_fraction",
                      DIEKF_FIELD(double, photometric.outlier_window_fraction), between(0.0, 1.0)));
+    // camera-fixed pattern (FixedPattern)
+    t.push_back(flag("fixed_pattern/enabled", DIEKF_FIELD(bool, fixed_pattern.enabled)));
+    t.push_back(real("fixed_pattern/decorrelation_px", DIEKF_FIELD(double, fixed_pattern.decorrelation_px),
+                     Range{0.0, 1000.0, true, false}));
+    t.push_back(real("fixed_pattern/memory_samples", DIEKF_FIELD(double, fixed_pattern.memory_samples),
+                     between(1.0, 1e6)));
+    t.push_back(real("fixed_pattern/startup_samples", DIEKF_FIELD(double, fixed_pattern.startup_samples),
+                     between(1.0, 1e6)));
+    t.push_back(real("fixed_pattern/significance_sigma", DIEKF_FIELD(double, fixed_pattern.significance_sigma),
+                     between(0.0, 100.0)));
+    t.push_back(real("fixed_pattern/min_gain", DIEKF_FIELD(double, fixed_pattern.min_gain), between(0.0, 1.0)));
+    t.push_back(integer("fixed_pattern/refresh_frames", DIEKF_FIELD(int, fixed_pattern.refresh_frames),
+                        between(1, 1000)));
+    t.push_back(real("fixed_pattern/report_fraction", DIEKF_FIELD(double, fixed_pattern.report_fraction),
+                     between(0.0, 1.0)));
+    t.push_back({"fixed_pattern/vignetting_file", [](const ParamSource& s, EstimatorParams& p) {
+                   std::string path;
+                   if (s.get("fixed_pattern/vignetting_file", &path)) p.fixed_pattern.vignetting_file = path;
+                 }});
     // feature baseline
     t.push_back(integer("feature/max_corners", DIEKF_FIELD(int, feature.max_corners), between(1, 100000)));
     t.push_back(real("feature/quality_level", DIEKF_FIELD(double, feature.quality_level), Range{0.0, 1.0, true, false}));

@@ -752,7 +752,7 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
                                   double readout_s) {
   *out = PassSums();
   SweepConfig cfg = makeConfig(params_, preprocess_, huber_sigma);
-  if (use_weight_map_) cfg.weight_map = &weight_map_;
+  cfg.weight_map = active_map_;
   const bool rolling = m_rows != nullptr && timing != nullptr && timing->row_weight != nullptr &&
                        timing->rows == cur.intensity.rows && dt_s > 0.0 &&
                        (readout_s != 0.0 || timing->estimate_readout);
@@ -951,6 +951,17 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   // A map without any weight below 1 changes nothing: the plain sweep is used (bit for bit, and cheaper).
   use_weight_map_ = params_.outlier_threshold_sigma > 0.0 && weight_map_has_outliers_ && !weight_map_.empty() &&
                     weight_map_.size() == cur.intensity.size();
+  // The camera-fixed pattern's confidence multiplies the outlier weights (docs/noise_model.md section 11).
+  active_map_ = use_weight_map_ ? &weight_map_ : nullptr;
+  if (confidence_ != nullptr && confidence_->type() == CV_32FC1 && confidence_->size() == cur.intensity.size()) {
+    if (use_weight_map_) {
+      combined_map_.create(weight_map_.size(), CV_32FC1);  // allocates only when the size changes
+      cv::multiply(weight_map_, *confidence_, combined_map_);
+      active_map_ = &combined_map_;
+    } else {
+      active_map_ = confidence_;
+    }
+  }
 
   // Prior covariance of what the image observes, H P H^T with H = [observed columns | m] (the time offset
   // enters as the combination m of the observed columns; for the innovation test of the first pass).
@@ -1092,6 +1103,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   const internal::IterationResult it = internal::iterateInformationForm(
       params_.max_passes, params_.stop_threshold, linearize_at, x, P);
   use_weight_map_ = false;
+  active_map_ = nullptr;
   stats.applied = it.ok;
   stats.outlier_fraction = sums.valid > 0 ? std::clamp(1.0 - sums.weight_sum / sums.valid, 0.0, 1.0) : 0.0;
   stats.passes = it.passes;

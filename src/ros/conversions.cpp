@@ -152,6 +152,7 @@ bool fillPlanarState(const diekf::FrameResult& r, const std_msgs::Header& header
   m.update_ms = r.update_ms;
   m.photometric_rms = r.photometric_rms;
   m.valid_ratio = r.valid_ratio;
+  m.fixed_pattern_fraction = r.fixed_pattern_fraction;
   m.status = statusToMsg(r.status);
   m.status_text = r.message;
   const bool finite = std::isfinite(m.distance) && std::isfinite(m.height) && sigma_v.allFinite() &&

@@ -180,6 +180,29 @@ TEST_P(NoAllocation, PerFramePathAfterWarmUp) {
   EXPECT_TRUE(warning.empty()) << warning;
 }
 
+// The camera-fixed pattern's whole per-frame path (docs/noise_model.md section 11): learning, the fields
+// recomputed at every learning frame, the corrected images, the reference corrected again, the confidence
+// combined with the outlier weights.
+TEST(NoAllocationFixedPattern, LearningAndCorrectingAfterWarmUp) {
+  EstimatorParams params;
+  params.init.alpha0_inv_m = 1.0;
+  params.fixed_pattern.startup_samples = 1.0;
+  params.fixed_pattern.refresh_frames = 1;
+  params.fixed_pattern.significance_sigma = 0.0;  // every deviation is corrected: the correction really runs
+  Estimator est(flight().camera(), params);
+  FrameResult result;
+  long frame = 0, imu = 0;
+  run(&est, &frame, &imu, 60, false, &result);
+  ASSERT_TRUE(result.fixed_pattern_active);
+  est.takeWarning();
+  const Counts c = run(&est, &frame, &imu, 90, true, &result);
+  EXPECT_EQ(c.allocations, 0) << "heap allocations in 90 frames after warm-up";
+  EXPECT_EQ(c.results, 90);
+  EXPECT_GT(c.applied, 80);
+  EXPECT_TRUE(result.fixed_pattern_active);
+  EXPECT_TRUE(est.state().allFinite());
+}
+
 INSTANTIATE_TEST_SUITE_P(PhotometricModes, NoAllocation, ::testing::Values(UpdateMode::kIterated, UpdateMode::kEkf));
 
 }  // namespace

@@ -29,6 +29,10 @@ struct SensorOptions {
   double read_noise_dn = 1.5;      ///< read noise, 1-sigma (grey levels)
   double shot_noise_dn = 0.04;     ///< shot-noise variance per grey level of signal (DN)
   bool noise = true;
+  /// Camera-fixed patterns (not owned, width x height of the renderer, or null): the signal of pixel i is
+  /// gain ((1 - v r^2) fixed_gain[i] radiance[i] + fixed_add[i]) before noise (shadow, projector dots, lens dirt).
+  const float* fixed_gain = nullptr;
+  const float* fixed_add = nullptr;    ///< grey levels at gain 1
 };
 
 /// A band of image rows [row0, row1) rendered with its own sub-frame poses (rolling shutter: each band of

@@ -6,6 +6,7 @@
 #include <string>
 #include <vector>
 
+#include "diekf/sim/camera_patterns.h"
 #include "diekf/sim/clutter.h"
 #include "diekf/sim/imu_sim.h"
 #include "diekf/sim/realism.h"
@@ -50,6 +51,7 @@ struct SimulationOptions {
   RealismOptions realism;               ///< realistic-camera effects (all off by default)
   std::string realism_preset = "clean"; ///< name written to realism.yaml ("custom" if flags changed a preset)
   ClutterOptions clutter;               ///< moving objects and boxes on the ground (none by default)
+  CameraPatternOptions patterns;        ///< the drone's shadow, projector dots, lens dirt (none by default)
   std::string output_dir;
 };
 
@@ -66,6 +68,8 @@ struct SimulationSummary {
   int clutter_objects = 0;                  ///< movers' crossings + boxes
   double mover_coverage_mean = 0.0, mover_coverage_max = 0.0;  ///< fraction of the image, over the frames
   double box_coverage_mean = 0.0, box_coverage_max = 0.0;
+  double pattern_coverage_mean = 0.0;       ///< image share with a camera-fixed gain off 1 by over 10 %
+  double shadow_coverage_mean = 0.0, shadow_coverage_max = 0.0;  ///< image share in the drone's shadow
 };
 
 /// Result of command-line parsing.

@@ -111,6 +111,19 @@ std::string simulateUsage() {
         "  --box-size-m M           mean side of a box footprint (0.75-1.25 x M)        [0.25]\n"
         "  --box-height-m M         height of the box tops above the ground (m)         [0.15]\n"
         "  --box-texture T          texture of tops and sides (as --mover-texture)      [grass]\n"
+        "Camera-fixed patterns (docs/simulator.md; DIR/patterns.yaml: settings and coverage):\n"
+        "  --shadow                 the drone's shadow on the ground (sun fixed in W)\n"
+        "  --shadow-fixed           the shadow as if the camera stayed level (fixed in the image but for its size)\n"
+        "  --sun-elevation-deg A    sun above the horizon, 0..90 (deg)                  [65]\n"
+        "  --sun-azimuth-deg A      sun's azimuth in W (deg)                            [30]\n"
+        "  --shadow-size-m M        quadrotor span, rotor tip to rotor tip (m)          [0.6]\n"
+        "  --shadow-darkness F      brightness lost in the body's full shadow, 0..1     [0.55]\n"
+        "  --shadow-softness-m M    edge width beyond the sun's penumbra (m)            [0.02]\n"
+        "  --projector-dots N       IR projector dots fixed in the image, 0..100000     [0]\n"
+        "  --projector-strength F   dot peak irradiance over the ambient light          [1.5]\n"
+        "  --projector-dot-px PX    dot Gaussian sigma at 752x480 (px)                  [1.2]\n"
+        "  --lens-dirt N            out-of-focus dirt blobs on the lens, 0..100         [0]\n"
+        "  --lens-dirt-opacity F    light a blob's centre blocks, 0..1                  [0.5]\n"
         "IMU:\n"
         "  --no-vibration           no propeller vibration (on by default)\n"
         "  --no-imu-noise           exact IMU readings (no noise, bias, vibration)\n"
@@ -181,6 +194,14 @@ ParseResult parseSimulateArgs(const std::vector<std::string>& args_in, Simulatio
       {"--mover-interval-s", {&opt->clutter.mover_interval_s, 0.5, 3600}},
       {"--box-size-m", {&opt->clutter.box_size_m, 0.02, 10}},
       {"--box-height-m", {&opt->clutter.box_height_m, 0.005, 5}},
+      {"--sun-elevation-deg", {&opt->patterns.sun_elevation_deg, 0, 90}},
+      {"--sun-azimuth-deg", {&opt->patterns.sun_azimuth_deg, -360, 360}},
+      {"--shadow-size-m", {&opt->patterns.shadow_size_m, 0.01, 10}},
+      {"--shadow-darkness", {&opt->patterns.shadow_darkness, 0, 1}},
+      {"--shadow-softness-m", {&opt->patterns.shadow_softness_m, 0, 1}},
+      {"--projector-strength", {&opt->patterns.projector_strength, 0, 100}},
+      {"--projector-dot-px", {&opt->patterns.projector_dot_px, 0.1, 20}},
+      {"--lens-dirt-opacity", {&opt->patterns.lens_dirt_opacity, 0, 1}},
   };
   // Realism options given explicitly: they win over a --realism preset wherever they appear.
   const std::map<std::string, double RealismOptions::*> realism_fields = {
@@ -261,6 +282,20 @@ ParseResult parseSimulateArgs(const std::vector<std::string>& args_in, Simulatio
         return ParseResult::kError;
       }
       (a == "--mover-texture" ? opt->clutter.mover_texture : opt->clutter.box_texture) = v;
+    } else if (a == "--shadow") {
+      opt->patterns.shadow = true;
+    } else if (a == "--shadow-fixed") {
+      opt->patterns.shadow = true;
+      opt->patterns.shadow_fixed = true;
+    } else if (a == "--projector-dots" || a == "--lens-dirt") {
+      if (!value(&v)) return ParseResult::kError;
+      std::uint64_t n = 0;
+      const std::uint64_t hi = a == "--projector-dots" ? 100000 : 100;
+      if (!parseUint(v, &n) || n > hi) {
+        *error = a + " needs an integer in [0, " + std::to_string(hi) + "], got '" + v + "'";
+        return ParseResult::kError;
+      }
+      (a == "--projector-dots" ? opt->patterns.projector_dots : opt->patterns.lens_dirt) = static_cast<int>(n);
     } else if (a == "--movers" || a == "--boxes") {
       if (!value(&v)) return ParseResult::kError;
       std::uint64_t n = 0;
@@ -525,6 +560,12 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
 
   std::vector<CameraPose> subposes;
   long subframes_total = 0;
+  // Camera-fixed patterns: a gain and an offset per pixel, the shadow's from each frame's pose.
+  CameraPatternOptions pat_opt = opt.patterns;
+  pat_opt.seed = opt.seed;
+  std::unique_ptr<CameraPatterns> patterns;
+  if (pat_opt.any()) patterns.reset(new CameraPatterns(pat_opt, renderer, opt.scale));
+  double mean_radiance = 100.0;  // grey levels at gain 1 (the last image's), scales the dirt's glare
   for (int f = 0; f < n_frames; ++f) {
     const double t = (f + 1) * frame_dt;  // true mid-exposure time of the middle row (s)
     flushUntil(t + stamp_offset_s);       // the image's stamp
@@ -552,21 +593,31 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
     subframes_total += n_sub;
     const std::uint64_t noise_seed = opt.seed * 7919ull + static_cast<std::uint64_t>(f);
     cv::Mat img;
+    SensorOptions sensor = opt.sensor;
+    if (patterns) {
+      patterns->update(cameraPose(traj.evaluate(t), cam), plane, mean_radiance);
+      sensor.fixed_gain = patterns->gain().data();
+      sensor.fixed_add = patterns->offset().data();
+      sum.pattern_coverage_mean += patterns->coverage();
+      sum.shadow_coverage_mean += patterns->shadowCoverage();
+      sum.shadow_coverage_max = std::max(sum.shadow_coverage_max, patterns->shadowCoverage());
+    }
     if (!effects_render) {
       subposes.clear();
       for (int j = 0; j < n_sub; ++j) {
         const double ts = n_sub == 1 ? t : t + exposure_s * ((j + 0.5) / n_sub - 0.5);
         subposes.push_back(cameraPose(traj.evaluate(ts), cam));
       }
-      img = renderer.renderImage(subposes, plane, tex, gain, opt.sensor, noise_seed);
+      img = renderer.renderImage(subposes, plane, tex, gain, sensor, noise_seed);
     } else {
       // Rolling shutter: every row its own exposure (same sub-frame count), centred readout * (v/(H-1) - 1/2)
       // after t; then the optional glossy patches and defocus.
       const std::vector<RowBand> bands = rollingShutterBands(
           [&](double ts) { return cameraPose(traj.evaluate(ts), cam); }, t, renderer.height(), readout_s, exposure_s,
           n_sub, 1);
-      img = renderer.renderBands(bands, plane, tex, gain, opt.sensor, noise_seed, effects);
+      img = renderer.renderBands(bands, plane, tex, gain, sensor, noise_seed, effects);
     }
+    if (patterns && gain > 0.0) mean_radiance = cv::mean(img)[0] / gain;
     const std::int64_t stamp = clock.toNs(t) + stamp_offset_ns;
     if (opt.camera_info) bag.writeCameraInfo(stamp, written, static_cast<std::uint32_t>(f));
     bag.writeImage(stamp, img, static_cast<std::uint32_t>(f));
@@ -610,6 +661,33 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
                 << ", max " << sum.mover_coverage_max << ", " << frames_mover << " images over 1 % (mean "
                 << (frames_mover ? mover_when_seen / frames_mover : 0.0) << "); by boxes: mean "
                 << sum.box_coverage_mean << ", max " << sum.box_coverage_max << std::defaultfloat << "\n";
+  }
+  if (patterns) {
+    if (sum.frames_written > 0) {
+      sum.pattern_coverage_mean /= sum.frames_written;
+      sum.shadow_coverage_mean /= sum.frames_written;
+    }
+    const std::string path = (fs::path(opt.output_dir) / "patterns.yaml").string();
+    std::ofstream f(path);
+    const CameraPatternOptions& p = opt.patterns;
+    f << "# Camera-fixed patterns (diekf_simulate, docs/simulator.md).\n";
+    f << "shadow: " << (p.shadow ? "true" : "false") << "\nshadow_fixed: " << (p.shadow_fixed ? "true" : "false")
+      << "\nsun_elevation_deg: " << yamlNumber(p.sun_elevation_deg)
+      << "\nsun_azimuth_deg: " << yamlNumber(p.sun_azimuth_deg) << "\nshadow_size_m: " << yamlNumber(p.shadow_size_m)
+      << "\nshadow_darkness: " << yamlNumber(p.shadow_darkness)
+      << "\nshadow_softness_m: " << yamlNumber(p.shadow_softness_m) << "\nprojector_dots: " << p.projector_dots
+      << "\nprojector_strength: " << yamlNumber(p.projector_strength)
+      << "\nprojector_dot_px: " << yamlNumber(p.projector_dot_px) << "\nlens_dirt: " << p.lens_dirt
+      << "\nlens_dirt_opacity: " << yamlNumber(p.lens_dirt_opacity) << "\n";
+    f << "# Image shares, mean over the images: a fixed gain off 1 by more than 10 %; in the shadow (gain < 0.9).\n";
+    f << "pattern_coverage_mean: " << yamlNumber(sum.pattern_coverage_mean) << "\n";
+    f << "shadow_coverage_mean: " << yamlNumber(sum.shadow_coverage_mean) << "\n";
+    f << "shadow_coverage_max: " << yamlNumber(sum.shadow_coverage_max) << "\n";
+    if (!f) throw std::runtime_error("cannot write '" + path + "'");
+    if (progress)
+      *progress << "[diekf_simulate] camera-fixed patterns cover " << std::setprecision(3)
+                << sum.pattern_coverage_mean << " of the image (shadow: mean " << sum.shadow_coverage_mean << ", max "
+                << sum.shadow_coverage_max << ")" << std::defaultfloat << "\n";
   }
   sum.wall_s = std::chrono::duration<double>(Clock::now() - t_start).count();
   return sum;

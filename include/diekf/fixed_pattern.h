@@ -1,0 +1,102 @@
+// Camera-fixed photometric structure (docs/noise_model.md section 11): vignetting, the drone's own shadow, lens
+// dirt (a per-pixel gain g) and an IR projector's dots or glare (a per-pixel offset a), learned online from the
+// working images and removed from them before the photometric update.
+//
+// Model, per working pixel p and image t, after dividing the image by its own mean (which removes exposure and
+// gain changes): u_t(p) = g(p) R_t(p) + a(p), R_t the ground's radiance. While the camera moves over the ground,
+// R_t(p) decorrelates over time and has (nearly) the same temporal mean c and spread S at every pixel; a
+// pattern fixed in the image does not move. So from each pixel's exponentially forgotten mean m(p) and
+// spread s(p):
+//   g(p) = s(p) / median_p s,     c = median_p (m / g),     a(p) = m(p) - g(p) c
+// each shrunk toward "no pattern" (g = 1, a = 0) unless it stands significance_sigma standard errors out of
+// the statistics' own noise. The image is replaced by u' = (u - a) / g (times its mean, so that the
+// preprocessing's own normalisation and the image checks are unchanged), and the pixels the model cannot
+// restore (g below min_gain: saturated dots, opaque dirt) get the weight (g / min_gain)^2.
+//
+// The statistics only learn from frames whose ground moved by a sizeable part of decorrelation_px since the
+// last one (the filter's own velocity, distance and rotation rate say how far, imageMotionPx) and that the
+// filter accepted; before startup_samples independent samples nothing is corrected. All buffers are allocated
+// in the constructor: no allocation per frame.
+#pragma once
+
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "diekf/camera_model.h"
+#include "diekf/params.h"
+#include "diekf/state.h"
+
+namespace diekf {
+
+/// Largest displacement (working px) of the ground through the image over dt_s, from the state's velocity over
+/// distance (vartheta) and the rotation rate w (rad/s, bias removed), K the working camera: the flow at the
+/// image centre f dt |(vartheta_x, vartheta_y)| + f dt |(w_x, w_y)| plus the scale and roll flow at the image's
+/// half diagonal r dt (|vartheta_z| + |w_z|). An upper estimate (the terms are added, not vector-summed).
+double imageMotionPx(const Vec3& vartheta_inv_s, const Vec3& rate_radps, const PinholeK& K, double dt_s);
+
+class FixedPattern {
+ public:
+  /// `width` x `height`: the working image. `flat_field` (optional, CV_32FC1 of the working size): an offline
+  /// relative gain (vignetting calibration) divided out of every image before the online model.
+  FixedPattern(const FixedPatternParams& params, int width, int height, const cv::Mat& flat_field = cv::Mat());
+
+  /// In place on the blurred working image I (grey levels, row-major, width x height, contiguous): remembers
+  /// the image (divided by its mean) for learn(), then, once the model is active, writes mean (u - a) / g.
+  /// Returns the sum and the sum of squares of the written image (for the per-frame normalisation).
+  void apply(float* I, double* sum, double* sum_sq);
+
+  /// Learns from the image of the last apply(): `motion_px` is how far the ground moved in the working image since
+  /// the previous image (imageMotionPx). Frames that moved less count as a fraction of a sample.
+  /// Returns true when the fields changed (the image just learned from should then be corrected again,
+  /// ImagePreprocessor::reapplyPattern, so that it and the next image share one correction).
+  bool learn(double motion_px);
+  /// Writes the image of the last apply() corrected with the current fields into I (grey levels), with its sum
+  /// and sum of squares; false (I untouched) when there is none or the model is inactive.
+  bool reapply(float* I, double* sum, double* sum_sq) const;
+
+  /// Forgets everything learned (the next images are used as they come until the start-up is done again).
+  void reset();
+
+  /// True once the start-up is done and the model corrects the images.
+  bool active() const { return active_; }
+  /// Independent samples gathered (capped at memory_samples).
+  double samples() const { return samples_; }
+  /// Per-pixel confidence (CV_32FC1 in [0, 1]) to multiply the update's pixel weights with, or null when every
+  /// pixel has full confidence (model inactive or no pixel below min_gain).
+  const cv::Mat* confidence() const { return active_ && has_low_confidence_ ? &confidence_ : nullptr; }
+  /// Share of the working image covered by a strong fixed pattern: |g - 1| > 0.3 or |a| > 0.5 S (0 when inactive).
+  double strongFraction() const { return active_ ? strong_fraction_ : 0.0; }
+  /// The fields in use (CV_32FC1, working size): gain g (1: none) and offset a (image-mean units; 0: none).
+  const cv::Mat& gain() const { return gain_; }
+  const cv::Mat& offset() const { return offset_; }
+
+ private:
+  void refresh();
+
+  FixedPatternParams params_;
+  int width_ = 0, height_ = 0;
+  cv::Mat flat_inv_;    // 1 / offline flat field (empty: none)
+  cv::Mat last_u_;      // last applied image over its mean (before the correction)
+  cv::Mat m1_, m2_;     // exponentially weighted mean and variance of u
+  cv::Mat gain_, inv_gain_, offset_, confidence_;
+  std::vector<float> median_buf_;
+  cv::Mat smooth_, scratch_;     // local mean of the mean ratio, and its detail
+  std::vector<double> colsum_;   // box filter column sums
+  double samples_ = 0.0;
+  int frames_since_refresh_ = 0;
+  bool last_valid_ = false;   // last_u_ not learned from yet
+  bool last_kept_ = false;    // last_u_ holds the last applied image
+  double last_mean_ = 0.0;    // its mean (grey levels)
+  bool active_ = false;
+  bool has_low_confidence_ = false;
+  double strong_fraction_ = 0.0;
+};
+
+/// Loads an offline flat field (FixedPatternParams::vignetting_file): a cv::FileStorage matrix `gain` at the
+/// raw resolution of `camera`, resampled to the working camera the same way the images are (through the
+/// preprocessing) and normalised to a median of 1. Throws std::invalid_argument on a missing file or matrix or a
+/// wrong size.
+cv::Mat loadFlatField(const std::string& path, const CameraModel& camera, const PreprocessParams& preprocess);
+
+}  // namespace diekf

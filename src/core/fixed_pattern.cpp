@@ -1,0 +1,331 @@
+// Camera-fixed photometric structure: see include/diekf/fixed_pattern.h and docs/noise_model.md section 11.
+#include "diekf/fixed_pattern.h"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+
+#include "diekf/image_preprocessor.h"
+
+namespace diekf {
+
+double imageMotionPx(const Vec3& vartheta_inv_s, const Vec3& rate_radps, const PinholeK& K, double dt_s) {
+  if (!(dt_s > 0.0) || !vartheta_inv_s.allFinite() || !rate_radps.allFinite()) return 0.0;
+  const double f = 0.5 * (K.fx + K.fy);
+  const double r = 0.5 * std::hypot(static_cast<double>(K.width), static_cast<double>(K.height));
+  const double centre = f * (vartheta_inv_s.head<2>().norm() + rate_radps.head<2>().norm());
+  const double rim = r * (std::abs(vartheta_inv_s.z()) + std::abs(rate_radps.z()));
+  return dt_s * (centre + rim);
+}
+
+namespace {
+
+float medianOf(std::vector<float>* v) {
+  if (v->empty()) return 0.f;
+  auto mid = v->begin() + static_cast<std::ptrdiff_t>(v->size() / 2);
+  std::nth_element(v->begin(), mid, v->end());
+  return *mid;
+}
+
+/// Shrinkage of a deviation d with standard error se: d (1 - (k se / d)^4), 0 below k se (a deviation at 1.5 k se
+/// keeps 80 %, at 2 k se 94 %).
+float shrink(float d, float se, float k) {
+  const float z2 = d * d;
+  const float t2 = k * k * se * se;
+  if (!(z2 > t2)) return 0.f;
+  const float q = t2 / z2;
+  return d * (1.f - q * q);
+}
+
+/// Mean over the (2 half + 1)^2 window (truncated at the edges) of src into dst, by running sums; tmp: W x H,
+/// colsum: W doubles. No allocation.
+void boxMean(const float* src, float* dst, float* tmp, double* colsum, int W, int H, int half) {
+  for (int y = 0; y < H; ++y) {
+    const float* r = src + y * W;
+    float* o = tmp + y * W;
+    double sum = 0.0;
+    int lo = 0, hi = 0;
+    for (int x = 0; x < W; ++x) {
+      const int want_hi = std::min(W, x + half + 1), want_lo = std::max(0, x - half);
+      for (; hi < want_hi; ++hi) sum += r[hi];
+      for (; lo < want_lo; ++lo) sum -= r[lo];
+      o[x] = static_cast<float>(sum / (hi - lo));
+    }
+  }
+  std::fill(colsum, colsum + W, 0.0);
+  int lo = 0, hi = 0;
+  for (int y = 0; y < H; ++y) {
+    const int want_hi = std::min(H, y + half + 1), want_lo = std::max(0, y - half);
+    for (; hi < want_hi; ++hi)
+      for (int x = 0; x < W; ++x) colsum[x] += tmp[hi * W + x];
+    for (; lo < want_lo; ++lo)
+      for (int x = 0; x < W; ++x) colsum[x] -= tmp[lo * W + x];
+    const double inv = 1.0 / (hi - lo);
+    for (int x = 0; x < W; ++x) dst[y * W + x] = static_cast<float>(colsum[x] * inv);
+  }
+}
+
+}  // namespace
+
+FixedPattern::FixedPattern(const FixedPatternParams& params, int width, int height, const cv::Mat& flat_field)
+    : params_(params), width_(width), height_(height) {
+  if (width <= 0 || height <= 0) throw std::invalid_argument("FixedPattern: empty working image");
+  if (!flat_field.empty()) {
+    if (flat_field.type() != CV_32FC1 || flat_field.cols != width || flat_field.rows != height)
+      throw std::invalid_argument("FixedPattern: the flat field must be CV_32FC1 of the working size");
+    flat_inv_.create(height, width, CV_32FC1);
+    for (int i = 0; i < width * height; ++i) {
+      const float g = flat_field.ptr<float>()[i];
+      flat_inv_.ptr<float>()[i] = g > 1e-3f ? 1.f / g : 1.f;
+    }
+  }
+  last_u_.create(height, width, CV_32FC1);
+  m1_.create(height, width, CV_32FC1);
+  m2_.create(height, width, CV_32FC1);
+  gain_.create(height, width, CV_32FC1);
+  inv_gain_.create(height, width, CV_32FC1);
+  offset_.create(height, width, CV_32FC1);
+  confidence_.create(height, width, CV_32FC1);
+  median_buf_.reserve(static_cast<size_t>(((width + 1) / 2) * ((height + 1) / 2)));
+  smooth_.create(height, width, CV_32FC1);
+  scratch_.create(height, width, CV_32FC1);
+  colsum_.assign(static_cast<size_t>(width), 0.0);
+  reset();
+}
+
+void FixedPattern::reset() {
+  m1_.setTo(0.f);
+  m2_.setTo(0.f);
+  gain_.setTo(1.f);
+  inv_gain_.setTo(1.f);
+  offset_.setTo(0.f);
+  confidence_.setTo(1.f);
+  samples_ = 0.0;
+  frames_since_refresh_ = 0;
+  last_valid_ = false;
+  last_kept_ = false;
+  active_ = false;
+  has_low_confidence_ = false;
+  strong_fraction_ = 0.0;
+}
+
+void FixedPattern::apply(float* I, double* sum, double* sum_sq) {
+  const int n = width_ * height_;
+  double s = 0.0;
+  if (!flat_inv_.empty()) {
+    const float* fi = flat_inv_.ptr<float>();
+    for (int i = 0; i < n; ++i) {
+      I[i] *= fi[i];
+      s += I[i];
+    }
+  } else {
+    for (int i = 0; i < n; ++i) s += I[i];
+  }
+  const double mean = s / n;
+  last_valid_ = params_.enabled && mean > 1e-3;
+  last_kept_ = last_valid_;
+  last_mean_ = mean;
+  if (last_valid_) {
+    const float inv_mean = static_cast<float>(1.0 / mean);
+    float* u = last_u_.ptr<float>();
+    for (int i = 0; i < n; ++i) u[i] = I[i] * inv_mean;
+  }
+  double sq = 0.0;
+  if (active_ && last_valid_) {
+    // I' = mean (u - a) / g = (I - mean a) / g
+    const float* a = offset_.ptr<float>();
+    const float* ig = inv_gain_.ptr<float>();
+    const float fm = static_cast<float>(mean);
+    s = 0.0;
+    for (int i = 0; i < n; ++i) {
+      const float v = (I[i] - fm * a[i]) * ig[i];
+      I[i] = v;
+      s += v;
+      sq += static_cast<double>(v) * v;
+    }
+  } else {
+    for (int i = 0; i < n; ++i) sq += static_cast<double>(I[i]) * I[i];
+  }
+  *sum = s;
+  *sum_sq = sq;
+}
+
+bool FixedPattern::reapply(float* I, double* sum, double* sum_sq) const {
+  if (!last_kept_ || !active_) return false;
+  const int n = width_ * height_;
+  const float* u = last_u_.ptr<float>();
+  const float* a = offset_.ptr<float>();
+  const float* ig = inv_gain_.ptr<float>();
+  const float fm = static_cast<float>(last_mean_);
+  double s = 0.0, sq = 0.0;
+  for (int i = 0; i < n; ++i) {
+    const float v = fm * (u[i] - a[i]) * ig[i];
+    I[i] = v;
+    s += v;
+    sq += static_cast<double>(v) * v;
+  }
+  *sum = s;
+  *sum_sq = sq;
+  return true;
+}
+
+bool FixedPattern::learn(double motion_px) {
+  if (!last_valid_ || !params_.enabled) return false;
+  last_valid_ = false;  // each image is learned from once
+  const double w = std::min(1.0, motion_px / params_.decorrelation_px);
+  if (!(w > 0.0) || !std::isfinite(w)) return false;
+  samples_ = std::min(samples_ + w, params_.memory_samples);
+  const float lambda = static_cast<float>(w / std::max(samples_, w));
+  const int n = width_ * height_;
+  const float* u = last_u_.ptr<float>();
+  float* m1 = m1_.ptr<float>();
+  float* m2 = m2_.ptr<float>();
+  // Exponentially weighted mean and variance (m2 holds the variance): v <- (1 - l) (v + l d^2), d = u - mean.
+  const float keep = 1.f - lambda;
+  for (int i = 0; i < n; ++i) {
+    const float d = u[i] - m1[i];
+    m1[i] += lambda * d;
+    m2[i] = keep * (m2[i] + lambda * d * d);
+  }
+  ++frames_since_refresh_;
+  if (samples_ >= params_.startup_samples && (frames_since_refresh_ >= params_.refresh_frames || !active_)) {
+    refresh();
+    frames_since_refresh_ = 0;
+    active_ = true;
+    return true;
+  }
+  return false;
+}
+
+void FixedPattern::refresh() {
+  const int n = width_ * height_;
+  const float* m1 = m1_.ptr<float>();
+  const float* m2 = m2_.ptr<float>();
+  float* g = gain_.ptr<float>();
+  float* a = offset_.ptr<float>();
+  float* ig = inv_gain_.ptr<float>();
+  float* conf = confidence_.ptr<float>();
+  // Spread per pixel (into a for now); medians of the spread (S) and of the mean (the ground's level) over every
+  // 2nd pixel in x and y.
+  for (int i = 0; i < n; ++i) a[i] = std::sqrt(std::max(0.f, m2[i]));
+  const auto sampleMedian = [&](auto value) {
+    median_buf_.clear();
+    for (int y = 0; y < height_; y += 2)
+      for (int x = 0; x < width_; x += 2) median_buf_.push_back(value(y * width_ + x));
+    return medianOf(&median_buf_);
+  };
+  const float S = sampleMedian([&](int i) { return a[i]; });
+  const float level = sampleMedian([&](int i) { return m1[i]; });
+  if (!(S > 1e-6f) || !(level > 1e-6f)) {  // no texture seen: no model
+    gain_.setTo(1.f);
+    inv_gain_.setTo(1.f);
+    offset_.setTo(0.f);
+    confidence_.setTo(1.f);
+    has_low_confidence_ = false;
+    strong_fraction_ = 0.0;
+    return;
+  }
+  const float inv_S = 1.f / S, inv_level = 1.f / level;
+  // The ground is not white noise: its structure larger than the path flown so far has not averaged out and
+  // leaves deviations all over the image. A camera-fixed pattern is what stands out of that bulk: the standard
+  // error is at least the robust spread (1.4826 x median absolute deviation) of the ratios over the image.
+  // Two scales: the mean ratio g_m = m / level as its local mean over a window of 10 % of the width (vignetting,
+  // a shadow, the ground's large patches) times the detail g_m / local mean (projector dots, specks of dirt). Each
+  // is tested against its own bulk: the ground's large patches do not hide the dots.
+  float* sm = smooth_.ptr<float>();
+  float* dt = scratch_.ptr<float>();
+  for (int i = 0; i < n; ++i) dt[i] = m1[i] * inv_level;
+  const int half = std::max(1, static_cast<int>(std::lround(0.05 * width_)));
+  boxMean(dt, sm, g, colsum_.data(), width_, height_, half);  // g as scratch (rewritten below)
+  for (int i = 0; i < n; ++i) dt[i] = dt[i] / std::max(sm[i], 1e-6f) - 1.f;
+  const float bulk_sm = 1.4826f * sampleMedian([&](int i) { return std::abs(sm[i] - 1.f); });
+  const float bulk_dt = 1.4826f * sampleMedian([&](int i) { return std::abs(dt[i]); });
+  const float bulk_s = 1.4826f * sampleMedian([&](int i) { return std::abs(a[i] * inv_S - 1.f); });
+  const float k = static_cast<float>(params_.significance_sigma);
+  const float n_eff = static_cast<float>(std::max(1.0, samples_));
+  const float se_rel_s = 1.f / std::sqrt(2.f * n_eff);  // relative standard error of a spread
+  const float se_rel_m = 1.f / std::sqrt(n_eff);        // of a mean, in spreads
+  const float g_floor = static_cast<float>(std::max(1e-3, 0.5 * params_.min_gain));
+  const float inv_min_gain = params_.min_gain > 0.0 ? static_cast<float>(1.0 / params_.min_gain) : 0.f;
+  has_low_confidence_ = false;
+  int strong = 0;
+  for (int i = 0; i < n; ++i) {
+    // Mean ratio g_m = g + a / c and spread ratio g_s = g (c: the ground's mean level, u = g R + a). A gain
+    // (shadow, vignetting, dirt) moves both alike; added light (glare, saturating dots) only the mean. A
+    // pattern edge moving a little (the shadow as the drone tilts) raises the spread there, so the mean ratio
+    // is the gain unless the spread says that light was added (g_s below g_m).
+    const float se_m = a[i] * inv_level * se_rel_m;  // standard error of g_m from the pixel's own statistics
+    const float se_sm = std::max(se_m, bulk_sm), se_dt = std::max(se_m, bulk_dt);
+    const float d_sm = shrink(sm[i] - 1.f, se_sm, k), d_dt = shrink(dt[i], se_dt, k);
+    const float gm_s = (1.f + d_sm) * (1.f + d_dt);
+    // What the shrinkage left uncorrected, in k standard errors: a deviation near the threshold is neither
+    // trusted nor removed, so its pixel loses weight, 1 / (1 + z^4) (1/2 at the threshold).
+    float c_unexplained = 1.f;
+    if (k > 0.f) {  // (k = 0: every deviation is removed, nothing is left over)
+      const float z_sm = (sm[i] - 1.f - d_sm) / (k * se_sm), z_dt = (dt[i] - d_dt) / (k * se_dt);
+      const float z2 = z_sm * z_sm + z_dt * z_dt;
+      c_unexplained = std::isfinite(z2) ? 1.f / (1.f + z2 * z2) : 0.f;
+    }
+    const float gs = a[i] * inv_S;
+    const float se_s = std::max(std::max(gs, 1e-3f) * se_rel_s, bulk_s);
+    const bool added = gm_s - gs > k * se_s;  // the spread is significantly below the mean ratio: added light
+    const float gain = added ? std::clamp(gs, 0.f, gm_s) : gm_s;
+    const float add = added ? (gm_s - gain) * level : 0.f;
+    // Confidence: the gain's noise amplification below min_gain, and the part of the pixel's spread the model
+    // does not explain: a spread significantly above the gain's (a pattern edge that moves, a dot modulating
+    // the ground below a working pixel) leaves the corrected pixel with (g_s / g)^2 times the ground's variance,
+    // the excess unrelated to the motion; weight g^2 / g_s^2.
+    const float gs_s = 1.f + shrink(gs - gain, se_s, k) / std::max(gain, 1e-3f);
+    float c = inv_min_gain > 0.f ? std::min(1.f, (gain * inv_min_gain) * (gain * inv_min_gain)) : 1.f;
+    if (gs_s > 1.f) c /= gs_s * gs_s;
+    c *= c_unexplained;
+    conf[i] = c;
+    if (c < 1.f) has_low_confidence_ = true;
+    g[i] = std::max(gain, g_floor);
+    ig[i] = 1.f / g[i];
+    a[i] = add;
+    if (std::abs(g[i] - 1.f) > 0.3f || add > 0.5f * S || c < 0.5f) ++strong;
+  }
+  strong_fraction_ = static_cast<double>(strong) / n;
+}
+
+cv::Mat loadFlatField(const std::string& path, const CameraModel& camera, const PreprocessParams& preprocess) {
+  cv::FileStorage fs;
+  try {
+    fs.open(path, cv::FileStorage::READ);
+  } catch (const cv::Exception& e) {
+    throw std::invalid_argument("fixed_pattern/vignetting_file '" + path + "': " + e.what());
+  }
+  if (!fs.isOpened()) throw std::invalid_argument("fixed_pattern/vignetting_file '" + path + "': cannot open");
+  cv::Mat gain;
+  fs["gain"] >> gain;
+  if (gain.empty()) throw std::invalid_argument("fixed_pattern/vignetting_file '" + path + "': no matrix 'gain'");
+  if (gain.cols != camera.K.width || gain.rows != camera.K.height || gain.channels() != 1) {
+    throw std::invalid_argument("fixed_pattern/vignetting_file '" + path + "': 'gain' is " +
+                                std::to_string(gain.cols) + "x" + std::to_string(gain.rows) + ", the camera " +
+                                std::to_string(camera.K.width) + "x" + std::to_string(camera.K.height));
+  }
+  cv::Mat g64;
+  gain.convertTo(g64, CV_64F);
+  double lo = 0.0, hi = 0.0;
+  cv::minMaxLoc(g64, &lo, &hi);
+  if (!(hi > 0.0) || !std::isfinite(hi) || !std::isfinite(lo) || lo < 0.0)
+    throw std::invalid_argument("fixed_pattern/vignetting_file '" + path + "': 'gain' must be >= 0 and not all 0");
+  // Through the same resampling (and blur) as the images: 8 bits with the maximum at 250.
+  cv::Mat g8;
+  g64.convertTo(g8, CV_8U, 250.0 / hi);
+  PreprocessParams pp = preprocess;
+  pp.normalize_brightness = false;
+  ImagePreprocessor pre(camera, pp);
+  PreprocessedFrame f;
+  pre.process(g8, 0.0, &f);
+  cv::Mat out = f.intensity.clone();
+  std::vector<float> v(out.begin<float>(), out.end<float>());
+  auto mid = v.begin() + static_cast<std::ptrdiff_t>(v.size() / 2);
+  std::nth_element(v.begin(), mid, v.end());
+  if (!(*mid > 0.f)) throw std::invalid_argument("fixed_pattern/vignetting_file '" + path + "': median gain 0");
+  out *= 1.0 / *mid;
+  return out;
+}
+
+}  // namespace diekf

@@ -1,0 +1,253 @@
+// FixedPattern (docs/noise_model.md section 11): the camera-fixed gain and offset learned from the temporal
+// statistics of the working images, the start-up, the significance shrinkage, the confidence, and the motion
+// that counts as a new sample.
+#include <gtest/gtest.h>
+
+#include <cmath>
+
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "diekf/fixed_pattern.h"
+#include "diekf/image_preprocessor.h"
+
+#include "mynt_camera.h"
+
+namespace diekf {
+namespace {
+
+constexpr int kW = 120, kH = 80;
+
+/// A new, independent piece of ground: smooth random texture, mean about 100 grey levels, spread about 25.
+cv::Mat ground(cv::RNG* rng) {
+  cv::Mat big(kH + 20, kW + 20, CV_32FC1);  // blurred with a margin: the same spread at every pixel
+  rng->fill(big, cv::RNG::NORMAL, 0.0, 1.0);
+  cv::GaussianBlur(big, big, cv::Size(0, 0), 1.5);
+  cv::Mat g = big(cv::Rect(10, 10, kW, kH)).clone();
+  cv::Scalar m, sd;
+  cv::meanStdDev(g, m, sd);
+  g = (g - m[0]) * (25.0 / sd[0]) + 100.0;
+  return g;
+}
+
+/// The pattern of the tests: a soft shadow (gain 0.45 in its core) at the left and bright dots (offset +60).
+void pattern(cv::Mat* gain, cv::Mat* offset) {
+  *gain = cv::Mat(kH, kW, CV_32FC1, cv::Scalar(1.f));
+  *offset = cv::Mat(kH, kW, CV_32FC1, cv::Scalar(0.f));
+  for (int y = 0; y < kH; ++y)
+    for (int x = 0; x < kW; ++x) {
+      const double d = std::hypot(x - 25.0, y - 40.0);
+      gain->at<float>(y, x) = static_cast<float>(1.0 - 0.55 / (1.0 + std::exp((d - 15.0) / 2.0)));
+    }
+  for (int y = 6; y < kH - 6; y += 9)
+    for (int x = 60; x < kW - 4; x += 11) offset->at<float>(y, x) = 60.f;
+}
+
+double correlation(const cv::Mat& a, const cv::Mat& b) {
+  cv::Scalar ma, sa, mb, sb;
+  cv::meanStdDev(a, ma, sa);
+  cv::meanStdDev(b, mb, sb);
+  return cv::mean((a - ma[0]).mul(b - mb[0]))[0] / (sa[0] * sb[0]);
+}
+
+FixedPatternParams params() {
+  FixedPatternParams p;
+  p.refresh_frames = 4;
+  return p;
+}
+
+TEST(FixedPattern, LearnsAShadowAndDotsAndRemovesThem) {
+  cv::RNG rng(3);
+  cv::Mat gain, offset;
+  pattern(&gain, &offset);
+  FixedPattern fp(params(), kW, kH);
+  double s = 0, s2 = 0;
+  for (int i = 0; i < 200; ++i) {
+    const double exposure = 0.7 + 0.6 * rng.uniform(0.0, 1.0);  // auto-exposure: every frame its own gain
+    cv::Mat img = exposure * (ground(&rng).mul(gain) + offset);
+    fp.apply(img.ptr<float>(), &s, &s2);
+    fp.learn(10.0);  // the ground moved by much more than decorrelation_px
+  }
+  ASSERT_TRUE(fp.active());
+  EXPECT_NEAR(fp.samples(), 150.0, 1e-9);  // capped at memory_samples
+  // The shadow's core and the dots are recovered (gain relative to the rest of the image, offset in image means).
+  EXPECT_NEAR(fp.gain().at<float>(40, 25), 0.45, 0.06);
+  EXPECT_NEAR(fp.gain().at<float>(40, 100), 1.0, 0.02);
+  EXPECT_NEAR(fp.offset().at<float>(6, 60), 60.f / (cv::mean(gain)[0] * 100.0 + cv::mean(offset)[0]), 0.08);
+  EXPECT_GT(fp.strongFraction(), 0.05);
+  EXPECT_LT(fp.strongFraction(), 0.25);
+  // A new image: corrected, it is the ground again (up to a scale); uncorrected it is not.
+  const cv::Mat g = ground(&rng);
+  cv::Mat img = g.mul(gain) + offset;
+  const double before = correlation(img, g);
+  fp.apply(img.ptr<float>(), &s, &s2);
+  const double after = correlation(img, g);
+  EXPECT_LT(before, 0.9);
+  EXPECT_GT(after, 0.99);
+  // The returned moments are those of the corrected image.
+  EXPECT_NEAR(s / (kW * kH), cv::mean(img)[0], 1e-3 * cv::mean(img)[0]);
+  EXPECT_NEAR(s2 / (kW * kH), cv::mean(img.mul(img))[0], 1e-3 * cv::mean(img.mul(img))[0]);
+}
+
+TEST(FixedPattern, NothingIsCorrectedBeforeTheStartUpOrWithoutMotion) {
+  cv::RNG rng(5);
+  cv::Mat gain, offset;
+  pattern(&gain, &offset);
+  FixedPattern fp(params(), kW, kH);
+  double s = 0, s2 = 0;
+  for (int i = 0; i < 100; ++i) {  // a hovering camera: the same ground every frame, no motion
+    cv::Mat img = ground(&rng).mul(gain) + offset;
+    fp.apply(img.ptr<float>(), &s, &s2);
+    fp.learn(0.0);
+  }
+  EXPECT_FALSE(fp.active());
+  EXPECT_EQ(fp.samples(), 0.0);
+  EXPECT_EQ(fp.confidence(), nullptr);
+  // Slow motion counts as a fraction of a sample: 28 frames at a quarter of decorrelation_px are 7 samples.
+  for (int i = 0; i < 28; ++i) {
+    cv::Mat img = ground(&rng).mul(gain) + offset;
+    const cv::Mat copy = img.clone();
+    fp.apply(img.ptr<float>(), &s, &s2);
+    EXPECT_EQ(cv::norm(img, copy, cv::NORM_INF), 0.0);  // inactive: the image is left as it is
+    fp.learn(0.25 * params().decorrelation_px);
+  }
+  EXPECT_NEAR(fp.samples(), 7.0, 1e-9);
+  EXPECT_FALSE(fp.active());
+  // Without a new apply() there is nothing to learn from.
+  fp.learn(100.0);
+  EXPECT_NEAR(fp.samples(), 7.0, 1e-9);
+}
+
+TEST(FixedPattern, CleanImagesAreLeftAlone) {
+  cv::RNG rng(7);
+  FixedPattern fp(params(), kW, kH);
+  double s = 0, s2 = 0;
+  for (int i = 0; i < 300; ++i) {
+    cv::Mat img = ground(&rng);
+    fp.apply(img.ptr<float>(), &s, &s2);
+    fp.learn(5.0);
+  }
+  ASSERT_TRUE(fp.active());
+  // The statistics' own noise is shrunk away: almost every pixel keeps gain 1 and offset 0.
+  int changed = 0;
+  for (int i = 0; i < kW * kH; ++i)
+    if (fp.gain().ptr<float>()[i] != 1.f || fp.offset().ptr<float>()[i] != 0.f) ++changed;
+  EXPECT_LT(changed, kW * kH / 100);
+  EXPECT_LT(fp.strongFraction(), 0.005);
+  // Deviations near the significance threshold lose some weight (neither trusted nor removed); few pixels do.
+  if (fp.confidence() != nullptr) {
+    int low = 0;
+    for (int i = 0; i < kW * kH; ++i)
+      if (fp.confidence()->ptr<float>()[i] < 0.5f) ++low;
+    EXPECT_LT(low, kW * kH / 100);
+  }
+  const cv::Mat g = ground(&rng);
+  cv::Mat img = g.clone();
+  fp.apply(img.ptr<float>(), &s, &s2);
+  EXPECT_GT(correlation(img, g), 0.999);
+}
+
+TEST(FixedPattern, SaturatedPixelsLoseTheirWeight) {
+  cv::RNG rng(9);
+  FixedPattern fp(params(), kW, kH);
+  double s = 0, s2 = 0;
+  const cv::Rect blob(50, 30, 8, 8);
+  for (int i = 0; i < 120; ++i) {
+    cv::Mat img = ground(&rng);
+    img(blob).setTo(255.f);  // a saturated projector dot
+    fp.apply(img.ptr<float>(), &s, &s2);
+    fp.learn(5.0);
+  }
+  ASSERT_TRUE(fp.active());
+  ASSERT_NE(fp.confidence(), nullptr);
+  EXPECT_LT(fp.confidence()->at<float>(34, 54), 0.05f);
+  EXPECT_GT(fp.confidence()->at<float>(10, 10), 0.9f);
+  // Forgetting everything: back to the start-up.
+  fp.reset();
+  EXPECT_FALSE(fp.active());
+  EXPECT_EQ(fp.confidence(), nullptr);
+}
+
+TEST(FixedPattern, AShadowThatMovesIsFollowed) {
+  cv::RNG rng(11);
+  cv::Mat gain, offset;
+  pattern(&gain, &offset);
+  offset.setTo(0.f);
+  FixedPattern fp(params(), kW, kH);
+  double s = 0, s2 = 0;
+  for (int i = 0; i < 300; ++i) {
+    cv::Mat img = ground(&rng).mul(gain);
+    fp.apply(img.ptr<float>(), &s, &s2);
+    fp.learn(10.0);
+  }
+  EXPECT_NEAR(fp.gain().at<float>(40, 25), 0.45, 0.06);
+  cv::Mat moved;
+  cv::flip(gain, moved, 1);  // the drone turned: the shadow is on the other side now
+  // A jump of the mean leaks into the spread for a while (its lagging part, e^-(n / memory) of the jump): six
+  // memory time constants to forget it.
+  for (int i = 0; i < 900; ++i) {
+    cv::Mat img = ground(&rng).mul(moved);
+    fp.apply(img.ptr<float>(), &s, &s2);
+    fp.learn(10.0);
+  }
+  EXPECT_NEAR(fp.gain().at<float>(40, kW - 1 - 25), 0.45, 0.08);
+  EXPECT_NEAR(fp.gain().at<float>(40, 25), 1.0, 0.08);
+}
+
+TEST(FixedPattern, ImageMotionFromTheState) {
+  PinholeK K{100.0, 100.0, 59.5, 39.5, 120, 80};
+  const double r = 0.5 * std::hypot(120.0, 80.0);
+  // Sideways at 0.3 1/s (0.3 m/s at 1 m) for 0.1 s: 3 px at the centre.
+  EXPECT_NEAR(imageMotionPx(Vec3(0.3, 0.0, 0.0), Vec3::Zero(), K, 0.1), 3.0, 1e-12);
+  // Turning about x at 0.2 rad/s: 2 px; about z at 0.2 rad/s: 0.02 r px at the rim; descending at 0.1 1/s.
+  EXPECT_NEAR(imageMotionPx(Vec3::Zero(), Vec3(0.2, 0.0, 0.0), K, 0.1), 2.0, 1e-12);
+  EXPECT_NEAR(imageMotionPx(Vec3(0.0, 0.0, 0.1), Vec3(0.0, 0.0, 0.2), K, 0.1), 0.03 * r, 1e-12);
+  EXPECT_EQ(imageMotionPx(Vec3(0.3, 0.0, 0.0), Vec3::Zero(), K, 0.0), 0.0);
+  EXPECT_EQ(imageMotionPx(Vec3(NAN, 0.0, 0.0), Vec3::Zero(), K, 0.1), 0.0);
+}
+
+TEST(FixedPattern, InThePreprocessingAndAFlatFieldFile) {
+  // The preprocessing hands the blurred image to the pattern before its normalisation.
+  const CameraModel cam = myntEyeCamera();
+  PreprocessParams pp;
+  pp.working_width_px = 90;
+  ImagePreprocessor pre(cam, pp);
+  const cv::Size ws = pre.workingSize();
+  // A flat field file at the raw resolution: darker corners (vignetting).
+  cv::Mat flat(cam.K.height, cam.K.width, CV_32FC1);
+  for (int y = 0; y < flat.rows; ++y)
+    for (int x = 0; x < flat.cols; ++x) {
+      const double r2 = (std::pow(x - 376.0, 2) + std::pow(y - 240.0, 2)) / (376.0 * 376.0 + 240.0 * 240.0);
+      flat.at<float>(y, x) = static_cast<float>(1.0 - 0.4 * r2);
+    }
+  const std::string path = ::testing::TempDir() + "diekf_flat_field.yaml";
+  {
+    cv::FileStorage fs(path, cv::FileStorage::WRITE);
+    fs << "gain" << flat;
+  }
+  const cv::Mat field = loadFlatField(path, cam, pp);
+  ASSERT_EQ(field.size(), ws);
+  const double centre = field.at<float>(ws.height / 2, ws.width / 2);
+  const double corner = field.at<float>(1, 1);
+  EXPECT_LT(corner / centre, 0.9);  // the working corner sees the raw image inside its corner (undistortion)
+  EXPECT_GT(corner / centre, 0.55);
+  EXPECT_THROW(loadFlatField(path + ".missing", cam, pp), std::invalid_argument);
+  // A vignetted uniform-ish image: the flat field makes its working image flat.
+  cv::Mat raw(cam.K.height, cam.K.width, CV_8UC1);
+  for (int y = 0; y < raw.rows; ++y)
+    for (int x = 0; x < raw.cols; ++x)
+      raw.at<uint8_t>(y, x) = cv::saturate_cast<uint8_t>(200.0 * flat.at<float>(y, x) + 10.0 * ((x / 40 + y / 40) % 2));
+  FixedPattern fp(FixedPatternParams(), ws.width, ws.height, field);
+  PreprocessedFrame plain, flattened;
+  pp.normalize_brightness = false;
+  ImagePreprocessor pre_raw(cam, pp);
+  pre_raw.process(raw, 0.0, &plain);
+  pre_raw.process(raw, 0.0, &flattened, &fp);
+  cv::Scalar m0, s0, m1, s1;
+  cv::meanStdDev(plain.intensity, m0, s0);
+  cv::meanStdDev(flattened.intensity, m1, s1);
+  EXPECT_GT(s0[0], 2.0 * s1[0]);  // the vignetting dominated the spread before
+}
+
+}  // namespace
+}  // namespace diekf
