@@ -113,7 +113,16 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          a.image_stamp == b.image_stamp && a.exposure_time_s == b.exposure_time_s &&
          a.estimate_readout == b.estimate_readout && a.max_readout_s == b.max_readout_s &&
          a.readout_start_sigma_time_offset_s == b.readout_start_sigma_time_offset_s &&
-         a.estimate_focal_scale == b.estimate_focal_scale && a.max_focal_scale == b.max_focal_scale;
+         a.estimate_focal_scale == b.estimate_focal_scale && a.max_focal_scale == b.max_focal_scale &&
+         a.fixed_pattern.enabled == b.fixed_pattern.enabled &&
+         a.fixed_pattern.decorrelation_px == b.fixed_pattern.decorrelation_px &&
+         a.fixed_pattern.memory_samples == b.fixed_pattern.memory_samples &&
+         a.fixed_pattern.startup_samples == b.fixed_pattern.startup_samples &&
+         a.fixed_pattern.significance_sigma == b.fixed_pattern.significance_sigma &&
+         a.fixed_pattern.min_gain == b.fixed_pattern.min_gain &&
+         a.fixed_pattern.refresh_frames == b.fixed_pattern.refresh_frames &&
+         a.fixed_pattern.report_fraction == b.fixed_pattern.report_fraction &&
+         a.fixed_pattern.vignetting_file == b.fixed_pattern.vignetting_file;
 }
 
 // Leaf keys ("a/b") of a YAML map.
@@ -209,6 +218,7 @@ std::string perturbed(const std::string& key, const YAML::Node& def) {
   if (key == "mode") return "lk";
   if (key == "image_stamp") return "start";
   if (key == "line_delay_s") return "3.3e-05";  // s per row: a 16 ms readout of 480 rows
+  if (key == "fixed_pattern/vignetting_file") return "flat_field.png";  // a path (read by the estimator, not here)
   if (def.IsSequence()) return "[0.1, 0.2, 0.9]";
   const std::string s = def.Scalar();
   if (s == "true") return "false";
