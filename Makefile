@@ -124,7 +124,7 @@ rviz-check: build
 # The ROS-free core on ARM: cross builds for aarch64 and armhf (NEON) against private sysroots of Debian packages,
 # the core's unit tests under qemu-user, the SIMD line, one simulated flight replayed on x86-64 and ARM and compared,
 # instructions per frame (cross/cross_check.sh; docs/performance.md, "ARM"). Not part of `make test`: about
-# 30 minutes the first time (packages, three builds, tests under emulation), 15 after. Results in results/cross-check/.
+# 30 minutes the first time (packages, three builds, tests under emulation); less once built. Results in results/cross-check/.
 CROSS_DIR ?= $(BUILD_ROOT)/cross
 CROSS_ARCHES ?= arm64 armhf
 cross-check: build
