@@ -172,7 +172,9 @@ struct EstimatorParams {
   bool estimate_readout = true;                 ///< the rolling-shutter readout time as a filter state
   double max_readout_s = 0.05;                  ///< bound of the estimated readout (either sign), s
   double readout_start_sigma_time_offset_s = 0.003;  ///< the readout is estimated once the offset's 1-sigma is below, s
-  bool estimate_focal_scale = true;             ///< the focal length's relative error as a filter state (section 3.8)
+  /// The focal length's relative error as a filter state (section 3.8). Off: biased by several percent on fine,
+  /// low-contrast textures (docs/results.md "Focal length").
+  bool estimate_focal_scale = false;
   double max_focal_scale = 0.1;                 ///< bound of the estimated focal-length scale (either sign), unitless
   /// Rolling shutter: readout time per raw image row, s; 0 = the camchain's line_delay_s (0 there: global shutter).
   double line_delay_s = 0.0;
