@@ -27,6 +27,10 @@ import sys
 kStampToleranceS = 1e-3
 
 
+# The compared quantities, in the order they are reported (frame_diffs' keys).
+kKeys = ("d_m", "h_m", "v_mps", "mu_deg", "g_deg", "ba_mps2", "bw_radps", "t_s")
+
+
 def read_states(path):
     with open(path, newline="") as f:
         rows = list(csv.DictReader(f))
@@ -62,7 +66,7 @@ def frame_diffs(a, b):
 
 def summarise(pairs, t0):
     """Largest and RMS difference per quantity over (reference row, other row) pairs; time of the largest."""
-    keys = ("d_m", "h_m", "v_mps", "mu_deg", "g_deg", "ba_mps2", "bw_radps", "t_s")
+    keys = kKeys
     worst = dict((k, 0.0) for k in keys)
     at = dict((k, None) for k in keys)
     sq = dict((k, 0.0) for k in keys)
@@ -137,8 +141,8 @@ def main():
               "status on %d frames: %s"
               % (a.label, r["all"]["frames"], " (bit-identical)" if r["bit_identical"] else "", r["window_start_s"],
                  r["window"]["frames"],
-                 fmt % tuple(w[k] for k in ("d_m", "h_m", "v_mps", "mu_deg", "g_deg", "ba_mps2", "bw_radps", "t_s")),
-                 fmt % tuple(f[k] for k in ("d_m", "h_m", "v_mps", "mu_deg", "g_deg", "ba_mps2", "bw_radps", "t_s")),
+                 fmt % tuple(w[k] for k in kKeys),
+                 fmt % tuple(f[k] for k in kKeys),
                  r["passes_differ"], r["status_differs"],
                  "within tolerance" if r["ok"] else "OUTSIDE tolerance (%g m, %g m/s, %g deg, %g s)"
                  % (a.tol_d_m, a.tol_v_mps, a.tol_angle_deg, a.tol_t_s)))
