@@ -35,6 +35,10 @@ namespace diekf {
 /// half diagonal r dt (|vartheta_z| + |w_z|). An upper estimate (the terms are added, not vector-summed).
 double imageMotionPx(const Vec3& vartheta_inv_s, const Vec3& rate_radps, const PinholeK& K, double dt_s);
 
+/// The ground's translation through the working image over dt_s at the image centre (working px), -f dt
+/// (vartheta_x, vartheta_y): what FixedPattern accumulates to know how far the ground under its mean has moved.
+Vec2 groundShiftPx(const Vec3& vartheta_inv_s, const PinholeK& K, double dt_s);
+
 class FixedPattern {
  public:
   /// `width` x `height`: the working image. `flat_field` (optional, CV_32FC1 of the working size): an offline
@@ -48,9 +52,11 @@ class FixedPattern {
 
   /// Learns from the image of the last apply(): `motion_px` is how far the ground moved in the working image since
   /// the previous image (imageMotionPx). Frames that moved less count as a fraction of a sample.
+  /// `ground_shift_px`: the ground's net translation through the image since the previous image (groundShiftPx;
+  /// zero when unknown), which tells whether the mean now and an earlier snapshot of it are of different ground.
   /// Returns true when the fields changed (the image just learned from should then be corrected again,
   /// ImagePreprocessor::reapplyPattern, so that it and the next image share one correction).
-  bool learn(double motion_px);
+  bool learn(double motion_px, const Vec2& ground_shift_px = Vec2::Zero());
   /// Writes the image of the last apply() corrected with the current fields into I (grey levels), with its sum
   /// and sum of squares; false (I untouched) when there is none or the model is inactive.
   bool reapply(float* I, double* sum, double* sum_sq) const;
@@ -67,12 +73,37 @@ class FixedPattern {
   const cv::Mat* confidence() const { return active_ && has_low_confidence_ ? &confidence_ : nullptr; }
   /// Share of the working image covered by a strong fixed pattern: |g - 1| > 0.3 or |a| > 0.5 S (0 when inactive).
   double strongFraction() const { return active_ ? strong_fraction_ : 0.0; }
+  /// The learned pattern's share of the image's gradient energy (0..1; 0 when inactive): its vote in the update,
+  /// which, uncorrected, is for "no motion". An IR projector's dense dots reach about half; a shadow a few %.
+  double contrastShare() const { return active_ ? contrast_share_ : 0.0; }
   /// The fields in use (CV_32FC1, working size): gain g (1: none) and offset a (image-mean units; 0: none).
   const cv::Mat& gain() const { return gain_; }
   const cv::Mat& offset() const { return offset_; }
 
  private:
   void refresh();
+  /// The detail ratio of the mean (mean over its local mean, minus 1) into dt, the local mean into sm (tmp:
+  /// scratch, all W x H); `level`: the ground's level (<= 0: the median of the mean).
+  void computeDetail(float* dt, float* sm, float* tmp, float level = 0.f);
+  /// Keeps the detail in scratch_ as the newest snapshot (in the slot of the older one).
+  void takeSnapshot();
+
+  /// The detail's noise is measured against a snapshot once the two means share at most this correlation and the
+  /// ground under them has moved by at least kMinSnapshotShiftWidths image widths (the centroids of their samples'
+  /// ground positions): hovering, or flying a path again, the mean is of the same ground as the snapshot's, and
+  /// their difference says nothing of the ground structure left in both (the image's spread is used then)...
+  static constexpr double kMaxSnapshotCorrelation = 0.8;
+  static constexpr double kMinSnapshotShiftWidths = 0.1;
+  /// ...and a new snapshot is taken when the newest shares less than this correlation with the mean.
+  static constexpr double kSnapshotRenewCorrelation = 0.5;
+
+  struct Snapshot {
+    cv::Mat detail;             // the detail at the snapshot
+    double var_factor = 0.0;    // the mean's variance then, per unit sample variance
+    double cov_factor = 0.0;    // covariance of the mean now with the mean then, per unit sample variance
+    Vec2 centroid = Vec2::Zero();  // the mean's ground position then (working px)
+    bool valid = false;
+  };
 
   FixedPatternParams params_;
   int width_ = 0, height_ = 0;
@@ -83,6 +114,11 @@ class FixedPattern {
   std::vector<float> median_buf_;
   cv::Mat smooth_, scratch_;     // local mean of the mean ratio, and its detail
   std::vector<double> colsum_;   // box filter column sums
+  Snapshot snapshots_[2];        // two, so that one is old enough to compare with when the other was just taken
+  int newest_ = 0;               // index of the newest snapshot
+  double var_factor_ = 0.0;      // variance of the mean m1 per unit sample variance (sum of squared weights)
+  Vec2 position_ = Vec2::Zero(); // the ground's accumulated translation through the image (working px)
+  Vec2 centroid_ = Vec2::Zero(); // the mean's ground position: position_ averaged with the mean's weights
   double samples_ = 0.0;
   int frames_since_refresh_ = 0;
   bool last_valid_ = false;   // last_u_ not learned from yet
@@ -91,7 +127,16 @@ class FixedPattern {
   bool active_ = false;
   bool has_low_confidence_ = false;
   double strong_fraction_ = 0.0;
+  double contrast_share_ = 0.0;
 };
+
+/// Whether the status and diagnostics name the camera-fixed pattern: it covers at least `report_fraction` of the
+/// image strongly, or holds at least `dominant_contrast_share` of its contrast (FixedPattern::strongFraction,
+/// FixedPattern::contrastShare; a threshold of 0 turns its test off).
+inline bool patternReported(const FixedPatternParams& p, double strong_fraction, double contrast_share) {
+  return (p.report_fraction > 0.0 && strong_fraction >= p.report_fraction) ||
+         (p.dominant_contrast_share > 0.0 && contrast_share >= p.dominant_contrast_share);
+}
 
 /// Loads an offline flat field (FixedPatternParams::vignetting_file): a cv::FileStorage matrix `gain` at the
 /// raw resolution of `camera`, resampled to the working camera the same way the images are (through the

@@ -105,6 +105,13 @@ struct FixedPatternParams {
   double min_gain = 0.3;                        ///< confidence (g / min_gain)^2 below this relative gain, unitless
   int refresh_frames = 8;                       ///< learning frames between recomputations of the fields
   double report_fraction = 0.05;                ///< image share of strong pattern reported in the status (0..1)
+  /// Allow for the bias of the updates made before the pattern was learned: its share s of the image's contrast
+  /// (FixedPattern::contrastShare) voted for "no motion", so s^2 alpha^2 and s^2 |vartheta|^2 are added to their
+  /// variances when s grows (docs/noise_model.md section 11).
+  bool discount_biased_updates = true;
+  /// The learned pattern's share of the image's gradient energy (0..1) from which it dominates the image: named in
+  /// the status and diagnostics (the status degraded once when it gets there); 0: never.
+  double dominant_contrast_share = 0.25;
   /// Optional offline flat field: a cv::FileStorage file (YAML/XML) with a matrix `gain` (relative response per
   /// raw pixel at the calibration resolution, any scale); empty: none. Divided out before the online model.
   std::string vignetting_file;

@@ -115,6 +115,34 @@ struct Estimator::Impl {
     update.resetNoiseModel();
   }
 
+  /// The camera-fixed pattern just learned holds a share s of the image's contrast (FixedPattern::contrastShare):
+  /// before it was removed, that share of every update's information voted for "no motion", so what the images
+  /// said about the velocity over distance and the inverse distance may be short by up to s of their values.
+  /// That bias is allowed for once, as an unknown of that size: s^2 alpha^2 and s^2 |vartheta|^2 are added to
+  /// their variances (the estimate is kept; fixed_pattern.discount_biased_updates); a share that grows later adds
+  /// the difference. The status names the pattern (degraded for divergence.degraded_hold_s) when s reaches
+  /// fixed_pattern.dominant_contrast_share. docs/noise_model.md section 11.
+  void discountPatternBiasedInformation(double t_s) {
+    const FixedPatternParams& fp = params.fixed_pattern;
+    const double share = fixed_pattern.contrastShare();
+    if (share > discounted_share && fp.discount_biased_updates) {
+      const double f = share * share - discounted_share * discounted_share;
+      P(ErrIdx::kAlpha, ErrIdx::kAlpha) += f * x.alpha * x.alpha;
+      P.block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta).diagonal().array() += f * x.vartheta.squaredNorm();
+    }
+    // The mark stays at the largest share allowed for (the share wavers from one refresh to the next) until the
+    // pattern has mostly gone (below half of it): one that comes back is allowed for again.
+    if (share > discounted_share || share < 0.5 * discounted_share) discounted_share = share;
+    if (fp.dominant_contrast_share > 0.0 && share >= fp.dominant_contrast_share && !pattern_named) {
+      pattern_named = true;
+      char why[kMessageCapacity];
+      std::snprintf(why, sizeof(why), "camera-fixed pattern found (%.0f %% of the image's contrast)%s",
+                    100.0 * share, fp.discount_biased_updates ? ": distance and velocity discounted" : "");
+      health.noteDegraded(t_s, why);
+    }
+    if (share < 0.5 * fp.dominant_contrast_share) pattern_named = false;
+  }
+
   /// Starts the filter at image `t_s`: gravity from the accelerometer, no propagation before.
   void startAt(double t_s) {
     UnitVector g;
@@ -187,9 +215,13 @@ struct Estimator::Impl {
         // The camera-fixed pattern learns by how far the ground moved: the rotation (gyro) always, the translation
         // once the filter has converged and accepted the image (docs/noise_model.md section 11).
         const bool trusted = stats.applied && !stats.gated && health.converged();
-        if (fixed_pattern.learn(imageMotionPx(trusted ? x.vartheta : Vec3::Zero(), update.lastGyroMean() - x.b_w,
-                                              img_pre.workingK(), update.lastInterval())))
+        const Vec3 vartheta = trusted ? x.vartheta : Vec3::Zero();
+        if (fixed_pattern.learn(
+                imageMotionPx(vartheta, update.lastGyroMean() - x.b_w, img_pre.workingK(), update.lastInterval()),
+                groundShiftPx(vartheta, img_pre.workingK(), update.lastInterval()))) {
           img_pre.reapplyPattern(&fixed_pattern, &cur);  // the next pair: one correction in both images
+          discountPatternBiasedInformation(img.t_s);
+        }
       }
     }
     if (state_initialized && imu.stateTime() < img.t_s) imu.propagateTo(img.t_s, &x, &P);  // from the midpoint
@@ -206,6 +238,7 @@ struct Estimator::Impl {
     fillStats(stats, &r);
     r.fixed_pattern_active = fixed_pattern.active();
     r.fixed_pattern_fraction = fixed_pattern.strongFraction();
+    r.fixed_pattern_contrast_share = fixed_pattern.contrastShare();
     health.countUpdate(stats.applied);
 
     // Health checks and restarts.
@@ -245,11 +278,12 @@ struct Estimator::Impl {
     facts.warm_started = restarts.warmStarted();
     facts.outlier_fraction = r.outlier_fraction;
     r.status = health.frameStatus(facts, x, P, msg, sizeof(msg));
-    if (r.fixed_pattern_fraction >= params.fixed_pattern.report_fraction && params.fixed_pattern.report_fraction > 0.0) {
+    if (patternReported(params.fixed_pattern, r.fixed_pattern_fraction, r.fixed_pattern_contrast_share)) {
       // A strong camera-fixed pattern (docs/noise_model.md section 11): an IR projector, the drone's shadow, dirt.
       const size_t used = std::strlen(msg);
-      std::snprintf(msg + used, sizeof(msg) - used, "%sfixed pattern (projector, shadow, dirt?) on %.0f %% of the image",
-                    used > 0 ? "; " : "", 100.0 * r.fixed_pattern_fraction);
+      std::snprintf(msg + used, sizeof(msg) - used,
+                    "%sfixed pattern (projector, shadow, dirt?) on %.0f %% of the image, %.0f %% of its contrast",
+                    used > 0 ? "; " : "", 100.0 * r.fixed_pattern_fraction, 100.0 * r.fixed_pattern_contrast_share);
     }
     if (r.status == FilterStatus::kTracking && stats.applied && health.badFrames() == 0)
       restarts.rememberGood(img.t_s, x);
@@ -329,6 +363,8 @@ struct Estimator::Impl {
   ImuPreprocessor imu_pre;           // raw IMU -> filtered samples in C
   ImagePreprocessor img_pre;         // raw image -> working image
   FixedPattern fixed_pattern;        // camera-fixed gain and offset fields (docs/noise_model.md section 11)
+  double discounted_share = 0.0;     // the pattern's contrast share the covariance allows for (discountPattern...)
+  bool pattern_named = false;        // the status has named the dominant pattern in view
   internal::ImuPropagator imu;       // filtered samples, state time, prediction
   internal::ImageUpdate update;      // update from an image pair
   internal::HealthMonitor health;    // checks and status

@@ -18,6 +18,11 @@ double imageMotionPx(const Vec3& vartheta_inv_s, const Vec3& rate_radps, const P
   return dt_s * (centre + rim);
 }
 
+Vec2 groundShiftPx(const Vec3& vartheta_inv_s, const PinholeK& K, double dt_s) {
+  if (!(dt_s > 0.0) || !vartheta_inv_s.allFinite()) return Vec2::Zero();
+  return -dt_s * Vec2(K.fx * vartheta_inv_s.x(), K.fy * vartheta_inv_s.y());
+}
+
 namespace {
 
 float medianOf(std::vector<float>* v) {
@@ -89,6 +94,7 @@ FixedPattern::FixedPattern(const FixedPatternParams& params, int width, int heig
   median_buf_.reserve(static_cast<size_t>(((width + 1) / 2) * ((height + 1) / 2)));
   smooth_.create(height, width, CV_32FC1);
   scratch_.create(height, width, CV_32FC1);
+  for (Snapshot& s : snapshots_) s.detail.create(height, width, CV_32FC1);
   colsum_.assign(static_cast<size_t>(width), 0.0);
   reset();
 }
@@ -101,6 +107,11 @@ void FixedPattern::reset() {
   offset_.setTo(0.f);
   confidence_.setTo(1.f);
   samples_ = 0.0;
+  var_factor_ = 0.0;
+  for (Snapshot& s : snapshots_) s.valid = false;
+  newest_ = 0;
+  position_ = Vec2::Zero();
+  centroid_ = Vec2::Zero();
   frames_since_refresh_ = 0;
   last_valid_ = false;
   last_kept_ = false;
@@ -169,8 +180,9 @@ bool FixedPattern::reapply(float* I, double* sum, double* sum_sq) const {
   return true;
 }
 
-bool FixedPattern::learn(double motion_px) {
+bool FixedPattern::learn(double motion_px, const Vec2& ground_shift_px) {
   if (!last_valid_ || !params_.enabled) return false;
+  if (ground_shift_px.allFinite()) position_ += ground_shift_px;
   last_valid_ = false;  // each image is learned from once
   const double w = std::min(1.0, motion_px / params_.decorrelation_px);
   if (!(w > 0.0) || !std::isfinite(w)) return false;
@@ -187,7 +199,18 @@ bool FixedPattern::learn(double motion_px) {
     m1[i] += lambda * d;
     m2[i] = keep * (m2[i] + lambda * d * d);
   }
+  // The mean's variance and its covariances with the snapshots' means, in units of one sample's variance; the
+  // ground position of the mean, weighted like it.
+  var_factor_ = static_cast<double>(keep) * keep * var_factor_ + static_cast<double>(lambda) * lambda;
+  for (Snapshot& s : snapshots_) s.cov_factor *= keep;
+  centroid_ += lambda * (position_ - centroid_);
   ++frames_since_refresh_;
+  if (!snapshots_[newest_].valid && samples_ >= 0.5 * params_.startup_samples) {
+    // The first snapshot of the detail, half-way through the start-up (refresh() takes the later ones).
+    computeDetail(scratch_.ptr<float>(), smooth_.ptr<float>(), gain_.ptr<float>());
+    takeSnapshot();
+    gain_.setTo(1.f);  // (used as scratch)
+  }
   if (samples_ >= params_.startup_samples && (frames_since_refresh_ >= params_.refresh_frames || !active_)) {
     refresh();
     frames_since_refresh_ = 0;
@@ -195,6 +218,32 @@ bool FixedPattern::learn(double motion_px) {
     return true;
   }
   return false;
+}
+
+void FixedPattern::computeDetail(float* dt, float* sm, float* tmp, float level) {
+  const int n = width_ * height_;
+  const float* m1 = m1_.ptr<float>();
+  if (!(level > 0.f)) {
+    median_buf_.clear();
+    for (int y = 0; y < height_; y += 2)
+      for (int x = 0; x < width_; x += 2) median_buf_.push_back(m1[y * width_ + x]);
+    level = std::max(medianOf(&median_buf_), 1e-6f);
+  }
+  const float inv_level = 1.f / level;
+  for (int i = 0; i < n; ++i) dt[i] = m1[i] * inv_level;
+  const int half = std::max(1, static_cast<int>(std::lround(0.05 * width_)));
+  boxMean(dt, sm, tmp, colsum_.data(), width_, height_, half);
+  for (int i = 0; i < n; ++i) dt[i] = dt[i] / std::max(sm[i], 1e-6f) - 1.f;
+}
+
+void FixedPattern::takeSnapshot() {
+  if (snapshots_[newest_].valid) newest_ = 1 - newest_;  // the older slot
+  Snapshot& s = snapshots_[newest_];
+  scratch_.copyTo(s.detail);
+  s.var_factor = var_factor_;
+  s.cov_factor = var_factor_;
+  s.centroid = centroid_;
+  s.valid = true;
 }
 
 void FixedPattern::refresh() {
@@ -234,12 +283,32 @@ void FixedPattern::refresh() {
   // is tested against its own bulk: the ground's large patches do not hide the dots.
   float* sm = smooth_.ptr<float>();
   float* dt = scratch_.ptr<float>();
-  for (int i = 0; i < n; ++i) dt[i] = m1[i] * inv_level;
-  const int half = std::max(1, static_cast<int>(std::lround(0.05 * width_)));
-  boxMean(dt, sm, g, colsum_.data(), width_, height_, half);  // g as scratch (rewritten below)
-  for (int i = 0; i < n; ++i) dt[i] = dt[i] / std::max(sm[i], 1e-6f) - 1.f;
+  computeDetail(dt, sm, g, level);  // g as scratch (rewritten below)
   const float bulk_sm = 1.4826f * sampleMedian([&](int i) { return std::abs(sm[i] - 1.f); });
-  const float bulk_dt = 1.4826f * sampleMedian([&](int i) { return std::abs(dt[i]); });
+  float bulk_dt = 1.4826f * sampleMedian([&](int i) { return std::abs(dt[i]); });
+  // The spatial spread of the detail is an upper bound of its noise: a pattern dense at the working resolution
+  // (an IR projector's dots, one every few pixels) is part of it. Its noise alone is what differs between the
+  // detail now and the snapshot's, taken when the mean was mostly of other samples: the fixed pattern cancels.
+  // With the mean's variance v and the snapshot's v_s (per unit sample variance) and their covariance c:
+  // Var(detail - snapshot) = s^2 (v + v_s - 2 c), so the detail's own noise is s sqrt(v). Only where the two
+  // means are of different ground (kMinSnapshotShiftWidths); the newest such snapshot.
+  const auto correlation = [&](const Snapshot& s) {
+    return s.valid && var_factor_ > 0.0 && s.var_factor > 0.0 ? s.cov_factor / std::sqrt(var_factor_ * s.var_factor)
+                                                              : 1.0;
+  };
+  for (int j = 0; j < 2; ++j) {
+    const Snapshot& s = snapshots_[j == 0 ? newest_ : 1 - newest_];
+    const double vd = var_factor_ + s.var_factor - 2.0 * s.cov_factor;
+    if (!s.valid || !(vd > 0.0) || correlation(s) >= kMaxSnapshotCorrelation ||
+        (centroid_ - s.centroid).norm() < kMinSnapshotShiftWidths * width_)
+      continue;
+    const float* snap = s.detail.ptr<float>();
+    const float med = sampleMedian([&](int i) { return dt[i] - snap[i]; });
+    const float spread = 1.4826f * sampleMedian([&](int i) { return std::abs(dt[i] - snap[i] - med); });
+    bulk_dt = std::min(bulk_dt, static_cast<float>(spread * std::sqrt(var_factor_ / vd)));
+    break;
+  }
+  if (correlation(snapshots_[newest_]) < kSnapshotRenewCorrelation) takeSnapshot();
   const float bulk_s = 1.4826f * sampleMedian([&](int i) { return std::abs(a[i] * inv_S - 1.f); });
   const float k = static_cast<float>(params_.significance_sigma);
   const float n_eff = static_cast<float>(std::max(1.0, samples_));
@@ -287,6 +356,22 @@ void FixedPattern::refresh() {
     if (std::abs(g[i] - 1.f) > 0.3f || add > 0.5f * S || c < 0.5f) ++strong;
   }
   strong_fraction_ = static_cast<double>(strong) / n;
+  // The pattern's share of the image's contrast: the update weighs a pixel by its gradient, so what the pattern
+  // adds to the image, (g - 1) level + a, votes for "no motion" in proportion to its gradient energy against the
+  // image's (the last image learned from, uncorrected; forward differences).
+  const float* u = last_u_.ptr<float>();
+  double e_pat = 0.0, e_img = 0.0;
+  for (int y = 0; y + 1 < height_; ++y) {
+    for (int x = 0; x + 1 < width_; ++x) {
+      const int i = y * width_ + x;
+      const float p0 = (g[i] - 1.f) * level + a[i];
+      const float px = (g[i + 1] - 1.f) * level + a[i + 1] - p0, py = (g[i + width_] - 1.f) * level + a[i + width_] - p0;
+      const float ux = u[i + 1] - u[i], uy = u[i + width_] - u[i];
+      e_pat += static_cast<double>(px) * px + static_cast<double>(py) * py;
+      e_img += static_cast<double>(ux) * ux + static_cast<double>(uy) * uy;
+    }
+  }
+  contrast_share_ = e_img > 0.0 ? std::min(1.0, e_pat / e_img) : 0.0;
 }
 
 cv::Mat loadFlatField(const std::string& path, const CameraModel& camera, const PreprocessParams& preprocess) {

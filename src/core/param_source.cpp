@@ -380,6 +380,10 @@ const std::vector<Entry>& table() {
                         between(1, 1000)));
     t.push_back(real("fixed_pattern/report_fraction", DIEKF_FIELD(double, fixed_pattern.report_fraction),
                      between(0.0, 1.0)));
+    t.push_back(flag("fixed_pattern/discount_biased_updates",
+                     DIEKF_FIELD(bool, fixed_pattern.discount_biased_updates)));
+    t.push_back(real("fixed_pattern/dominant_contrast_share",
+                     DIEKF_FIELD(double, fixed_pattern.dominant_contrast_share), between(0.0, 1.0)));
     t.push_back({"fixed_pattern/vignetting_file", [](const ParamSource& s, EstimatorParams& p) {
                    std::string path;
                    if (s.get("fixed_pattern/vignetting_file", &path)) p.fixed_pattern.vignetting_file = path;

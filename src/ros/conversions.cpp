@@ -153,6 +153,7 @@ bool fillPlanarState(const diekf::FrameResult& r, const std_msgs::Header& header
   m.photometric_rms = r.photometric_rms;
   m.valid_ratio = r.valid_ratio;
   m.fixed_pattern_fraction = r.fixed_pattern_fraction;
+  m.fixed_pattern_contrast_share = r.fixed_pattern_contrast_share;
   m.status = statusToMsg(r.status);
   m.status_text = r.message;
   const bool finite = std::isfinite(m.distance) && std::isfinite(m.height) && sigma_v.allFinite() &&

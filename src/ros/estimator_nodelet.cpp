@@ -13,6 +13,7 @@
 #include <sensor_msgs/image_encodings.h>
 
 #include "diekf/PlanarState.h"
+#include "diekf/fixed_pattern.h"
 #include "diekf/param_source.h"
 #include "diekf/ros/camera_info_calibration.h"
 #include "diekf/ros/conversions.h"
@@ -826,6 +827,7 @@ void EstimatorNodelet::publishResult(const diekf::FrameResult& r) {
     if (r.gate_inflation > 1.0) ++gated_updates_;
     last_outlier_fraction_ = r.outlier_fraction;
     last_fixed_pattern_fraction_ = r.fixed_pattern_fraction;
+    last_fixed_pattern_contrast_share_ = r.fixed_pattern_contrast_share;
     fixed_pattern_active_ = r.fixed_pattern_active;
     update_ms_sum_ += r.update_ms;
     update_ms_max_ = std::max(update_ms_max_, r.update_ms);
@@ -856,12 +858,14 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
     stat.summary(DiagnosticStatus::WARN, "waiting for images on " + settings_.image_topic);
   } else if (frames_published_ == 0) {
     stat.summary(DiagnosticStatus::WARN, "waiting for the first estimate (IMU must cover the image stamps)");
-  } else if (last_status_ == diekf::FilterStatus::kTracking && params_.fixed_pattern.report_fraction > 0.0 &&
-             last_fixed_pattern_fraction_ >= params_.fixed_pattern.report_fraction) {
+  } else if (last_status_ == diekf::FilterStatus::kTracking &&
+             diekf::patternReported(params_.fixed_pattern, last_fixed_pattern_fraction_,
+                                    last_fixed_pattern_contrast_share_)) {
     // A strong camera-fixed pattern (docs/noise_model.md section 11): tracking, but the user should know.
     stat.summaryf(DiagnosticStatus::WARN,
-                  "tracking; a camera-fixed pattern covers %.0f %% of the image (IR projector on? the drone's "
-                  "shadow, lens dirt)", 100.0 * last_fixed_pattern_fraction_);
+                  "tracking; a camera-fixed pattern covers %.0f %% of the image, %.0f %% of its contrast (IR "
+                  "projector on? the drone's shadow, lens dirt)",
+                  100.0 * last_fixed_pattern_fraction_, 100.0 * last_fixed_pattern_contrast_share_);
   } else if (last_status_ == diekf::FilterStatus::kTracking) {
     stat.summary(DiagnosticStatus::OK, "tracking");
   } else {
@@ -887,6 +891,7 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
   stat.add("outlier weight removed (share of the image)", last_outlier_fraction_);
   stat.add("camera-fixed pattern learned", fixed_pattern_active_ ? "yes" : "not yet (start-up)");
   stat.add("strong camera-fixed pattern (share of the image; projector, shadow, dirt)", last_fixed_pattern_fraction_);
+  stat.add("camera-fixed pattern's share of the image contrast", last_fixed_pattern_contrast_share_);
   stat.add("gated updates", gated_updates_);
   stat.add("mean update time (ms)", update_count_ > 0 ? update_ms_sum_ / update_count_ : 0.0);
   stat.add("max update time (ms)", update_ms_max_);

@@ -4,6 +4,8 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <cstdio>
+#include <vector>
 
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
@@ -89,6 +91,71 @@ TEST(FixedPattern, LearnsAShadowAndDotsAndRemovesThem) {
   EXPECT_NEAR(s2 / (kW * kH), cv::mean(img.mul(img))[0], 1e-3 * cv::mean(img.mul(img))[0]);
 }
 
+/// An IR projector's pattern at the working resolution: a gain 1 + 0.5..1 x a blurred dot (sigma 0.8 px) about
+/// every 16 px^2, dense enough that nearly every pixel is part of a dot's tail.
+cv::Mat denseDots(cv::RNG* rng) {
+  cv::Mat dots(kH, kW, CV_32FC1, cv::Scalar(0.f));
+  for (int k = 0; k < kW * kH / 16; ++k) {
+    const double cx = rng->uniform(0.0, kW - 1.0), cy = rng->uniform(0.0, kH - 1.0), amp = rng->uniform(0.5, 1.0);
+    for (int y = std::max(0, static_cast<int>(cy) - 3); y <= std::min(kH - 1, static_cast<int>(cy) + 3); ++y)
+      for (int x = std::max(0, static_cast<int>(cx) - 3); x <= std::min(kW - 1, static_cast<int>(cx) + 3); ++x)
+        dots.at<float>(y, x) += static_cast<float>(amp * std::exp(-0.5 * ((x - cx) * (x - cx) + (y - cy) * (y - cy)) / 0.64));
+  }
+  return 1.0 + dots;
+}
+
+TEST(FixedPattern, DenseDotsAreTestedAgainstTheNoiseNotAgainstThemselves) {
+  // The dots fill the detail's spatial spread; its noise is measured against an earlier snapshot of the mean (the
+  // pattern cancels in the difference), so they stand out and are removed, and they dominate the contrast.
+  cv::RNG rng(13);
+  const cv::Mat gain = denseDots(&rng);
+  FixedPattern fp(params(), kW, kH);
+  double s = 0, s2 = 0;
+  for (int i = 0; i < 200; ++i) {
+    cv::Mat img = ground(&rng).mul(gain);
+    fp.apply(img.ptr<float>(), &s, &s2);
+    fp.learn(10.0, Vec2(10.0, 0.0));  // flying on: every image of new ground
+  }
+  ASSERT_TRUE(fp.active());
+  cv::Mat learned = fp.gain().clone();
+  for (int i = 0; i < kW * kH; ++i)  // the whole correction as a gain at the ground's level (offset included)
+    learned.ptr<float>()[i] += fp.offset().ptr<float>()[i] / static_cast<float>(cv::mean(gain)[0]);
+  EXPECT_GT(correlation(learned, gain), 0.9);  // (measured against the spatial spread alone: 0.53)
+  EXPECT_GT(fp.contrastShare(), 0.25);          // (0.17)
+  const cv::Mat g = ground(&rng);
+  cv::Mat img = g.mul(gain);
+  const double before = correlation(img, g);
+  fp.apply(img.ptr<float>(), &s, &s2);
+  EXPECT_LT(before, 0.9);
+  EXPECT_GT(correlation(img, g), 0.95);  // (0.78)
+}
+
+TEST(FixedPattern, HoveringOverTheSameGroundIsNotAPattern) {
+  // A camera hovering (or flying the same path again and again) sees the same few pieces of ground: their mean is
+  // fixed in the image like a pattern, and an earlier snapshot of it agrees with it. Unless the ground under the
+  // mean has moved on, the detail is tested against the image's spread, and the ground is left alone.
+  cv::RNG rng(17);
+  std::vector<cv::Mat> grounds;
+  for (int k = 0; k < 6; ++k) grounds.push_back(ground(&rng));
+  const auto run = [&](const Vec2& drift) {
+    FixedPattern fp(params(), kW, kH);
+    double s = 0, s2 = 0;
+    for (int i = 0; i < 300; ++i) {
+      cv::Mat img = grounds[static_cast<size_t>(i) % grounds.size()].clone();
+      fp.apply(img.ptr<float>(), &s, &s2);
+      fp.learn(10.0, (i % 2 == 0 ? 1.0 : -1.0) * Vec2(10.0, 0.0) + drift);  // back and forth, plus the drift
+    }
+    return fp.contrastShare();
+  };
+  const double hovering = run(Vec2::Zero());
+  // The same images said to come from a camera flying on (impossible for real ground): the test believes the
+  // snapshots, and the mean of the six images becomes a "pattern".
+  const double flying_on = run(Vec2(3.0, 0.0));
+  std::printf("[hover] contrast share of the learned pattern: hovering %.3f, said to fly on %.3f\n", hovering, flying_on);
+  EXPECT_LT(hovering, 0.05);
+  EXPECT_GT(flying_on, 3.0 * hovering + 0.05);
+}
+
 TEST(FixedPattern, NothingIsCorrectedBeforeTheStartUpOrWithoutMotion) {
   cv::RNG rng(5);
   cv::Mat gain, offset;
@@ -134,6 +201,7 @@ TEST(FixedPattern, CleanImagesAreLeftAlone) {
     if (fp.gain().ptr<float>()[i] != 1.f || fp.offset().ptr<float>()[i] != 0.f) ++changed;
   EXPECT_LT(changed, kW * kH / 100);
   EXPECT_LT(fp.strongFraction(), 0.005);
+  EXPECT_LT(fp.contrastShare(), 0.02);  // far from dominant_contrast_share
   // Deviations near the significance threshold lose some weight (neither trusted nor removed); few pixels do.
   if (fp.confidence() != nullptr) {
     int low = 0;

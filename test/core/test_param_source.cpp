@@ -122,6 +122,8 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          a.fixed_pattern.min_gain == b.fixed_pattern.min_gain &&
          a.fixed_pattern.refresh_frames == b.fixed_pattern.refresh_frames &&
          a.fixed_pattern.report_fraction == b.fixed_pattern.report_fraction &&
+         a.fixed_pattern.dominant_contrast_share == b.fixed_pattern.dominant_contrast_share &&
+         a.fixed_pattern.discount_biased_updates == b.fixed_pattern.discount_biased_updates &&
          a.fixed_pattern.vignetting_file == b.fixed_pattern.vignetting_file;
 }
 

@@ -6,7 +6,9 @@
 #include <cstring>
 #include <filesystem>
 #include <map>
+#include <vector>
 
+#include <opencv2/core/persistence.hpp>
 #include <opencv2/imgproc.hpp>
 #include <rosbag/bag.h>
 #include <rosbag/view.h>
@@ -455,6 +457,57 @@ TEST_F(RealismSim, RealisticPresetRunsAndRecordsItsValues) {
   EXPECT_EQ(y["non_lambertian"].as<double>(), 0.3);
   EXPECT_NEAR(y["non_lambertian_coverage"].as<double>(), 0.2, 0.01);
   EXPECT_EQ(b.stamps_ns[0] - clean_->stamps_ns[0], 5000000);
+}
+
+TEST_F(RealismSim, FlatFieldFileIsTheImagesFixedGain) {
+  // --write-flat-field: vignetting x the projector's dots, what the estimator's fixed_pattern/vignetting_file takes.
+  SimulationOptions o = tinyOptions((dir_->path() / "dots").string());
+  std::string err;
+  ASSERT_EQ(parseSimulateArgs({"--projector-dots", "300", "--write-flat-field", "--output", o.output_dir}, &o, &err),
+            ParseResult::kOk)
+      << err;
+  const BagImages b = readBag(runSimulation(o, nullptr).bag_path);
+  cv::Mat flat;
+  cv::FileStorage((dir_->path() / "dots" / "flat_field.yaml").string(), cv::FileStorage::READ)["gain"] >> flat;
+  ASSERT_EQ(flat.type(), CV_32FC1);
+  ASSERT_EQ(flat.cols * flat.rows, static_cast<int>(b.data.at(0).size()));
+  double lo = 0.0, hi = 0.0;
+  cv::minMaxLoc(flat, &lo, &hi);
+  EXPECT_GT(hi, 1.5);  // dots
+  EXPECT_LT(lo, 0.8);  // vignetted corners (0.35 r^2 with the dots' gain of 1 there)
+  // The same flight without the dots, seen through the flat field: the image with the dots over the image without
+  // them is the dots' gain, flat / vignetting (pixels not saturated, over every image of the flight).
+  SimulationOptions c = tinyOptions((dir_->path() / "vignetting").string());
+  c.write_flat_field = true;
+  runSimulation(c, nullptr);
+  cv::Mat vig;
+  cv::FileStorage((dir_->path() / "vignetting" / "flat_field.yaml").string(), cv::FileStorage::READ)["gain"] >> vig;
+  ASSERT_EQ(vig.size(), flat.size());
+  const cv::Mat dots_gain = flat / vig;
+  cv::Mat ratio_sum(flat.size(), CV_64FC1, cv::Scalar(0.0)), count(flat.size(), CV_64FC1, cv::Scalar(0.0));
+  for (std::size_t i = 0; i < std::min(b.data.size(), clean_->data.size()); ++i)
+    for (int p = 0; p < flat.cols * flat.rows; ++p) {
+      const double with = b.data[i][p], without = clean_->data[i][p];
+      if (with >= 250.0 || without < 20.0) continue;
+      ratio_sum.ptr<double>()[p] += with / without;
+      count.ptr<double>()[p] += 1.0;
+    }
+  std::vector<double> measured, written;
+  for (int p = 0; p < flat.cols * flat.rows; ++p)
+    if (count.ptr<double>()[p] > 10.0) {
+      measured.push_back(ratio_sum.ptr<double>()[p] / count.ptr<double>()[p]);
+      written.push_back(dots_gain.ptr<float>()[p]);
+    }
+  ASSERT_GT(measured.size(), static_cast<std::size_t>(flat.cols * flat.rows / 2));
+  double ma = 0, mb = 0, sab = 0, saa = 0, sbb = 0;
+  for (std::size_t i = 0; i < measured.size(); ++i) ma += measured[i] / measured.size(), mb += written[i] / written.size();
+  for (std::size_t i = 0; i < measured.size(); ++i) {
+    sab += (measured[i] - ma) * (written[i] - mb);
+    saa += (measured[i] - ma) * (measured[i] - ma);
+    sbb += (written[i] - mb) * (written[i] - mb);
+  }
+  EXPECT_GT(sab / std::sqrt(saa * sbb), 0.9);
+  EXPECT_FALSE(std::filesystem::exists(dir_->path() / "clean" / "flat_field.yaml"));  // only when asked for
 }
 
 // ---------------------------------------------------------------------------------------------------------------

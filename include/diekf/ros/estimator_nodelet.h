@@ -170,6 +170,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
   double last_update_ms_ = 0.0, update_ms_sum_ = 0.0, update_ms_max_ = 0.0;
   double last_nis_ = 0.0, last_noise_sigma_ = 0.0, last_noise_correlation_ = 0.0, last_outlier_fraction_ = 0.0;
   double last_fixed_pattern_fraction_ = 0.0;
+  double last_fixed_pattern_contrast_share_ = 0.0;
   bool fixed_pattern_active_ = false;
   double last_time_offset_ms_ = 0.0, last_sigma_time_offset_ms_ = 0.0;
   double last_focal_scale_pct_ = 0.0, last_sigma_focal_scale_pct_ = 0.0;  // focal length correction, %

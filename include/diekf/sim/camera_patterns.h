@@ -40,6 +40,8 @@ class CameraPatterns {
   void update(const CameraPose& pose, const Plane& plane, double mean_radiance);
   const std::vector<float>& gain() const { return gain_; }
   const std::vector<float>& offset() const { return offset_; }
+  /// The part of the gain that never moves: projector dots and lens dirt (1 elsewhere).
+  const std::vector<float>& staticGain() const { return static_gain_; }
   /// Share of the image whose gain is below 0.9 or above 1.1 in the last update (how much the patterns cover).
   double coverage() const { return coverage_; }
   /// Share of the image in the drone's shadow (gain below 0.9 from the shadow) in the last update.

@@ -98,6 +98,11 @@ class Renderer {
   /// Largest image displacement (pixels) of ground points seen at `a` when viewed from `b` (sampled grid).
   double motionPixels(const CameraPose& a, const CameraPose& b, const Plane& plane) const;
 
+  /// Relative response of pixel (u, v) to the same radiance: the vignetting `1 - vignetting r^2` of sensorRows.
+  float vignetteGain(int u, int v, double vignetting) const {
+    return 1.f - static_cast<float>(vignetting) * vignette_r2_[static_cast<std::size_t>(v) * width_ + u];
+  }
+
   /// Undistorted normalised ray (x, y, 1) of pixel (u, v) from the table.
   Eigen::Vector3d ray(int u, int v) const;
 

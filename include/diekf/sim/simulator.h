@@ -52,6 +52,7 @@ struct SimulationOptions {
   std::string realism_preset = "clean"; ///< name written to realism.yaml ("custom" if flags changed a preset)
   ClutterOptions clutter;               ///< moving objects and boxes on the ground (none by default)
   CameraPatternOptions patterns;        ///< the drone's shadow, projector dots, lens dirt (none by default)
+  bool write_flat_field = false;        ///< also write DIR/flat_field.yaml: vignetting x the fixed pattern gain
   std::string output_dir;
 };
 

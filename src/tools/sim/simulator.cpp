@@ -15,6 +15,8 @@
 #include <sstream>
 #include <stdexcept>
 
+#include <opencv2/core/persistence.hpp>
+
 namespace diekf {
 namespace sim {
 namespace {
@@ -123,6 +125,8 @@ std::string simulateUsage() {
         "  --projector-strength F   dot peak irradiance over the ambient light          [1.5]\n"
         "  --projector-dot-px PX    dot Gaussian sigma at 752x480 (px)                  [1.2]\n"
         "  --lens-dirt N            out-of-focus dirt blobs on the lens, 0..100         [0]\n"
+        "  --write-flat-field       also write DIR/flat_field.yaml, the true relative response per pixel\n"
+        "                           (vignetting x dots x dirt; not the shadow), for fixed_pattern/vignetting_file\n"
         "  --lens-dirt-opacity F    light a blob's centre blocks, 0..1                  [0.5]\n"
         "IMU:\n"
         "  --no-vibration           no propeller vibration (on by default)\n"
@@ -236,6 +240,8 @@ ParseResult parseSimulateArgs(const std::vector<std::string>& args_in, Simulatio
       opt->imu_errors = false;
     } else if (a == "--no-image-noise") {
       opt->sensor.noise = false;
+    } else if (a == "--write-flat-field") {
+      opt->write_flat_field = true;
     } else if (a == "--no-camera-info") {
       opt->camera_info = false;
     } else if (a == "--lz4") {
@@ -688,6 +694,20 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
       *progress << "[diekf_simulate] camera-fixed patterns cover " << std::setprecision(3)
                 << sum.pattern_coverage_mean << " of the image (shadow: mean " << sum.shadow_coverage_mean << ", max "
                 << sum.shadow_coverage_max << ")" << std::defaultfloat << "\n";
+  }
+  if (opt.write_flat_field) {
+    // The oracle for the estimator's fixed_pattern/vignetting_file: what the sensor multiplies every radiance by,
+    // apart from the frame's exposure gain and the moving shadow.
+    cv::Mat flat(renderer.height(), renderer.width(), CV_32FC1);
+    for (int v = 0; v < flat.rows; ++v)
+      for (int u = 0; u < flat.cols; ++u) {
+        const float g = patterns ? patterns->staticGain()[static_cast<std::size_t>(v) * flat.cols + u] : 1.f;
+        flat.at<float>(v, u) = renderer.vignetteGain(u, v, opt.sensor.vignetting) * g;
+      }
+    const std::string path = (fs::path(opt.output_dir) / "flat_field.yaml").string();
+    cv::FileStorage out(path, cv::FileStorage::WRITE);
+    if (!out.isOpened()) throw std::runtime_error("cannot write '" + path + "'");
+    out << "gain" << flat;
   }
   sum.wall_s = std::chrono::duration<double>(Clock::now() - t_start).count();
   return sum;
