@@ -182,6 +182,10 @@ struct EstimatorParams {
   /// The focal length's relative error as a filter state (section 3.8). Off: biased by several percent on fine,
   /// low-contrast textures (docs/results.md "Focal length").
   bool estimate_focal_scale = false;
+  /// With estimate_focal_scale: the focal-length scale as a consider parameter (Schmidt-Kalman) instead: its
+  /// uncertainty (init.sigma_focal_scale) enters the covariance of the other states through the update, but the
+  /// images never move it (its mean and variance are kept). docs/noise_model.md section 9.
+  bool focal_scale_consider = false;
   double max_focal_scale = 0.1;                 ///< bound of the estimated focal-length scale (either sign), unitless
   /// Rolling shutter: readout time per raw image row, s; 0 = the camchain's line_delay_s (0 there: global shutter).
   double line_delay_s = 0.0;

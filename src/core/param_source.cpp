@@ -441,6 +441,7 @@ const std::vector<Entry>& table() {
                      positive(1.0)));
     t.push_back(real("line_delay_s", DIEKF_FIELD(double, line_delay_s), between(0.0, 1e-3)));
     t.push_back(flag("estimate_focal_scale", DIEKF_FIELD(bool, estimate_focal_scale)));
+    t.push_back(flag("focal_scale_consider", DIEKF_FIELD(bool, focal_scale_consider)));
     t.push_back(real("max_focal_scale", DIEKF_FIELD(double, max_focal_scale), between(0.0, 0.5)));
     t.push_back({"image_stamp", [](const ParamSource& s, EstimatorParams& p) {
                    std::string name;
