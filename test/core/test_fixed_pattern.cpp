@@ -272,6 +272,10 @@ TEST(FixedPattern, ImageMotionFromTheState) {
   EXPECT_NEAR(imageMotionPx(Vec3(0.0, 0.0, 0.1), Vec3(0.0, 0.0, 0.2), K, 0.1), 0.03 * r, 1e-12);
   EXPECT_EQ(imageMotionPx(Vec3(0.3, 0.0, 0.0), Vec3::Zero(), K, 0.0), 0.0);
   EXPECT_EQ(imageMotionPx(Vec3(NAN, 0.0, 0.0), Vec3::Zero(), K, 0.1), 0.0);
+  // The ground's net translation through the image: against the camera's motion, the divergence and rates left out.
+  EXPECT_TRUE(groundShiftPx(Vec3(0.3, -0.2, 0.5), K, 0.1).isApprox(Vec2(-3.0, 2.0), 1e-12));
+  EXPECT_TRUE(groundShiftPx(Vec3(NAN, 0.0, 0.0), K, 0.1).isZero());
+  EXPECT_TRUE(groundShiftPx(Vec3(0.3, 0.0, 0.0), K, 0.0).isZero());
 }
 
 TEST(FixedPattern, InThePreprocessingAndAFlatFieldFile) {
