@@ -82,6 +82,9 @@ class FixedPattern {
 
  private:
   void refresh();
+  /// Median of value(i) over every 2nd pixel in x and y (i: the pixel's index). No allocation.
+  template <class Value>
+  float sampleMedian(Value value);
   /// The detail ratio of the mean (mean over its local mean, minus 1) into dt, the local mean into sm (tmp:
   /// scratch, all W x H); `level`: the ground's level (<= 0: the median of the mean).
   void computeDetail(float* dt, float* sm, float* tmp, float level = 0.f);

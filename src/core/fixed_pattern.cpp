@@ -220,15 +220,18 @@ bool FixedPattern::learn(double motion_px, const Vec2& ground_shift_px) {
   return false;
 }
 
+template <class Value>
+float FixedPattern::sampleMedian(Value value) {
+  median_buf_.clear();
+  for (int y = 0; y < height_; y += 2)
+    for (int x = 0; x < width_; x += 2) median_buf_.push_back(value(y * width_ + x));
+  return medianOf(&median_buf_);
+}
+
 void FixedPattern::computeDetail(float* dt, float* sm, float* tmp, float level) {
   const int n = width_ * height_;
   const float* m1 = m1_.ptr<float>();
-  if (!(level > 0.f)) {
-    median_buf_.clear();
-    for (int y = 0; y < height_; y += 2)
-      for (int x = 0; x < width_; x += 2) median_buf_.push_back(m1[y * width_ + x]);
-    level = std::max(medianOf(&median_buf_), 1e-6f);
-  }
+  if (!(level > 0.f)) level = std::max(sampleMedian([&](int i) { return m1[i]; }), 1e-6f);
   const float inv_level = 1.f / level;
   for (int i = 0; i < n; ++i) dt[i] = m1[i] * inv_level;
   const int half = std::max(1, static_cast<int>(std::lround(0.05 * width_)));
@@ -257,12 +260,6 @@ void FixedPattern::refresh() {
   // Spread per pixel (into a for now); medians of the spread (S) and of the mean (the ground's level) over every
   // 2nd pixel in x and y.
   for (int i = 0; i < n; ++i) a[i] = std::sqrt(std::max(0.f, m2[i]));
-  const auto sampleMedian = [&](auto value) {
-    median_buf_.clear();
-    for (int y = 0; y < height_; y += 2)
-      for (int x = 0; x < width_; x += 2) median_buf_.push_back(value(y * width_ + x));
-    return medianOf(&median_buf_);
-  };
   const float S = sampleMedian([&](int i) { return a[i]; });
   const float level = sampleMedian([&](int i) { return m1[i]; });
   if (!(S > 1e-6f) || !(level > 1e-6f)) {  // no texture seen: no model
