@@ -357,12 +357,13 @@ void FixedPattern::refresh() {
   // adds to the image, (g - 1) level + a, votes for "no motion" in proportion to its gradient energy against the
   // image's (the last image learned from, uncorrected; forward differences).
   const float* u = last_u_.ptr<float>();
+  float* p = sm;  // the local mean is not needed any more: the pattern's part of the image, once per pixel
+  for (int i = 0; i < n; ++i) p[i] = (g[i] - 1.f) * level + a[i];
   double e_pat = 0.0, e_img = 0.0;
   for (int y = 0; y + 1 < height_; ++y) {
     for (int x = 0; x + 1 < width_; ++x) {
       const int i = y * width_ + x;
-      const float p0 = (g[i] - 1.f) * level + a[i];
-      const float px = (g[i + 1] - 1.f) * level + a[i + 1] - p0, py = (g[i + width_] - 1.f) * level + a[i + width_] - p0;
+      const float px = p[i + 1] - p[i], py = p[i + width_] - p[i];
       const float ux = u[i + 1] - u[i], uy = u[i + width_] - u[i];
       e_pat += static_cast<double>(px) * px + static_cast<double>(py) * py;
       e_img += static_cast<double>(ux) * ux + static_cast<double>(uy) * uy;
