@@ -90,6 +90,9 @@ class Estimator {
   const PinholeK& workingK() const;
   /// Photometric residual of the last update at working resolution (CV_32FC1; empty before the first update).
   const cv::Mat& lastResidualImage() const;
+  /// Outlier weights drawn from the last update's residual (CV_32FC1 in [0, 1], the residual's pixels; empty when
+  /// there are none): what the next update will down-weight (docs/noise_model.md section 10).
+  const cv::Mat& lastOutlierWeights() const;
   /// Human-readable reason of the last warning (rejected input etc.); empty if none since the last call.
   std::string takeWarning();
   /// Filter restarts since construction (automatic and requested) and the reason of the last one.

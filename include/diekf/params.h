@@ -91,6 +91,10 @@ struct PhotometricParams {
   /// residual of a pixel's neighbourhood, m_ref the larger of the noise variance and the median m; 0 = off.
   double outlier_threshold_sigma = 3.0;
   double outlier_window_fraction = 0.04;        ///< side of the neighbourhood as a fraction of the image width
+  /// Parallax (section 10): a neighbourhood whose inverse depth, measured over the recent images, differs from the
+  /// dominant plane's by more than this relative tolerance (k times it: half weight) is not the ground; 0 = off.
+  double parallax_tolerance = 0.03;
+  double parallax_time_constant_s = 0.5;        ///< memory of that measurement over the images, s
 };
 
 /// Camera-fixed photometric structure (docs/noise_model.md section 11, FixedPattern): per working pixel the image

@@ -118,6 +118,9 @@ class PhotometricUpdate {
   /// Residual I_c(p) - I_r(p_r) of the last linearisation (the point rms_residual refers to; CV_32FC1, 0
   /// outside the mask and on pixels skipped by pixel_stride).
   const cv::Mat& residualImage() const { return residual_; }
+  /// Outlier weights (CV_32FC1 in [0, 1], docs/noise_model.md section 10) of the last update's current image's
+  /// pixels, for the next update; empty before the first update, after a reset or with the weights off.
+  const cv::Mat& outlierWeights() const { return weight_map_; }
 
   /// Noise propagation of the preprocessing (ImagePreprocessor::noiseVarianceGain / noiseCorrelationAreaPx):
   /// the floors of the per-pixel variance and of the correlation area. Defaults 1 and 1.
@@ -132,6 +135,7 @@ class PhotometricUpdate {
     last_rate_valid_ = false;
     weight_map_.release();
     weight_map_has_outliers_ = false;
+    parallax_t_s_ = -1.0;  // the parallax sums are not carried over
   }
 
   /// One linearisation at x (what every Gauss-Newton pass accumulates), without the solve:
@@ -174,11 +178,20 @@ class PhotometricUpdate {
   /// Residual image and row scratch for images of `size` (allocates only when the size changes).
   void prepareBuffers(const cv::Size& size);
   /// Outlier weights for the next image from this update's last residual (docs/noise_model.md, section 10).
-  void updateWeightMap(double variance);
+  /// x, var_mu: the state after the update and the variance of its normal (per tangent axis), rad^2; variance:
+  /// the per-pixel noise variance (section 2).
+  void updateWeightMap(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PinholeK& K, const State& x,
+                       double var_mu, double dt_s, double variance);
+  static constexpr int kWindowChannels = 8;  ///< window sums of r^2, gx^2, gx gy, gy^2, gx r, gy r, a^2, a r
 
   PhotometricParams params_;
   PreprocessParams preprocess_;
   cv::Mat residual_;
+  cv::Mat depth_jac_;  ///< CV_32FC1 dr / d rho of the last linearisation: a relative change of a pixel's inverse depth
+  cv::Mat ref_x_, ref_y_;  ///< CV_32FC1 where the last linearisation's warp lands in the reference (-1: nowhere)
+  cv::Mat parallax_score_, parallax_info_;  ///< CV_32FC1 carried window sums of a r and a^2 (a = dr / d rho)
+  cv::Mat parallax_score_prev_, parallax_info_prev_;  ///< the same of the previous image (swapped)
+  double parallax_t_s_ = -1.0;  ///< stamp of the image the parallax sums belong to
   cv::Mat ref_packed_;  ///< CV_32FC4 (I, dI/dx, dI/dy, 0) of the reference frame, reused between calls
   cv::Mat scratch_;     ///< CV_32FC1 13 x (width rounded up to 4): row buffers of the sweep
   double noise_variance_gain_ = 1.0;
@@ -186,14 +199,15 @@ class PhotometricUpdate {
   NoiseEstimate noise_;
   double pending_nis_scale_ = 1.0;  ///< the inflation to keep after the current update
   cv::Mat weight_map_;      ///< CV_32FC1 outlier weights in [0, 1] for the next update (empty: none yet)
-  cv::Mat weight_scratch_;  ///< CV_32FC1 horizontal window means of the squared residual
+  cv::Mat weight_scratch_;  ///< CV_32FC(6) horizontal window sums of the residual's and gradient's products
+  cv::Mat weight_window_;   ///< CV_32FC(6) their window means
   std::vector<double> weight_colsum_;  ///< running column sums of the vertical window
   std::vector<float> weight_median_buf_;  ///< window means of every 2nd pixel, for their median
   bool use_weight_map_ = false;  ///< weight_map_ applies to the sweeps of the current update
   const cv::Mat* confidence_ = nullptr;  ///< per-pixel confidence (setPixelConfidence), not owned
-  cv::Mat combined_map_;                 ///< CV_32FC1 outlier weights times the confidence
   const cv::Mat* active_map_ = nullptr;  ///< the weights the sweeps of the current update use (null: none)
   bool weight_map_has_outliers_ = false;  ///< some weight of weight_map_ is below 1
+  double weight_map_t_s_ = 0.0;           ///< stamp of the image weight_map_'s pixels belong to
   Vec3 last_rate_C_ = Vec3::Zero();  ///< rotation rate of the previous update's interval, rad/s (camera frame)
   bool last_rate_valid_ = false;
 };

@@ -516,6 +516,7 @@ double Estimator::stateTime() const { return impl_->imu.stateTime(); }
 const EstimatorParams& Estimator::params() const { return impl_->params; }
 const PinholeK& Estimator::workingK() const { return impl_->img_pre.workingK(); }
 const cv::Mat& Estimator::lastResidualImage() const { return impl_->update.residualImage(); }
+const cv::Mat& Estimator::lastOutlierWeights() const { return impl_->update.outlierWeights(); }
 
 int Estimator::resetCount() const { return impl_->restarts.count(); }
 const std::string& Estimator::lastResetReason() const { return impl_->restarts.lastReason(); }

@@ -55,6 +55,7 @@ class ImageUpdate {
   void resetNoiseModel() { photometric_.resetNoiseModel(); }
   /// Residual image of the last photometric update.
   const cv::Mat& residualImage() const { return photometric_.residualImage(); }
+  const cv::Mat& outlierWeights() const { return photometric_.outlierWeights(); }
 
  private:
   /// The timing of the pair (docs/algorithm.md sections 3.6, 3.7): which of the time offset and the readout

@@ -365,6 +365,10 @@ const std::vector<Entry>& table() {
                      DIEKF_FIELD(double, photometric.outlier_threshold_sigma), between(0.0, 1000.0)));
     t.push_back(real("photometric/outlier_window_fraction",
                      DIEKF_FIELD(double, photometric.outlier_window_fraction), between(0.0, 1.0)));
+    t.push_back(real("photometric/parallax_tolerance", DIEKF_FIELD(double, photometric.parallax_tolerance),
+                     between(0.0, 10.0)));
+    t.push_back(real("photometric/parallax_time_constant_s",
+                     DIEKF_FIELD(double, photometric.parallax_time_constant_s), between(0.0, 100.0)));
     // camera-fixed pattern (FixedPattern)
     t.push_back(flag("fixed_pattern/enabled", DIEKF_FIELD(bool, fixed_pattern.enabled)));
     t.push_back(real("fixed_pattern/decorrelation_px", DIEKF_FIELD(double, fixed_pattern.decorrelation_px),

@@ -319,13 +319,30 @@ struct SweepConfig {
   float huber_abs = 0.0f;     // Huber threshold on |r| in intensity units (0 = off)
   bool gradient_weighting = false;
   int tiles_x = 8, tiles_y = 6;  // tile grid of the score sums (noise model)
-  const cv::Mat* weight_map = nullptr;  // CV_32FC1 per-pixel outlier weights in [0, 1] (image size), or none
+  // Per-pixel weights in [0, 1]: the confidence of the current image's pixels (CV_32FC1, image size; the
+  // camera-fixed pattern's) and the outlier weights of the reference's, carried in plane 3 of the packed
+  // reference and sampled where the warp lands (section 10 of docs/noise_model.md).
+  const cv::Mat* confidence_map = nullptr;
+  bool reference_weights = false;
   // Rolling shutter (docs/algorithm.md section 3.7): row y of the current image is captured readout_s
   // row_weight[y] after the image's time; null = global shutter.
   const float* row_weight = nullptr;
   float readout_s = 0.0f;
   float readout_over_dt = 0.0f;  // readout / dt: the pair's interval grows by this times w(y) - w(y_r)
   bool row_moments = false;      // also accumulate SweepSums::G1, G2 (the readout's information)
+  // (dt / 2) T_vartheta vartheta: with the sweep's rows S' (S = (dt / 2) S' T), S'_vartheta . depth_dir is the
+  // residual's derivative over a relative change of the pixel's inverse depth (dr / d rho, section 10).
+  float depth_dir[3] = {0.0f, 0.0f, 0.0f};
+};
+
+/// Per-pixel outputs of a sweep (CV_32FC1, the current image's size; entries the sweep does not visit keep their
+/// values): the residual r (0 where invalid), dr / d rho of a relative change of the pixel's inverse depth (0
+/// where invalid) and the reference position (x, y) the warp lands on (-1 where invalid).
+struct PixelOutputs {
+  cv::Mat* residual;
+  cv::Mat* depth_jac;
+  cv::Mat* ref_x;
+  cv::Mat* ref_y;
 };
 
 constexpr int kMaxTilesPerAxis = 16;
@@ -430,7 +447,7 @@ void accumulateRow(float* const* T, const float* valid, int n_pad, const int* se
 /// The residual r (0 where invalid) is written to `residual`. The weighting options are template parameters.
 template <bool kHuber, bool kGradientWeighting, bool kWeightMap>
 void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelWarp& wp, const SweepConfig& cfg,
-           RowBuffers buf, SweepSums* sums, cv::Mat* residual) {
+           RowBuffers buf, SweepSums* sums, const PixelOutputs& out) {
   using namespace cv;
   const int W = cur.intensity.cols;
   const int H = cur.intensity.rows;
@@ -482,13 +499,18 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
       Gxc = buf.cur[1];
       Gyc = buf.cur[2];
     }
-    float* res_row = residual->ptr<float>(y);
+    float* res_row = out.residual->ptr<float>(y);
+    float* jac_row = out.depth_jac->ptr<float>(y);
+    float* rx_row = out.ref_x->ptr<float>(y);
+    float* ry_row = out.ref_y->ptr<float>(y);
     const float* Wm = nullptr;
     if constexpr (kWeightMap) {
-      if (cfg.stride == 1) {
-        Wm = cfg.weight_map->ptr<float>(y) + cfg.border;
+      if (cfg.confidence_map == nullptr) {
+        Wm = nullptr;
+      } else if (cfg.stride == 1) {
+        Wm = cfg.confidence_map->ptr<float>(y) + cfg.border;
       } else {
-        const float* src = cfg.weight_map->ptr<float>(y);
+        const float* src = cfg.confidence_map->ptr<float>(y);
         for (int k = 0; k < n_pad; ++k) buf.wmap[k] = src[cfg.border + std::min(k, n - 1) * cfg.stride];
         Wm = buf.wmap;
       }
@@ -563,8 +585,8 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
       }
       const v_float32x4 bx = one - ax, by = one - ay;
       const v_float32x4 w00 = bx * by, w01 = ax * by, w10 = bx * ay, w11 = ax * ay;
-      v_float32x4 ref[3];
-      for (int pl = 0; pl < 3; ++pl) {
+      v_float32x4 ref[4];
+      for (int pl = 0; pl < (kWeightMap ? 4 : 3); ++pl) {
         ref[pl] = v_muladd(w11, c[3][pl], v_muladd(w10, c[2][pl], v_muladd(w01, c[1][pl], w00 * c[0][pl])));
       }
       const v_float32x4 gxc = v_load(Gxc + k), gyc = v_load(Gyc + k);
@@ -580,7 +602,9 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
       v_float32x4 w = v_select(valid, one, zero);
       v_float32x4 wm = one;  // outlier weight of the pixel (1 without a map)
       if constexpr (kWeightMap) {
-        wm = v_load(Wm + k);
+        // The reference pixel's outlier weight (1 without) times the current pixel's confidence.
+        if (Wm != nullptr) wm = v_load(Wm + k);
+        if (cfg.reference_weights) wm = wm * ref[3];
         w = w * wm;
       }
       if constexpr (kGradientWeighting) {
@@ -631,13 +655,32 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
       }
       v_store_aligned(buf.valid + k, valid01);
       vcount += valid01;
+      // dr / d rho (section 10), and where the warp lands.
+      const v_float32x4 dj = v_select(valid, (s_b * iz) * v_muladd(gD2, v_setall_f32(cfg.depth_dir[2]),
+                                                                   v_muladd(gD1, v_setall_f32(cfg.depth_dir[1]),
+                                                                            gD0 * v_setall_f32(cfg.depth_dir[0]))),
+                                      zero);
+      const v_float32x4 minus_one = v_setall_f32(-1.0f);
+      const v_float32x4 rxo = v_select(valid, rx, minus_one), ryo = v_select(valid, ry, minus_one);
       if (cfg.stride == 1) {
         // Up to 3 lanes past the last candidate land in the border (or the next row, written later): zeros.
         v_store(res_row + cfg.border + k, r);
+        v_store(jac_row + cfg.border + k, dj);
+        v_store(rx_row + cfg.border + k, rxo);
+        v_store(ry_row + cfg.border + k, ryo);
       } else {
-        alignas(16) float rr[4];
+        alignas(16) float rr[4], jj[4], xx[4], yy[4];
         v_store_aligned(rr, r);
-        for (int l = 0; l < 4 && k + l < n; ++l) res_row[cfg.border + (k + l) * cfg.stride] = rr[l];
+        v_store_aligned(jj, dj);
+        v_store_aligned(xx, rxo);
+        v_store_aligned(yy, ryo);
+        for (int l = 0; l < 4 && k + l < n; ++l) {
+          const int at = cfg.border + (k + l) * cfg.stride;
+          res_row[at] = rr[l];
+          jac_row[at] = jj[l];
+          rx_row[at] = xx[l];
+          ry_row[at] = yy[l];
+        }
       }
     }
     const int tile_row = std::min(tiles_y - 1, ((y - cfg.border) * tiles_y) / rows_used);
@@ -681,24 +724,27 @@ SweepConfig makeConfig(const PhotometricParams& params, const PreprocessParams& 
 
 /// (I, dI/dx, dI/dy, 0) of the reference frame interleaved into a CV_32FC4 buffer (reallocated only when the
 /// size changes).
-void packReference(const PreprocessedFrame& ref, cv::Mat* packed) {
+/// Plane 3 holds `weights` (CV_32FC1, the image's size: the outlier weights of the reference's pixels), or 1.
+void packReference(const PreprocessedFrame& ref, cv::Mat* packed, const cv::Mat* weights = nullptr) {
   using namespace cv;
   packed->create(ref.intensity.size(), CV_32FC4);
-  const v_float32x4 z = v_setzero_f32();
+  const bool use_weights = weights != nullptr && weights->type() == CV_32FC1 && weights->size() == ref.intensity.size();
+  const v_float32x4 one = v_setall_f32(1.0f);
   for (int y = 0; y < ref.intensity.rows; ++y) {
     const float* I = ref.intensity.ptr<float>(y);
     const float* gx = ref.grad_x.ptr<float>(y);
     const float* gy = ref.grad_y.ptr<float>(y);
+    const float* wt = use_weights ? weights->ptr<float>(y) : nullptr;
     float* out = packed->ptr<float>(y);
     int x = 0;
     for (; x + 4 <= ref.intensity.cols; x += 4) {
-      v_store_interleave(out + 4 * x, v_load(I + x), v_load(gx + x), v_load(gy + x), z);
+      v_store_interleave(out + 4 * x, v_load(I + x), v_load(gx + x), v_load(gy + x), wt != nullptr ? v_load(wt + x) : one);
     }
     for (; x < ref.intensity.cols; ++x) {
       out[4 * x + 0] = I[x];
       out[4 * x + 1] = gx[x];
       out[4 * x + 2] = gy[x];
-      out[4 * x + 3] = 0.0f;
+      out[4 * x + 3] = wt != nullptr ? wt[x] : 1.0f;
     }
   }
 }
@@ -741,6 +787,12 @@ void PhotometricUpdate::prepareBuffers(const cv::Size& size) {
   if (residual_.size() != size || residual_.type() != CV_32FC1) {
     residual_.create(size, CV_32FC1);
     residual_.setTo(0.0f);  // pixels the sweeps never visit (border, pixel_stride gaps) stay 0
+    depth_jac_.create(size, CV_32FC1);
+    depth_jac_.setTo(0.0f);
+    ref_x_.create(size, CV_32FC1);
+    ref_x_.setTo(-1.0f);
+    ref_y_.create(size, CV_32FC1);
+    ref_y_.setTo(-1.0f);
   }
   const int n_pad = (size.width + 3) & ~3;
   if (scratch_.rows != 14 || scratch_.cols < n_pad) scratch_.create(14, n_pad, CV_32FC1);
@@ -752,7 +804,8 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
                                   double readout_s) {
   *out = PassSums();
   SweepConfig cfg = makeConfig(params_, preprocess_, huber_sigma);
-  cfg.weight_map = active_map_;
+  cfg.confidence_map = active_map_;
+  cfg.reference_weights = use_weight_map_;
   const bool rolling = m_rows != nullptr && timing != nullptr && timing->row_weight != nullptr &&
                        timing->rows == cur.intensity.rows && dt_s > 0.0 &&
                        (readout_s != 0.0 || timing->estimate_readout);
@@ -764,6 +817,9 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
   }
   const PixelWarp wp(x, K, gyro_mean_C, dt_s, state_lag_s, rolling ? m_rows : nullptr);
   if (!wp.ok) return 0;  // the plane model breaks down within the interval: no measurement
+  const Vec3 depth_dir = (0.5 * dt_s) * (wp.T.block<3, 3>(0, 0) * x.vartheta);
+  for (int i = 0; i < 3; ++i) cfg.depth_dir[i] = static_cast<float>(depth_dir(i));
+  const PixelOutputs outputs{&residual_, &depth_jac_, &ref_x_, &ref_y_};
   SweepSums sums;
   RowBuffers buf;
   for (int i = 0; i < 9; ++i) buf.T[i] = scratch_.ptr<float>(i);
@@ -774,16 +830,16 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
   auto run = [&](auto weight_map) {
     constexpr bool kMap = decltype(weight_map)::value;
     if (huber && cfg.gradient_weighting) {
-      sweep<true, true, kMap>(ref_packed_, cur, wp, cfg, buf, &sums, &residual_);
+      sweep<true, true, kMap>(ref_packed_, cur, wp, cfg, buf, &sums, outputs);
     } else if (huber) {
-      sweep<true, false, kMap>(ref_packed_, cur, wp, cfg, buf, &sums, &residual_);
+      sweep<true, false, kMap>(ref_packed_, cur, wp, cfg, buf, &sums, outputs);
     } else if (cfg.gradient_weighting) {
-      sweep<false, true, kMap>(ref_packed_, cur, wp, cfg, buf, &sums, &residual_);
+      sweep<false, true, kMap>(ref_packed_, cur, wp, cfg, buf, &sums, outputs);
     } else {
-      sweep<false, false, kMap>(ref_packed_, cur, wp, cfg, buf, &sums, &residual_);
+      sweep<false, false, kMap>(ref_packed_, cur, wp, cfg, buf, &sums, outputs);
     }
   };
-  if (cfg.weight_map != nullptr) {
+  if (cfg.confidence_map != nullptr || cfg.reference_weights) {
     run(std::true_type{});
   } else {
     run(std::false_type{});
@@ -946,22 +1002,16 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     return stats;
   }
   prepareBuffers(cur.intensity.size());  // no-op after the first call at this size
-  packReference(ref, &ref_packed_);      // once per update, shared by every pass
-  // Outlier weights from the previous update's residual (section 10), when there is one of this size.
-  // A map without any weight below 1 changes nothing: the plain sweep is used (bit for bit, and cheaper).
+  // Outlier weights from the previous update's residual (section 10), when that update's current image is this
+  // one's reference: they belong to the reference's pixels and are sampled where the warp lands, so they move
+  // with the objects. A map without any weight below 1 changes nothing: the plain sweep is used (bit for bit,
+  // and cheaper).
   use_weight_map_ = params_.outlier_threshold_sigma > 0.0 && weight_map_has_outliers_ && !weight_map_.empty() &&
-                    weight_map_.size() == cur.intensity.size();
-  // The camera-fixed pattern's confidence multiplies the outlier weights (docs/noise_model.md section 11).
-  active_map_ = use_weight_map_ ? &weight_map_ : nullptr;
-  if (confidence_ != nullptr && confidence_->type() == CV_32FC1 && confidence_->size() == cur.intensity.size()) {
-    if (use_weight_map_) {
-      combined_map_.create(weight_map_.size(), CV_32FC1);  // allocates only when the size changes
-      cv::multiply(weight_map_, *confidence_, combined_map_);
-      active_map_ = &combined_map_;
-    } else {
-      active_map_ = confidence_;
-    }
-  }
+                    weight_map_.size() == ref.intensity.size() && ref.t_s == weight_map_t_s_;
+  packReference(ref, &ref_packed_, use_weight_map_ ? &weight_map_ : nullptr);  // once per update, every pass
+  // The camera-fixed pattern's confidence, per pixel of the current image (docs/noise_model.md section 11).
+  active_map_ = confidence_ != nullptr && confidence_->type() == CV_32FC1 && confidence_->size() == cur.intensity.size()
+                    ? confidence_ : nullptr;
 
   // Prior covariance of what the image observes, H P H^T with H = [observed columns | m] (the time offset
   // enters as the combination m of the observed columns; for the innovation test of the first pass).
@@ -1124,37 +1174,81 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   if (pass > 0 && sums.valid > 0) {
     const double var = adaptive && noise_.valid ? noise_.variance
                                                 : params_.intensity_noise_sigma * params_.intensity_noise_sigma;
-    updateWeightMap(std::max(var, floor_var));
+    const double var_mu = 0.5 * (P->block<2, 2>(ErrIdx::kMu, ErrIdx::kMu).trace());
+    updateWeightMap(ref, cur, K, *x, var_mu, dt_s, std::max(var, floor_var));
   }
   return stats;
 }
 
-void PhotometricUpdate::updateWeightMap(double variance) {
+namespace {
+
+/// Bilinear sample of a CV_32FC1 map at (x, y) (clamped inside), 0 outside the image.
+float sampleBilinear(const cv::Mat& m, float x, float y) {
+  if (!(x >= 0.0f) || !(y >= 0.0f) || x > m.cols - 1 || y > m.rows - 1) return 0.0f;
+  const int x0 = std::min(static_cast<int>(x), m.cols - 2), y0 = std::min(static_cast<int>(y), m.rows - 2);
+  const float ax = x - x0, ay = y - y0;
+  const float* r0 = m.ptr<float>(y0);
+  const float* r1 = m.ptr<float>(y0 + 1);
+  return (1.0f - ay) * ((1.0f - ax) * r0[x0] + ax * r0[x0 + 1]) + ay * ((1.0f - ax) * r1[x0] + ax * r1[x0 + 1]);
+}
+
+}  // namespace
+
+void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const PreprocessedFrame& cur,
+                                        const PinholeK& K, const State& state, double var_mu,
+                                        double dt_s, double variance) {
   const double k = params_.outlier_threshold_sigma;
   weight_map_has_outliers_ = false;
-  if (!(k > 0.0) || !(variance > 0.0) || !std::isfinite(variance) || residual_.empty()) {
+  weight_map_t_s_ = cur.t_s;
+  const double parallax_t_prev = parallax_t_s_;
+  parallax_t_s_ = -1.0;
+  if (!(k > 0.0) || !(variance > 0.0) || !std::isfinite(variance) || residual_.empty() ||
+      cur.grad_x.size() != residual_.size() || cur.grad_y.size() != residual_.size()) {
     weight_map_.release();
     return;
   }
   const int W = residual_.cols, H = residual_.rows;
   const int half = std::max(1, static_cast<int>(std::lround(0.5 * params_.outlier_window_fraction * W)));
-  weight_scratch_.create(residual_.size(), CV_32FC1);
+  constexpr int kCh = kWindowChannels;  // r^2, gx^2, gx gy, gy^2, gx r, gy r, a^2, a r (a = dr / d rho)
+  weight_scratch_.create(residual_.size(), CV_32FC(kCh));
+  weight_window_.create(residual_.size(), CV_32FC(kCh));
   weight_map_.create(residual_.size(), CV_32FC1);
-  // Horizontal window means of r^2 (windows truncated at the image's edges), by running sums.
+  // Horizontal window sums of the products (windows truncated at the image's edges), by running sums.
   for (int y = 0; y < H; ++y) {
     const float* r = residual_.ptr<float>(y);
+    const float* a = depth_jac_.ptr<float>(y);
+    const float* gx = cur.grad_x.ptr<float>(y);
+    const float* gy = cur.grad_y.ptr<float>(y);
+    auto products = [&](int x, double* p) {
+      p[0] = double(r[x]) * r[x];
+      // The gradient only counts where there is a residual (a valid pixel of the last sweep).
+      const double m = r[x] != 0.0f ? 1.0 : 0.0;
+      p[1] = m * gx[x] * gx[x];
+      p[2] = m * gx[x] * gy[x];
+      p[3] = m * gy[x] * gy[x];
+      p[4] = double(gx[x]) * r[x];
+      p[5] = double(gy[x]) * r[x];
+      p[6] = double(a[x]) * a[x];
+      p[7] = double(a[x]) * r[x];
+    };
     float* out = weight_scratch_.ptr<float>(y);
-    double sum = 0.0;
+    double sum[kCh] = {}, p[kCh];
     int lo = 0, hi = 0;  // window [lo, hi)
     for (int x = 0; x < W; ++x) {
       const int want_hi = std::min(W, x + half + 1), want_lo = std::max(0, x - half);
-      for (; hi < want_hi; ++hi) sum += double(r[hi]) * r[hi];
-      for (; lo < want_lo; ++lo) sum -= double(r[lo]) * r[lo];
-      out[x] = static_cast<float>(sum / (hi - lo));
+      for (; hi < want_hi; ++hi) {
+        products(hi, p);
+        for (int c = 0; c < kCh; ++c) sum[c] += p[c];
+      }
+      for (; lo < want_lo; ++lo) {
+        products(lo, p);
+        for (int c = 0; c < kCh; ++c) sum[c] -= p[c];
+      }
+      for (int c = 0; c < kCh; ++c) out[kCh * x + c] = static_cast<float>(sum[c]);
     }
   }
-  // Vertical window means into weight_map_ (the weights replace them below).
-  weight_colsum_.resize(static_cast<size_t>(W));  // allocates once per image width
+  // Vertical: window sums into weight_window_.
+  weight_colsum_.resize(static_cast<size_t>(kCh) * W);  // allocates once per image width
   std::fill(weight_colsum_.begin(), weight_colsum_.end(), 0.0);
   double* colsum = weight_colsum_.data();
   int lo = 0, hi = 0;  // rows [lo, hi) in the column sums
@@ -1162,39 +1256,127 @@ void PhotometricUpdate::updateWeightMap(double variance) {
     const int want_hi = std::min(H, y + half + 1), want_lo = std::max(0, y - half);
     for (; hi < want_hi; ++hi) {
       const float* row = weight_scratch_.ptr<float>(hi);
-      for (int x = 0; x < W; ++x) colsum[x] += row[x];
+      for (int i = 0; i < kCh * W; ++i) colsum[i] += row[i];
     }
     for (; lo < want_lo; ++lo) {
       const float* row = weight_scratch_.ptr<float>(lo);
-      for (int x = 0; x < W; ++x) colsum[x] -= row[x];
+      for (int i = 0; i < kCh * W; ++i) colsum[i] -= row[i];
     }
-    const double inv_n = 1.0 / (hi - lo);
-    float* out = weight_map_.ptr<float>(y);
-    for (int x = 0; x < W; ++x) out[x] = static_cast<float>(std::max(0.0, colsum[x]) * inv_n);
+    float* out = weight_window_.ptr<float>(y);
+    for (int i = 0; i < kCh * W; ++i) out[i] = static_cast<float>(std::max(-1e30, colsum[i]));
   }
-  // Reference level: the noise variance, or the median window mean if that is larger. Outliers are what stands
-  // out of the bulk of the image; a state error that raises the residual everywhere raises the median with it
-  // and does not switch the well-textured half of the image off (section 10).
-  weight_median_buf_.clear();
-  for (int y = 0; y < H; y += 2) {
-    const float* m = weight_map_.ptr<float>(y);
-    for (int x = 0; x < W; x += 2) weight_median_buf_.push_back(m[x]);  // capacity kept between images
-  }
-  double ref = variance;
-  if (!weight_median_buf_.empty()) {
+  auto window_count = [&](int y, int x) {
+    return double(std::min(H, y + half + 1) - std::max(0, y - half)) *
+           double(std::min(W, x + half + 1) - std::max(0, x - half));
+  };
+  auto median_of = [&](auto value) {
+    weight_median_buf_.clear();
+    for (int y = 0; y < H; y += 2)
+      for (int x = 0; x < W; x += 2) {
+        const float v = value(y, x);
+        if (std::isfinite(v)) weight_median_buf_.push_back(v);  // capacity kept between images
+      }
+    if (weight_median_buf_.empty()) return 0.0;
     auto mid = weight_median_buf_.begin() + weight_median_buf_.size() / 2;
     std::nth_element(weight_median_buf_.begin(), mid, weight_median_buf_.end());
-    ref = std::max(ref, static_cast<double>(*mid));
-  }
-  // w = 1 / (1 + (m / (k^2 ref))^2): 0.99 at the reference level, 1/2 where the window's RMS residual is k times
-  // its root, falling as RMS^-4 beyond (a blob of unrelated texture keeps almost nothing).
-  const double inv = 1.0 / (k * k * ref);
+    return static_cast<double>(*mid);
+  };
+
+  // (1) Energy: m = mean r^2 of the window, against the larger of the noise and the median over the image.
+  // Outliers are what stands out of the bulk of the image; a state error that raises the residual everywhere
+  // raises the median with it and does not switch the well-textured half of the image off.
+  const double m_ref = std::max(variance, median_of([&](int y, int x) {
+    return static_cast<float>(weight_window_.ptr<float>(y)[kCh * x] / window_count(y, x));
+  }));
+  // (2) Shift: q = (mean g r)^T (mean g g^T)^-1 (mean g r), the part of m a local shift of the image explains.
+  // Under noise alone q ~ chi-square(2) (scaled: mean = median / ln 2); an object of the ground's texture
+  // moving on its own is explained by a shift. Stored in weight_map_ for now.
   for (int y = 0; y < H; ++y) {
-    float* w = weight_map_.ptr<float>(y);
+    const float* win = weight_window_.ptr<float>(y);
+    float* q = weight_map_.ptr<float>(y);
     for (int x = 0; x < W; ++x) {
-      const double z = w[x] * inv;
-      w[x] = static_cast<float>(1.0 / (1.0 + z * z));
-      if (z > 0.1) weight_map_has_outliers_ = true;
+      const float* s = win + kCh * x;
+      const double ridge = 1e-12 + 1e-6 * (double(s[1]) + s[3]);
+      const double a = s[1] + ridge, b = s[2], c = s[3] + ridge;
+      const double det = a * c - b * b;
+      const double qs = det > 0.0 ? std::max(0.0, (c * s[4] * s[4] - 2.0 * b * s[4] * s[5] + a * s[5] * s[5]) / det) : 0.0;
+      q[x] = static_cast<float>(qs / window_count(y, x));
+    }
+  }
+  const double n_window = double(2 * half + 1) * (2 * half + 1);
+  const double q_noise = 2.0 * variance * noise_correlation_floor_ / n_window;  // chi-square(2) mean
+  const double q_ref = std::max(q_noise, median_of([&](int y, int x) { return weight_map_.ptr<float>(y)[x]; }) / std::log(2.0));
+
+  // (3) Parallax: the window's relative inverse-depth change e = sum a r / sum a^2 against the plane's, with the
+  // sums carried over the recent images along the warp (decay exp(-dt / tau)): a box standing on the ground is
+  // seen nearer than the plane in every image, by too little for one image's residual to show.
+  const bool parallax = params_.parallax_tolerance > 0.0 && params_.parallax_time_constant_s >= 0.0;
+  double e_ref = 0.0, e_spread2 = 0.0;
+  if (parallax) {
+    std::swap(parallax_score_, parallax_score_prev_);
+    std::swap(parallax_info_, parallax_info_prev_);
+    parallax_score_.create(residual_.size(), CV_32FC1);
+    parallax_info_.create(residual_.size(), CV_32FC1);
+    const double decay = params_.parallax_time_constant_s > 0.0 ? std::exp(-dt_s / params_.parallax_time_constant_s) : 0.0;
+    const bool carry = decay > 0.0 && parallax_t_prev == ref.t_s && parallax_score_prev_.size() == residual_.size() &&
+                       parallax_info_prev_.size() == residual_.size();
+    const float fdecay = static_cast<float>(decay);
+    for (int y = 0; y < H; ++y) {
+      const float* win = weight_window_.ptr<float>(y);
+      const float* rx = ref_x_.ptr<float>(y);
+      const float* ry = ref_y_.ptr<float>(y);
+      float* S = parallax_score_.ptr<float>(y);
+      float* J = parallax_info_.ptr<float>(y);
+      for (int x = 0; x < W; ++x) {
+        S[x] = win[kCh * x + 7];
+        J[x] = win[kCh * x + 6];
+        if (carry && rx[x] >= 0.0f) {
+          S[x] += fdecay * sampleBilinear(parallax_score_prev_, rx[x], ry[x]);
+          J[x] += fdecay * sampleBilinear(parallax_info_prev_, rx[x], ry[x]);
+        }
+      }
+    }
+    parallax_t_s_ = cur.t_s;
+    auto e_at = [&](int y, int x) {
+      const float J = parallax_info_.ptr<float>(y)[x];
+      return J > 0.0f ? parallax_score_.ptr<float>(y)[x] / J : std::numeric_limits<float>::quiet_NaN();
+    };
+    e_ref = median_of(e_at);
+    // The image's own spread of e (1.4826 x the median absolute deviation): while the state is still wrong, e
+    // varies over the whole image, and nothing stands out of it.
+    const double mad = median_of([&](int y, int x) { return static_cast<float>(std::abs(e_at(y, x) - e_ref)); });
+    e_spread2 = std::pow(1.4826 * mad, 2);
+  }
+  // Precision of e: the noise is correlated over the blur's area within a window (the measured correlation of
+  // section 3 reaches over tiles larger than the window, and reflects the state error while converging).
+  const double var_corr = variance * noise_correlation_floor_;
+  const double tol2 = params_.parallax_tolerance * params_.parallax_tolerance;
+  const Vec3 mu = state.mu.vector();
+
+  // w = 1 / ((1 + z_m^2) (1 + z_q^4) (1 + z_e^4)) with z_m = m / (k^2 m_ref), z_q = q / (k^2 q_ref) and
+  // z_e = (e - e_ref)^2 / (k^2 (var_e + tol^2 + var_tilt)): each term is about 1 within the bulk of the image,
+  // 1/2 where the window stands out by k "sigmas", and falls fast beyond.
+  const double inv_m = 1.0 / (k * k * m_ref), inv_q = 1.0 / (k * k * q_ref), inv_k2 = 1.0 / (k * k);
+  for (int y = 0; y < H; ++y) {
+    const float* win = weight_window_.ptr<float>(y);
+    const float* S = parallax ? parallax_score_.ptr<float>(y) : nullptr;
+    const float* J = parallax ? parallax_info_.ptr<float>(y) : nullptr;
+    float* w = weight_map_.ptr<float>(y);
+    const double qy = (y - K.cy) / K.fy;
+    for (int x = 0; x < W; ++x) {
+      const double zm = win[kCh * x] / window_count(y, x) * inv_m, zq = w[x] * inv_q;
+      double ze = 0.0;
+      if (parallax && J[x] > 0.0f) {
+        // The plane's own tilt uncertainty changes the inverse depth along the ray q by (dmu . q) / (mu . q).
+        const double qx = (x - K.cx) / K.fx;
+        const double mq = mu(0) * qx + mu(1) * qy + mu(2);
+        const double q2 = qx * qx + qy * qy + 1.0;
+        const double var_tilt = mq > 1e-3 ? var_mu * std::max(0.0, q2 - mq * mq) / (mq * mq) : 1e6;
+        const double de = S[x] / J[x] - e_ref;
+        ze = de * de * inv_k2 / std::max(var_corr / J[x] + tol2 + var_tilt, e_spread2);
+      }
+      w[x] = static_cast<float>(1.0 / ((1.0 + zm * zm) * (1.0 + zq * zq * zq * zq) * (1.0 + ze * ze)));
+      if (zm > 0.1 || zq > 0.3 || ze > 0.3) weight_map_has_outliers_ = true;
     }
   }
 }

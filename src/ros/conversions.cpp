@@ -1,8 +1,11 @@
 #include "diekf/ros/conversions.h"
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <sstream>
+
+#include <opencv2/imgproc.hpp>
 
 #include <sensor_msgs/image_encodings.h>
 #include <tf2_eigen/tf2_eigen.h>
@@ -257,6 +260,26 @@ cv::Mat residualToMono8(const cv::Mat& residual, double gain_levels_per_unit) {
   residual.convertTo(r32, CV_32F);
   cv::patchNaNs(r32, 0.0);
   r32.convertTo(out, CV_8U, gain_levels_per_unit, 128.0);  // saturate_cast clips to 0..255
+  return out;
+}
+
+cv::Mat residualPicture(const cv::Mat& residual, const cv::Mat& outlier_weights, double gain_levels_per_unit) {
+  const cv::Mat grey = residualToMono8(residual, gain_levels_per_unit);
+  cv::Mat out;
+  if (grey.empty()) return out;
+  cv::cvtColor(grey, out, cv::COLOR_GRAY2BGR);
+  if (outlier_weights.type() != CV_32FC1 || outlier_weights.size() != grey.size()) return out;
+  for (int y = 0; y < out.rows; ++y) {
+    const float* w = outlier_weights.ptr<float>(y);
+    cv::Vec3b* px = out.ptr<cv::Vec3b>(y);
+    for (int x = 0; x < out.cols; ++x) {
+      const float removed = std::isfinite(w[x]) ? std::clamp(1.0f - w[x], 0.0f, 1.0f) : 1.0f;
+      const float keep = 1.0f - removed;
+      px[x][0] = cv::saturate_cast<uint8_t>(keep * px[x][0]);
+      px[x][1] = cv::saturate_cast<uint8_t>(keep * px[x][1]);
+      px[x][2] = cv::saturate_cast<uint8_t>(keep * px[x][2] + removed * 255.0f);
+    }
+  }
   return out;
 }
 

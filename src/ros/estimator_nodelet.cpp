@@ -801,9 +801,10 @@ void EstimatorNodelet::publishResult(const diekf::FrameResult& r) {
     markers_pub_.publish(makeMarkers(r, header, settings_.gravity_arrow_m, settings_.plane_marker_size_m));
   }
   if (residual_pub_.getNumSubscribers() > 0) {
-    const cv::Mat picture = residualToMono8(estimator_->lastResidualImage(), settings_.residual_image_gain);
+    const cv::Mat picture = residualPicture(estimator_->lastResidualImage(), estimator_->lastOutlierWeights(),
+                                            settings_.residual_image_gain);
     if (!picture.empty()) {
-      residual_pub_.publish(cv_bridge::CvImage(header, sensor_msgs::image_encodings::MONO8, picture).toImageMsg());
+      residual_pub_.publish(cv_bridge::CvImage(header, sensor_msgs::image_encodings::BGR8, picture).toImageMsg());
     }
   }
 

@@ -87,6 +87,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          ha.gate_nis == hb.gate_nis && ha.nis_time_constant_s == hb.nis_time_constant_s && ha.gate_target_nis == hb.gate_target_nis &&
          ha.rotation_scale_sigma == hb.rotation_scale_sigma && ha.time_offset_sigma_s == hb.time_offset_sigma_s &&
          ha.outlier_threshold_sigma == hb.outlier_threshold_sigma && ha.outlier_window_fraction == hb.outlier_window_fraction &&
+         ha.parallax_tolerance == hb.parallax_tolerance && ha.parallax_time_constant_s == hb.parallax_time_constant_s &&
          da.max_step_sigma == db.max_step_sigma && da.degraded_hold_s == db.degraded_hold_s &&
          da.max_nis_ratio == db.max_nis_ratio && a.input.gap_accel_sigma_mps2 == b.input.gap_accel_sigma_mps2 &&
          a.input.gap_gyro_sigma_radps == b.input.gap_gyro_sigma_radps && fa.max_corners == fb.max_corners && fa.predict_flow == fb.predict_flow &&

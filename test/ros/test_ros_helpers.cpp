@@ -355,6 +355,21 @@ TEST(Conversions, ResidualPicture) {
   EXPECT_EQ(p.at<uint8_t>(0, 2), 0);
 }
 
+TEST(Conversions, ResidualPictureShowsTheOutlierWeights) {
+  cv::Mat r(1, 3, CV_32FC1, cv::Scalar(1.0f));
+  cv::Mat w(1, 3, CV_32FC1);
+  w.at<float>(0, 0) = 1.0f;   // kept: the grey residual
+  w.at<float>(0, 1) = 0.0f;   // removed: red
+  w.at<float>(0, 2) = 0.5f;   // half
+  const cv::Mat p = diekf_ros::residualPicture(r, w, 64.0);
+  ASSERT_EQ(p.type(), CV_8UC3);
+  EXPECT_EQ(p.at<cv::Vec3b>(0, 0), cv::Vec3b(192, 192, 192));
+  EXPECT_EQ(p.at<cv::Vec3b>(0, 1), cv::Vec3b(0, 0, 255));
+  EXPECT_EQ(p.at<cv::Vec3b>(0, 2), cv::Vec3b(96, 96, 224));
+  // Without weights (or of another size): the grey residual.
+  EXPECT_EQ(diekf_ros::residualPicture(r, cv::Mat(), 64.0).at<cv::Vec3b>(0, 1), cv::Vec3b(192, 192, 192));
+}
+
 TEST(Conversions, MarkersShowTheEstimatedGeometry) {
   diekf::FrameResult r;
   r.state.alpha = 1.0 / 0.8;

@@ -76,6 +76,10 @@ bool cameraInfoAgrees(const sensor_msgs::CameraInfo& info, const diekf::CameraMo
 /// `gain_levels_per_unit` grey levels per normalised intensity unit, clipped to 0..255.
 cv::Mat residualToMono8(const cv::Mat& residual, double gain_levels_per_unit);
 
+/// The same as a bgr8 picture with the outlier weights drawn on it (CV_32FC1 in [0, 1], the residual's size; empty:
+/// none): each pixel is tinted red by the share of its weight removed, 1 - w (docs/noise_model.md section 10).
+cv::Mat residualPicture(const cv::Mat& residual, const cv::Mat& outlier_weights, double gain_levels_per_unit);
+
 /// rviz markers in the header's frame (the camera frame), one namespace each: `normal` arrow (camera -> plane,
 /// length d, blue), `gravity` arrow (length gravity_arrow_m, red), `velocity` arrow (1 s of motion, green), `plane`
 /// (thin square of side plane_size_m on the estimated plane), `height` (cyan line from the camera along gravity to
