@@ -92,8 +92,8 @@ struct PhotometricParams {
   double outlier_threshold_sigma = 3.0;
   double outlier_window_fraction = 0.04;        ///< side of the neighbourhood as a fraction of the image width
   /// Parallax (section 10): a neighbourhood whose inverse depth, measured over the recent images, differs from the
-  /// dominant plane's by more than this relative tolerance (k times it: half weight) is not the ground; 0 = off.
-  double parallax_tolerance = 0.03;
+  /// dominant plane's by this relative amount gets half weight (twice as much: 6 %); it is not the ground; 0 = off.
+  double parallax_tolerance = 0.05;
   double parallax_time_constant_s = 0.5;        ///< memory of that measurement over the images, s
 };
 

@@ -189,8 +189,8 @@ class PhotometricUpdate {
   cv::Mat residual_;
   cv::Mat depth_jac_;  ///< CV_32FC1 dr / d rho of the last linearisation: a relative change of a pixel's inverse depth
   cv::Mat ref_x_, ref_y_;  ///< CV_32FC1 where the last linearisation's warp lands in the reference (-1: nowhere)
-  cv::Mat parallax_score_, parallax_info_;  ///< CV_32FC1 carried window sums of a r and a^2 (a = dr / d rho)
-  cv::Mat parallax_score_prev_, parallax_info_prev_;  ///< the same of the previous image (swapped)
+  cv::Mat parallax_sums_;       ///< CV_32FC2 per cell: carried window sums of a r and a^2 (a = dr / d rho)
+  cv::Mat parallax_sums_prev_;  ///< the same of the previous image (swapped)
   double parallax_t_s_ = -1.0;  ///< stamp of the image the parallax sums belong to
   cv::Mat ref_packed_;  ///< CV_32FC4 (I, dI/dx, dI/dy, 0) of the reference frame, reused between calls
   cv::Mat scratch_;     ///< CV_32FC1 13 x (width rounded up to 4): row buffers of the sweep
@@ -199,10 +199,12 @@ class PhotometricUpdate {
   NoiseEstimate noise_;
   double pending_nis_scale_ = 1.0;  ///< the inflation to keep after the current update
   cv::Mat weight_map_;      ///< CV_32FC1 outlier weights in [0, 1] for the next update (empty: none yet)
-  cv::Mat weight_scratch_;  ///< CV_32FC(6) horizontal window sums of the residual's and gradient's products
-  cv::Mat weight_window_;   ///< CV_32FC(6) their window means
-  std::vector<double> weight_colsum_;  ///< running column sums of the vertical window
-  std::vector<float> weight_median_buf_;  ///< window means of every 2nd pixel, for their median
+  // The weights are computed on cells of 2 x 2 pixels (updateWeightMap):
+  cv::Mat weight_cells_;    ///< CV_32FC1, 8 planes of cells: the sums of r^2, gx^2, gx gy, gy^2, gx r, gy r, a^2, a r
+  cv::Mat weight_window_;   ///< CV_32FC1, the same planes: their window sums
+  cv::Mat weight_cell_w_;   ///< CV_32FC1 per cell: the shift statistic q, then the weight
+  std::vector<float> weight_colsum_;  ///< running column sums of the vertical window (and a row of scratch)
+  std::vector<float> weight_median_buf_;  ///< per-cell values, for their medians
   bool use_weight_map_ = false;  ///< weight_map_ applies to the sweeps of the current update
   const cv::Mat* confidence_ = nullptr;  ///< per-pixel confidence (setPixelConfidence), not owned
   const cv::Mat* active_map_ = nullptr;  ///< the weights the sweeps of the current update use (null: none)

@@ -1180,20 +1180,6 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   return stats;
 }
 
-namespace {
-
-/// Bilinear sample of a CV_32FC1 map at (x, y) (clamped inside), 0 outside the image.
-float sampleBilinear(const cv::Mat& m, float x, float y) {
-  if (!(x >= 0.0f) || !(y >= 0.0f) || x > m.cols - 1 || y > m.rows - 1) return 0.0f;
-  const int x0 = std::min(static_cast<int>(x), m.cols - 2), y0 = std::min(static_cast<int>(y), m.rows - 2);
-  const float ax = x - x0, ay = y - y0;
-  const float* r0 = m.ptr<float>(y0);
-  const float* r1 = m.ptr<float>(y0 + 1);
-  return (1.0f - ay) * ((1.0f - ax) * r0[x0] + ax * r0[x0 + 1]) + ay * ((1.0f - ax) * r1[x0] + ax * r1[x0 + 1]);
-}
-
-}  // namespace
-
 void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const PreprocessedFrame& cur,
                                         const PinholeK& K, const State& state, double var_mu,
                                         double dt_s, double variance) {
@@ -1202,78 +1188,116 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
   weight_map_t_s_ = cur.t_s;
   const double parallax_t_prev = parallax_t_s_;
   parallax_t_s_ = -1.0;
-  if (!(k > 0.0) || !(variance > 0.0) || !std::isfinite(variance) || residual_.empty() ||
+  const int W = residual_.cols, H = residual_.rows;
+  // The statistics are computed on cells of 2 x 2 pixels (a quarter of the work; the windows are 4 % of the
+  // width, so the weights change little within a cell).
+  const int Wc = W / 2, Hc = H / 2;
+  if (!(k > 0.0) || !(variance > 0.0) || !std::isfinite(variance) || residual_.empty() || Wc < 2 || Hc < 2 ||
       cur.grad_x.size() != residual_.size() || cur.grad_y.size() != residual_.size()) {
     weight_map_.release();
     return;
   }
-  const int W = residual_.cols, H = residual_.rows;
   const int half = std::max(1, static_cast<int>(std::lround(0.5 * params_.outlier_window_fraction * W)));
+  const int hc = std::max(1, static_cast<int>(std::lround(0.5 * half)));  // window half-side in cells
   constexpr int kCh = kWindowChannels;  // r^2, gx^2, gx gy, gy^2, gx r, gy r, a^2, a r (a = dr / d rho)
-  weight_scratch_.create(residual_.size(), CV_32FC(kCh));
-  weight_window_.create(residual_.size(), CV_32FC(kCh));
-  weight_map_.create(residual_.size(), CV_32FC1);
-  // Horizontal window sums of the products (windows truncated at the image's edges), by running sums.
-  for (int y = 0; y < H; ++y) {
-    const float* r = residual_.ptr<float>(y);
-    const float* a = depth_jac_.ptr<float>(y);
-    const float* gx = cur.grad_x.ptr<float>(y);
-    const float* gy = cur.grad_y.ptr<float>(y);
-    auto products = [&](int x, double* p) {
-      p[0] = double(r[x]) * r[x];
-      // The gradient only counts where there is a residual (a valid pixel of the last sweep).
-      const double m = r[x] != 0.0f ? 1.0 : 0.0;
-      p[1] = m * gx[x] * gx[x];
-      p[2] = m * gx[x] * gy[x];
-      p[3] = m * gy[x] * gy[x];
-      p[4] = double(gx[x]) * r[x];
-      p[5] = double(gy[x]) * r[x];
-      p[6] = double(a[x]) * a[x];
-      p[7] = double(a[x]) * r[x];
-    };
-    float* out = weight_scratch_.ptr<float>(y);
-    double sum[kCh] = {}, p[kCh];
-    int lo = 0, hi = 0;  // window [lo, hi)
-    for (int x = 0; x < W; ++x) {
-      const int want_hi = std::min(W, x + half + 1), want_lo = std::max(0, x - half);
+  const int Wp = (Wc + 3) & ~3;         // cells per plane row, padded to 4 lanes
+  // Planes of cells: channel c, cell row j is row c Hc + j.
+  weight_cells_.create(kCh * Hc, Wp, CV_32FC1);
+  weight_window_.create(kCh * Hc, Wp, CV_32FC1);
+  weight_cell_w_.create(Hc, Wc, CV_32FC1);
+  weight_map_.create(H, W, CV_32FC1);
+  auto cells = [&](int c, int j) { return weight_cells_.ptr<float>(c * Hc + j); };
+  auto window = [&](int c, int j) { return weight_window_.ptr<float>(c * Hc + j); };
+  // Per cell, the sums of the products over its 4 pixels (4 cells = 8 pixels of a row at a time). The gradient
+  // only counts where there is a residual (a valid pixel of the last sweep).
+  {
+    using namespace cv;
+    const v_float32x4 zero = v_setzero_f32();
+    const int Wv = Wc & ~3;  // cells done 4 at a time
+    for (int j = 0; j < Hc; ++j) {
+      float* out[kCh];
+      for (int c = 0; c < kCh; ++c) {
+        out[c] = cells(c, j);
+        std::fill(out[c], out[c] + Wp, 0.0f);
+      }
+      for (int y = 2 * j; y < 2 * j + 2; ++y) {
+        const float* r = residual_.ptr<float>(y);
+        const float* a = depth_jac_.ptr<float>(y);
+        const float* gx = cur.grad_x.ptr<float>(y);
+        const float* gy = cur.grad_y.ptr<float>(y);
+        for (int i = 0; i < Wv; i += 4) {
+          v_float32x4 r0, r1, a0, a1, x0, x1, y0, y1;
+          v_load_deinterleave(r + 2 * i, r0, r1);
+          v_load_deinterleave(a + 2 * i, a0, a1);
+          v_load_deinterleave(gx + 2 * i, x0, x1);
+          v_load_deinterleave(gy + 2 * i, y0, y1);
+          const v_float32x4 m0 = r0 != zero, m1 = r1 != zero;
+          x0 = v_select(m0, x0, zero);
+          y0 = v_select(m0, y0, zero);
+          x1 = v_select(m1, x1, zero);
+          y1 = v_select(m1, y1, zero);
+          const v_float32x4 p[kCh] = {v_muladd(r0, r0, r1 * r1), v_muladd(x0, x0, x1 * x1), v_muladd(x0, y0, x1 * y1),
+                                      v_muladd(y0, y0, y1 * y1), v_muladd(x0, r0, x1 * r1), v_muladd(y0, r0, y1 * r1),
+                                      v_muladd(a0, a0, a1 * a1), v_muladd(a0, r0, a1 * r1)};
+          for (int c = 0; c < kCh; ++c) v_store(out[c] + i, v_load(out[c] + i) + p[c]);
+        }
+        for (int x = 2 * Wv; x < 2 * Wc; ++x) {
+          const int i = x >> 1;
+          const float rv = r[x], av = a[x];
+          const float m = rv != 0.0f ? 1.0f : 0.0f;
+          const float gxv = m * gx[x], gyv = m * gy[x];
+          out[0][i] += rv * rv;
+          out[1][i] += gxv * gxv;
+          out[2][i] += gxv * gyv;
+          out[3][i] += gyv * gyv;
+          out[4][i] += gxv * rv;
+          out[5][i] += gyv * rv;
+          out[6][i] += av * av;
+          out[7][i] += av * rv;
+        }
+      }
+    }
+  }
+  // Window sums over (2 hc + 1)^2 cells, truncated at the edges: vertical running sums, then horizontal.
+  weight_colsum_.resize(static_cast<size_t>(kCh + 1) * Wp);  // allocates once per image width
+  std::fill(weight_colsum_.begin(), weight_colsum_.end(), 0.0f);
+  float* tmp = weight_colsum_.data() + kCh * Wp;
+  for (int c = 0; c < kCh; ++c) {
+    float* colsum = weight_colsum_.data() + c * Wp;
+    int lo = 0, hi = 0;  // cell rows [lo, hi) in the column sums
+    for (int j = 0; j < Hc; ++j) {
+      const int want_hi = std::min(Hc, j + hc + 1), want_lo = std::max(0, j - hc);
       for (; hi < want_hi; ++hi) {
-        products(hi, p);
-        for (int c = 0; c < kCh; ++c) sum[c] += p[c];
+        const float* row = cells(c, hi);
+        for (int i = 0; i < Wp; ++i) colsum[i] += row[i];
       }
       for (; lo < want_lo; ++lo) {
-        products(lo, p);
-        for (int c = 0; c < kCh; ++c) sum[c] -= p[c];
+        const float* row = cells(c, lo);
+        for (int i = 0; i < Wp; ++i) colsum[i] -= row[i];
       }
-      for (int c = 0; c < kCh; ++c) out[kCh * x + c] = static_cast<float>(sum[c]);
+      // Horizontal running sum of this row's vertical sums: the window [i - hc, i + hc] truncated at the edges.
+      std::copy(colsum, colsum + Wp, tmp);
+      float* out = window(c, j);
+      float sum = 0.0f;
+      for (int i = 0; i < std::min(hc, Wc); ++i) sum += tmp[i];
+      for (int i = 0; i < Wc; ++i) {
+        if (i + hc < Wc) sum += tmp[i + hc];
+        if (i - hc - 1 >= 0) sum -= tmp[i - hc - 1];
+        out[i] = sum;
+      }
     }
   }
-  // Vertical: window sums into weight_window_.
-  weight_colsum_.resize(static_cast<size_t>(kCh) * W);  // allocates once per image width
-  std::fill(weight_colsum_.begin(), weight_colsum_.end(), 0.0);
-  double* colsum = weight_colsum_.data();
-  int lo = 0, hi = 0;  // rows [lo, hi) in the column sums
-  for (int y = 0; y < H; ++y) {
-    const int want_hi = std::min(H, y + half + 1), want_lo = std::max(0, y - half);
-    for (; hi < want_hi; ++hi) {
-      const float* row = weight_scratch_.ptr<float>(hi);
-      for (int i = 0; i < kCh * W; ++i) colsum[i] += row[i];
-    }
-    for (; lo < want_lo; ++lo) {
-      const float* row = weight_scratch_.ptr<float>(lo);
-      for (int i = 0; i < kCh * W; ++i) colsum[i] -= row[i];
-    }
-    float* out = weight_window_.ptr<float>(y);
-    for (int i = 0; i < kCh * W; ++i) out[i] = static_cast<float>(std::max(-1e30, colsum[i]));
-  }
-  auto window_count = [&](int y, int x) {
-    return double(std::min(H, y + half + 1) - std::max(0, y - half)) *
-           double(std::min(W, x + half + 1) - std::max(0, x - half));
+  // 1 / pixels in the window of cell (i, j).
+  auto inv_pixels = [&](int j, int i) {
+    return 0.25f / static_cast<float>((std::min(Hc, j + hc + 1) - std::max(0, j - hc)) *
+                                      (std::min(Wc, i + hc + 1) - std::max(0, i - hc)));
   };
+  // Medians over every other cell in both directions.
   auto median_of = [&](auto value) {
     weight_median_buf_.clear();
-    for (int y = 0; y < H; y += 2)
-      for (int x = 0; x < W; x += 2) {
-        const float v = value(y, x);
+    for (int j = 0; j < Hc; j += 2)
+      for (int i = 0; i < Wc; i += 2) {
+        const float v = value(j, i);
         if (std::isfinite(v)) weight_median_buf_.push_back(v);  // capacity kept between images
       }
     if (weight_median_buf_.empty()) return 0.0;
@@ -1285,27 +1309,25 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
   // (1) Energy: m = mean r^2 of the window, against the larger of the noise and the median over the image.
   // Outliers are what stands out of the bulk of the image; a state error that raises the residual everywhere
   // raises the median with it and does not switch the well-textured half of the image off.
-  const double m_ref = std::max(variance, median_of([&](int y, int x) {
-    return static_cast<float>(weight_window_.ptr<float>(y)[kCh * x] / window_count(y, x));
-  }));
+  const double m_ref = std::max(variance, median_of([&](int j, int i) { return window(0, j)[i] * inv_pixels(j, i); }));
   // (2) Shift: q = (mean g r)^T (mean g g^T)^-1 (mean g r), the part of m a local shift of the image explains.
   // Under noise alone q ~ chi-square(2) (scaled: mean = median / ln 2); an object of the ground's texture
-  // moving on its own is explained by a shift. Stored in weight_map_ for now.
-  for (int y = 0; y < H; ++y) {
-    const float* win = weight_window_.ptr<float>(y);
-    float* q = weight_map_.ptr<float>(y);
-    for (int x = 0; x < W; ++x) {
-      const float* s = win + kCh * x;
-      const double ridge = 1e-12 + 1e-6 * (double(s[1]) + s[3]);
-      const double a = s[1] + ridge, b = s[2], c = s[3] + ridge;
+  // moving on its own is explained by a shift. Kept in weight_cell_w_ for now.
+  for (int j = 0; j < Hc; ++j) {
+    const float *gxx = window(1, j), *gxy = window(2, j), *gyy = window(3, j), *gxr = window(4, j), *gyr = window(5, j);
+    float* q = weight_cell_w_.ptr<float>(j);
+    for (int i = 0; i < Wc; ++i) {
+      const double ridge = 1e-12 + 1e-6 * (double(gxx[i]) + gyy[i]);
+      const double a = gxx[i] + ridge, b = gxy[i], c = gyy[i] + ridge, u = gxr[i], v = gyr[i];
       const double det = a * c - b * b;
-      const double qs = det > 0.0 ? std::max(0.0, (c * s[4] * s[4] - 2.0 * b * s[4] * s[5] + a * s[5] * s[5]) / det) : 0.0;
-      q[x] = static_cast<float>(qs / window_count(y, x));
+      const double qs = det > 0.0 ? (c * u * u - 2.0 * b * u * v + a * v * v) / det : 0.0;
+      q[i] = static_cast<float>(std::max(0.0, qs)) * inv_pixels(j, i);
     }
   }
-  const double n_window = double(2 * half + 1) * (2 * half + 1);
+  const double n_window = 4.0 * (2 * hc + 1) * (2 * hc + 1);
   const double q_noise = 2.0 * variance * noise_correlation_floor_ / n_window;  // chi-square(2) mean
-  const double q_ref = std::max(q_noise, median_of([&](int y, int x) { return weight_map_.ptr<float>(y)[x]; }) / std::log(2.0));
+  const double q_ref = std::max(q_noise, median_of([&](int j, int i) { return weight_cell_w_.ptr<float>(j)[i]; }) /
+                                             std::log(2.0));
 
   // (3) Parallax: the window's relative inverse-depth change e = sum a r / sum a^2 against the plane's, with the
   // sums carried over the recent images along the warp (decay exp(-dt / tau)): a box standing on the ground is
@@ -1313,71 +1335,91 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
   const bool parallax = params_.parallax_tolerance > 0.0 && params_.parallax_time_constant_s >= 0.0;
   double e_ref = 0.0, e_spread2 = 0.0;
   if (parallax) {
-    std::swap(parallax_score_, parallax_score_prev_);
-    std::swap(parallax_info_, parallax_info_prev_);
-    parallax_score_.create(residual_.size(), CV_32FC1);
-    parallax_info_.create(residual_.size(), CV_32FC1);
-    const double decay = params_.parallax_time_constant_s > 0.0 ? std::exp(-dt_s / params_.parallax_time_constant_s) : 0.0;
-    const bool carry = decay > 0.0 && parallax_t_prev == ref.t_s && parallax_score_prev_.size() == residual_.size() &&
-                       parallax_info_prev_.size() == residual_.size();
+    std::swap(parallax_sums_, parallax_sums_prev_);
+    parallax_sums_.create(Hc, Wc, CV_32FC2);
+    const double decay =
+        params_.parallax_time_constant_s > 0.0 ? std::exp(-dt_s / params_.parallax_time_constant_s) : 0.0;
+    const bool carry = decay > 0.0 && parallax_t_prev == ref.t_s && parallax_sums_prev_.rows == Hc &&
+                       parallax_sums_prev_.cols == Wc && parallax_sums_prev_.type() == CV_32FC2;
     const float fdecay = static_cast<float>(decay);
-    for (int y = 0; y < H; ++y) {
-      const float* win = weight_window_.ptr<float>(y);
-      const float* rx = ref_x_.ptr<float>(y);
-      const float* ry = ref_y_.ptr<float>(y);
-      float* S = parallax_score_.ptr<float>(y);
-      float* J = parallax_info_.ptr<float>(y);
-      for (int x = 0; x < W; ++x) {
-        S[x] = win[kCh * x + 7];
-        J[x] = win[kCh * x + 6];
-        if (carry && rx[x] >= 0.0f) {
-          S[x] += fdecay * sampleBilinear(parallax_score_prev_, rx[x], ry[x]);
-          J[x] += fdecay * sampleBilinear(parallax_info_prev_, rx[x], ry[x]);
+    for (int j = 0; j < Hc; ++j) {
+      const float* win_aa = window(6, j);
+      const float* win_ar = window(7, j);
+      // Where the warp took the cell's centre pixel in the reference, i.e. in the previous image's cells.
+      const float* rx = ref_x_.ptr<float>(2 * j + 1);
+      const float* ry = ref_y_.ptr<float>(2 * j + 1);
+      float* sj = parallax_sums_.ptr<float>(j);
+      for (int i = 0; i < Wc; ++i) {
+        float S = win_ar[i], J = win_aa[i];
+        if (carry) {
+          const float x = rx[2 * i + 1], y = ry[2 * i + 1];
+          if (x >= 0.0f && y >= 0.0f) {
+            const int pi = std::min(Wc - 1, static_cast<int>(0.5f * x)), pj = std::min(Hc - 1, static_cast<int>(0.5f * y));
+            const float* prev = parallax_sums_prev_.ptr<float>(pj) + 2 * pi;
+            S += fdecay * prev[0];
+            J += fdecay * prev[1];
+          }
         }
+        sj[2 * i] = S;
+        sj[2 * i + 1] = J;
       }
     }
     parallax_t_s_ = cur.t_s;
-    auto e_at = [&](int y, int x) {
-      const float J = parallax_info_.ptr<float>(y)[x];
-      return J > 0.0f ? parallax_score_.ptr<float>(y)[x] / J : std::numeric_limits<float>::quiet_NaN();
+    auto e_at = [&](int j, int i) {
+      const float* sj = parallax_sums_.ptr<float>(j) + 2 * i;
+      return sj[1] > 0.0f ? sj[0] / sj[1] : std::numeric_limits<float>::quiet_NaN();
     };
     e_ref = median_of(e_at);
     // The image's own spread of e (1.4826 x the median absolute deviation): while the state is still wrong, e
     // varies over the whole image, and nothing stands out of it.
-    const double mad = median_of([&](int y, int x) { return static_cast<float>(std::abs(e_at(y, x) - e_ref)); });
+    const double mad = median_of([&](int j, int i) { return static_cast<float>(std::abs(e_at(j, i) - e_ref)); });
     e_spread2 = std::pow(1.4826 * mad, 2);
   }
   // Precision of e: the noise is correlated over the blur's area within a window (the measured correlation of
   // section 3 reaches over tiles larger than the window, and reflects the state error while converging).
   const double var_corr = variance * noise_correlation_floor_;
   const double tol2 = params_.parallax_tolerance * params_.parallax_tolerance;
+  const double k2 = k * k;
   const Vec3 mu = state.mu.vector();
 
-  // w = 1 / ((1 + z_m^2) (1 + z_q^4) (1 + z_e^4)) with z_m = m / (k^2 m_ref), z_q = q / (k^2 q_ref) and
-  // z_e = (e - e_ref)^2 / (k^2 (var_e + tol^2 + var_tilt)): each term is about 1 within the bulk of the image,
-  // 1/2 where the window stands out by k "sigmas", and falls fast beyond.
-  const double inv_m = 1.0 / (k * k * m_ref), inv_q = 1.0 / (k * k * q_ref), inv_k2 = 1.0 / (k * k);
-  for (int y = 0; y < H; ++y) {
-    const float* win = weight_window_.ptr<float>(y);
-    const float* S = parallax ? parallax_score_.ptr<float>(y) : nullptr;
-    const float* J = parallax ? parallax_info_.ptr<float>(y) : nullptr;
-    float* w = weight_map_.ptr<float>(y);
-    const double qy = (y - K.cy) / K.fy;
-    for (int x = 0; x < W; ++x) {
-      const double zm = win[kCh * x] / window_count(y, x) * inv_m, zq = w[x] * inv_q;
+  // w = 1 / ((1 + z_m^2) (1 + z_q^4) (1 + z_e^2)) with z_m = m / (k^2 m_ref), z_q = q / (k^2 q_ref) and
+  // z_e = (e - e_ref)^2 / max(tol^2 + k^2 (var_e + var_tilt), k^2 spread^2): each term is about 1 within the bulk
+  // of the image, 1/2 where the window stands out by k "sigmas" (by the tolerance, for e), falling fast beyond.
+  const double inv_m = 1.0 / (k2 * m_ref), inv_q = 1.0 / (k2 * q_ref);
+  for (int j = 0; j < Hc; ++j) {
+    const float* win = window(0, j);
+    const float* sj = parallax ? parallax_sums_.ptr<float>(j) : nullptr;
+    float* w = weight_cell_w_.ptr<float>(j);
+    const double qy = (2 * j + 0.5 - K.cy) / K.fy;
+    for (int i = 0; i < Wc; ++i) {
+      const double zm = win[i] * inv_pixels(j, i) * inv_m, zq = w[i] * inv_q;
       double ze = 0.0;
-      if (parallax && J[x] > 0.0f) {
+      if (parallax && sj[2 * i + 1] > 0.0f) {
         // The plane's own tilt uncertainty changes the inverse depth along the ray q by (dmu . q) / (mu . q).
-        const double qx = (x - K.cx) / K.fx;
+        const double J = sj[2 * i + 1];
+        const double qx = (2 * i + 0.5 - K.cx) / K.fx;
         const double mq = mu(0) * qx + mu(1) * qy + mu(2);
         const double q2 = qx * qx + qy * qy + 1.0;
         const double var_tilt = mq > 1e-3 ? var_mu * std::max(0.0, q2 - mq * mq) / (mq * mq) : 1e6;
-        const double de = S[x] / J[x] - e_ref;
-        ze = de * de * inv_k2 / std::max(var_corr / J[x] + tol2 + var_tilt, e_spread2);
+        const double de = sj[2 * i] / J - e_ref;
+        ze = de * de / std::max(tol2 + k2 * (var_corr / J + var_tilt), k2 * e_spread2);
       }
-      w[x] = static_cast<float>(1.0 / ((1.0 + zm * zm) * (1.0 + zq * zq * zq * zq) * (1.0 + ze * ze)));
+      const double zq2 = zq * zq;
+      w[i] = static_cast<float>(1.0 / ((1.0 + zm * zm) * (1.0 + zq2 * zq2) * (1.0 + ze * ze)));
       if (zm > 0.1 || zq > 0.3 || ze > 0.3) weight_map_has_outliers_ = true;
     }
+  }
+  // The cells' weights to the pixels (the odd last row and column take their neighbours').
+  for (int y = 0; y < H; ++y) {
+    float* w = weight_map_.ptr<float>(y);
+    if ((y & 1) == 1 && (y >> 1) < Hc) {
+      const float* above = weight_map_.ptr<float>(y - 1);  // the same cells
+      std::copy(above, above + W, w);
+      continue;
+    }
+    const float* wc = weight_cell_w_.ptr<float>(std::min(Hc - 1, y >> 1));
+    for (int i = 0; i < Wc; ++i) w[2 * i] = w[2 * i + 1] = wc[i];
+    for (int x = 2 * Wc; x < W; ++x) w[x] = wc[Wc - 1];
   }
 }
 

@@ -820,8 +820,9 @@ TEST(PhotometricOutliers, ARaisedBoxIsFoundOverTheImagesAndDownWeighted) {
     }
     return out;
   };
-  const Run clean = run(without_box, 0.0), clean_parallax = run(without_box, 0.03);
-  const Run plain = run(with_box, 0.0), parallax = run(with_box, 0.03);
+  const double tolerance = PhotometricParams{}.parallax_tolerance;
+  const Run clean = run(without_box, 0.0), clean_parallax = run(without_box, tolerance);
+  const Run plain = run(with_box, 0.0), parallax = run(with_box, tolerance);
   std::printf("relative |vartheta| error (removed; weight on the box top / elsewhere):\n"
               "  no box %+.4f (%.1f %%), with the parallax test %+.4f (%.1f %%)\n"
               "  box %+.4f (%.1f %%; %.2f / %.2f), with the parallax test %+.4f (%.1f %%; %.2f / %.2f)\n",
@@ -833,9 +834,10 @@ TEST(PhotometricOutliers, ARaisedBoxIsFoundOverTheImagesAndDownWeighted) {
   EXPECT_GT(plain.box_weight, 0.8) << "one image's residual must not show the box";
   EXPECT_LT(parallax.box_weight, 0.3);
   EXPECT_GT(parallax.ground_weight, 0.85);
-  // No box: the test changes little (measured: 2.8 % more of the weight removed, spread over the image).
-  EXPECT_LT(std::abs(clean_parallax.err - clean.err), 0.002);
-  EXPECT_LT(clean_parallax.removed, clean.removed + 0.04);
+  // No box: the test changes little (measured: 3.5 % more of the weight removed, spread over the image; |vartheta|
+  // 0.3 % higher).
+  EXPECT_LT(std::abs(clean_parallax.err - clean.err), 0.005);
+  EXPECT_LT(clean_parallax.removed, clean.removed + 0.05);
 }
 
 }  // namespace
