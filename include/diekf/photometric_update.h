@@ -192,7 +192,7 @@ class PhotometricUpdate {
   cv::Mat parallax_sums_;       ///< CV_32FC2 per cell: carried window sums of a r and a^2 (a = dr / d rho)
   cv::Mat parallax_sums_prev_;  ///< the same of the previous image (swapped)
   double parallax_t_s_ = -1.0;  ///< stamp of the image the parallax sums belong to
-  cv::Mat ref_packed_;  ///< CV_32FC4 (I, dI/dx, dI/dy, 0) of the reference frame, reused between calls
+  cv::Mat ref_packed_;  ///< CV_32FC4 (I, dI/dx, dI/dy, outlier weight) of the reference frame, reused between calls
   cv::Mat scratch_;     ///< CV_32FC1 13 x (width rounded up to 4): row buffers of the sweep
   double noise_variance_gain_ = 1.0;
   double noise_correlation_floor_ = 1.0;

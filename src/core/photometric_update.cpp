@@ -444,7 +444,8 @@ void accumulateRow(float* const* T, const float* valid, int n_pad, const int* se
 /// pixel). Per row: (1) 4 pixels at a time, warp, bilinear reference sample (4 corner loads + transpose per
 /// lane group), residual, Jacobian row S (2/dt times the true row: gradient sum instead of mean, Jacobian
 /// without dt; the caller rescales), weight; the results go to the row buffers; (2) the row's Gram sums.
-/// The residual r (0 where invalid) is written to `residual`. The weighting options are template parameters.
+/// The residual r, dr / d rho and the reference position per pixel go to `out` (PixelOutputs). The weighting
+/// options are template parameters.
 template <bool kHuber, bool kGradientWeighting, bool kWeightMap>
 void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelWarp& wp, const SweepConfig& cfg,
            RowBuffers buf, SweepSums* sums, const PixelOutputs& out) {
@@ -722,9 +723,8 @@ SweepConfig makeConfig(const PhotometricParams& params, const PreprocessParams& 
   return cfg;
 }
 
-/// (I, dI/dx, dI/dy, 0) of the reference frame interleaved into a CV_32FC4 buffer (reallocated only when the
-/// size changes).
-/// Plane 3 holds `weights` (CV_32FC1, the image's size: the outlier weights of the reference's pixels), or 1.
+/// (I, dI/dx, dI/dy, w) of the reference frame interleaved into a CV_32FC4 buffer (reallocated only when the
+/// size changes). Plane 3 holds `weights` (CV_32FC1, the image's size: the outlier weights of the reference's pixels), or 1.
 void packReference(const PreprocessedFrame& ref, cv::Mat* packed, const cv::Mat* weights = nullptr) {
   using namespace cv;
   packed->create(ref.intensity.size(), CV_32FC4);
@@ -1407,6 +1407,36 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
       const double zq2 = zq * zq;
       w[i] = static_cast<float>(1.0 / ((1.0 + zm * zm) * (1.0 + zq2 * zq2) * (1.0 + ze * ze)));
       if (zm > 0.1 || zq > 0.3 || ze > 0.3) weight_map_has_outliers_ = true;
+    }
+  }
+  // A pixel is as suspect as the most suspect window that contains it: each cell takes the minimum of its own
+  // weight and of the clearly low weights (below 1/2) over the (2 hc + 1)^2 cells around (separable: rows into
+  // the free plane 0 of weight_window_, then columns). Without it an object's border, where the windows lie only
+  // partly on it, keeps about half its weight; the mild reductions of the bulk are not spread.
+  {
+    constexpr float kClear = 0.5f;
+    // Rows with a clearly low weight (most have none: they are skipped).
+    weight_median_buf_.assign(static_cast<size_t>(Hc), 0.0f);  // capacity kept between images
+    float* row_has = weight_median_buf_.data();
+    for (int j = 0; j < Hc; ++j) {
+      const float* w = weight_cell_w_.ptr<float>(j);
+      float* rowmin = window(0, j);
+      for (int i = 0; i < Wc; ++i) row_has[j] = w[i] < kClear ? 1.0f : row_has[j];
+      if (row_has[j] == 0.0f) continue;
+      for (int i = 0; i < Wc; ++i) {
+        float m = 1.0f;
+        for (int d = std::max(0, i - hc); d <= std::min(Wc - 1, i + hc); ++d)
+          if (w[d] < kClear) m = std::min(m, w[d]);
+        rowmin[i] = m;
+      }
+    }
+    for (int j = 0; j < Hc; ++j) {
+      float* w = weight_cell_w_.ptr<float>(j);
+      for (int d = std::max(0, j - hc); d <= std::min(Hc - 1, j + hc); ++d) {
+        if (row_has[d] == 0.0f) continue;
+        const float* rowmin = window(0, d);
+        for (int i = 0; i < Wc; ++i) w[i] = std::min(w[i], rowmin[i]);
+      }
     }
   }
   // The cells' weights to the pixels (the odd last row and column take their neighbours').
