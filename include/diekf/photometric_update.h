@@ -134,8 +134,7 @@ class PhotometricUpdate {
     noise_ = NoiseEstimate();
     last_rate_valid_ = false;
     weight_map_.release();
-    weight_map_has_outliers_ = false;
-    parallax_t_s_ = -1.0;  // the parallax sums are not carried over
+    weight_map_has_outliers_ = false;  // without a map the parallax sums are not carried over either
   }
 
   /// One linearisation at x (what every Gauss-Newton pass accumulates), without the solve:
@@ -182,6 +181,10 @@ class PhotometricUpdate {
   /// the per-pixel noise variance (section 2).
   void updateWeightMap(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PinholeK& K, const State& x,
                        double var_mu, double dt_s, double variance);
+  /// The outlier weights (and the parallax sums) of the last updateWeightMap belong to the pixels of `ref`.
+  bool weightsBelongTo(const PreprocessedFrame& ref) const {
+    return !weight_map_.empty() && weight_map_.size() == ref.intensity.size() && weight_map_t_s_ == ref.t_s;
+  }
   static constexpr int kWindowChannels = 8;  ///< window sums of r^2, gx^2, gx gy, gy^2, gx r, gy r, a^2, a r
 
   PhotometricParams params_;
@@ -191,7 +194,6 @@ class PhotometricUpdate {
   cv::Mat ref_x_, ref_y_;  ///< CV_32FC1 where the last linearisation's warp lands in the reference (-1: nowhere)
   cv::Mat parallax_sums_;       ///< CV_32FC2 per cell: carried window sums of a r and a^2 (a = dr / d rho)
   cv::Mat parallax_sums_prev_;  ///< the same of the previous image (swapped)
-  double parallax_t_s_ = -1.0;  ///< stamp of the image the parallax sums belong to
   cv::Mat ref_packed_;  ///< CV_32FC4 (I, dI/dx, dI/dy, outlier weight) of the reference frame, reused between calls
   cv::Mat scratch_;     ///< CV_32FC1 13 x (width rounded up to 4): row buffers of the sweep
   double noise_variance_gain_ = 1.0;
@@ -204,12 +206,12 @@ class PhotometricUpdate {
   cv::Mat weight_window_;   ///< CV_32FC1, the same planes: their window sums
   cv::Mat weight_cell_w_;   ///< CV_32FC1 per cell: the shift statistic q, then the weight
   std::vector<float> weight_colsum_;  ///< running column sums of the vertical window (and a row of scratch)
-  std::vector<float> weight_median_buf_;  ///< per-cell values, for their medians
+  std::vector<float> weight_median_buf_;  ///< per-cell values, for their medians; then the rows' flags (border minimum)
   bool use_weight_map_ = false;  ///< weight_map_ applies to the sweeps of the current update
   const cv::Mat* confidence_ = nullptr;  ///< per-pixel confidence (setPixelConfidence), not owned
   const cv::Mat* active_map_ = nullptr;  ///< the weights the sweeps of the current update use (null: none)
   bool weight_map_has_outliers_ = false;  ///< some weight of weight_map_ is below 1
-  double weight_map_t_s_ = 0.0;           ///< stamp of the image weight_map_'s pixels belong to
+  double weight_map_t_s_ = 0.0;           ///< stamp of the image weight_map_'s pixels (and parallax_sums_) belong to
   Vec3 last_rate_C_ = Vec3::Zero();  ///< rotation rate of the previous update's interval, rad/s (camera frame)
   bool last_rate_valid_ = false;
 };

@@ -55,6 +55,7 @@ class ImageUpdate {
   void resetNoiseModel() { photometric_.resetNoiseModel(); }
   /// Residual image of the last photometric update.
   const cv::Mat& residualImage() const { return photometric_.residualImage(); }
+  /// Outlier weights drawn from the last photometric update's residual (PhotometricUpdate::outlierWeights).
   const cv::Mat& outlierWeights() const { return photometric_.outlierWeights(); }
 
  private:

@@ -1006,8 +1006,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   // one's reference: they belong to the reference's pixels and are sampled where the warp lands, so they move
   // with the objects. A map without any weight below 1 changes nothing: the plain sweep is used (bit for bit,
   // and cheaper).
-  use_weight_map_ = params_.outlier_threshold_sigma > 0.0 && weight_map_has_outliers_ && !weight_map_.empty() &&
-                    weight_map_.size() == ref.intensity.size() && ref.t_s == weight_map_t_s_;
+  use_weight_map_ = params_.outlier_threshold_sigma > 0.0 && weight_map_has_outliers_ && weightsBelongTo(ref);
   packReference(ref, &ref_packed_, use_weight_map_ ? &weight_map_ : nullptr);  // once per update, every pass
   // The camera-fixed pattern's confidence, per pixel of the current image (docs/noise_model.md section 11).
   active_map_ = confidence_ != nullptr && confidence_->type() == CV_32FC1 && confidence_->size() == cur.intensity.size()
@@ -1185,9 +1184,10 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
                                         double dt_s, double variance) {
   const double k = params_.outlier_threshold_sigma;
   weight_map_has_outliers_ = false;
+  // The previous call's parallax sums carry over when this pair's reference is the image they belong to (an
+  // early return or a reset releases the map, and with it the sums' validity).
+  const bool previous_sums = weightsBelongTo(ref);
   weight_map_t_s_ = cur.t_s;
-  const double parallax_t_prev = parallax_t_s_;
-  parallax_t_s_ = -1.0;
   const int W = residual_.cols, H = residual_.rows;
   // The statistics are computed on cells of 2 x 2 pixels (a quarter of the work; the windows are 4 % of the
   // width, so the weights change little within a cell).
@@ -1339,7 +1339,7 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
     parallax_sums_.create(Hc, Wc, CV_32FC2);
     const double decay =
         params_.parallax_time_constant_s > 0.0 ? std::exp(-dt_s / params_.parallax_time_constant_s) : 0.0;
-    const bool carry = decay > 0.0 && parallax_t_prev == ref.t_s && parallax_sums_prev_.rows == Hc &&
+    const bool carry = decay > 0.0 && previous_sums && parallax_sums_prev_.rows == Hc &&
                        parallax_sums_prev_.cols == Wc && parallax_sums_prev_.type() == CV_32FC2;
     const float fdecay = static_cast<float>(decay);
     for (int j = 0; j < Hc; ++j) {
@@ -1364,7 +1364,6 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
         sj[2 * i + 1] = J;
       }
     }
-    parallax_t_s_ = cur.t_s;
     auto e_at = [&](int j, int i) {
       const float* sj = parallax_sums_.ptr<float>(j) + 2 * i;
       return sj[1] > 0.0f ? sj[0] / sj[1] : std::numeric_limits<float>::quiet_NaN();
