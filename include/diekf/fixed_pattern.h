@@ -43,7 +43,10 @@ class FixedPattern {
  public:
   /// `width` x `height`: the working image. `flat_field` (optional, CV_32FC1 of the working size): an offline
   /// relative gain (vignetting calibration) divided out of every image before the online model.
-  FixedPattern(const FixedPatternParams& params, int width, int height, const cv::Mat& flat_field = cv::Mat());
+  /// `optical_centre_px`: the principal point in the working image, the centre of the radial vignetting
+  /// (negative: the image's centre).
+  FixedPattern(const FixedPatternParams& params, int width, int height, const cv::Mat& flat_field = cv::Mat(),
+               const Vec2& optical_centre_px = Vec2(-1.0, -1.0));
 
   /// In place on the blurred working image I (grey levels, row-major, width x height, contiguous): remembers
   /// the image (divided by its mean) for learn(), then, once the model is active, writes mean (u - a) / g.
@@ -77,11 +80,20 @@ class FixedPattern {
   /// which, uncorrected, is for "no motion". An IR projector's dense dots reach about half; a shadow a few %.
   double contrastShare() const { return active_ ? contrast_share_ : 0.0; }
   /// The fields in use (CV_32FC1, working size): gain g (1: none) and offset a (image-mean units; 0: none).
+  /// The gain includes the radial vignetting.
   const cv::Mat& gain() const { return gain_; }
+  /// The radial vignetting's part of the gain (CV_32FC1, 1 at the optical centre; all 1 when off or not
+  /// significant) and its value at the image's farthest corner.
+  const cv::Mat& vignetting() const { return vig_; }
+  double vignettingAtCorner() const { return vig_corner_; }
   const cv::Mat& offset() const { return offset_; }
 
  private:
   void refresh();
+  /// Fits the radial vignetting to the mean (m1 / level per ring of the image, their medians, weighted least
+  /// squares with one robust refit) into vig_ and inv_vig_, shrunk as a whole toward none unless its corner value
+  /// stands significance_sigma standard errors out (the scatter of the rings about the fit).
+  void fitVignetting();
   /// Median of value(i) over every 2nd pixel in x and y (i: the pixel's index). No allocation.
   template <class Value>
   float sampleMedian(Value value);
@@ -114,6 +126,13 @@ class FixedPattern {
   cv::Mat last_u_;      // last applied image over its mean (before the correction)
   cv::Mat m1_, m2_;     // exponentially weighted mean and variance of u
   cv::Mat gain_, inv_gain_, offset_, confidence_;
+  cv::Mat vig_, inv_vig_;          // radial vignetting V and 1 / V
+  cv::Mat r2_;                     // squared distance to the optical centre over the farthest corner's (0..1)
+  static constexpr int kRings = 12;  // rings of equal width in r^2
+  std::vector<int> ring_pixels_;     // every 2nd pixel in x and y, grouped by ring
+  int ring_start_[kRings + 1] = {};  // ring j: ring_pixels_[ring_start_[j], ring_start_[j + 1])
+  double ring_r2_[kRings] = {};      // mean r^2 of the ring's pixels
+  double vig_corner_ = 1.0;
   std::vector<float> median_buf_;
   cv::Mat smooth_, scratch_;     // local mean of the mean ratio, and its detail
   std::vector<double> colsum_;   // box filter column sums

@@ -69,7 +69,8 @@ struct Estimator::Impl {
         fixed_pattern(p.fixed_pattern, img_pre.workingSize().width, img_pre.workingSize().height,
                       p.fixed_pattern.vignetting_file.empty()
                           ? cv::Mat()
-                          : loadFlatField(p.fixed_pattern.vignetting_file, cam, preprocessParamsFor(p))),
+                          : loadFlatField(p.fixed_pattern.vignetting_file, cam, preprocessParamsFor(p)),
+                      Vec2(img_pre.workingK().cx, img_pre.workingK().cy)),
         imu(params),
         update(cam, params, img_pre),
         health(params),

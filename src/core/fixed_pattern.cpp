@@ -5,6 +5,8 @@
 #include <cmath>
 #include <stdexcept>
 
+#include <Eigen/Dense>
+
 #include "diekf/image_preprocessor.h"
 
 namespace diekf {
@@ -72,7 +74,8 @@ void boxMean(const float* src, float* dst, float* tmp, double* colsum, int W, in
 
 }  // namespace
 
-FixedPattern::FixedPattern(const FixedPatternParams& params, int width, int height, const cv::Mat& flat_field)
+FixedPattern::FixedPattern(const FixedPatternParams& params, int width, int height, const cv::Mat& flat_field,
+                           const Vec2& optical_centre_px)
     : params_(params), width_(width), height_(height) {
   if (width <= 0 || height <= 0) throw std::invalid_argument("FixedPattern: empty working image");
   if (!flat_field.empty()) {
@@ -91,6 +94,33 @@ FixedPattern::FixedPattern(const FixedPatternParams& params, int width, int heig
   inv_gain_.create(height, width, CV_32FC1);
   offset_.create(height, width, CV_32FC1);
   confidence_.create(height, width, CV_32FC1);
+  vig_.create(height, width, CV_32FC1);
+  inv_vig_.create(height, width, CV_32FC1);
+  // The radial vignetting's radius: from the principal point, 1 at the farthest corner; the rings of every 2nd
+  // pixel for its fit.
+  const double cx = optical_centre_px.x() >= 0.0 ? optical_centre_px.x() : 0.5 * (width - 1);
+  const double cy = optical_centre_px.y() >= 0.0 ? optical_centre_px.y() : 0.5 * (height - 1);
+  const double dx = std::max(cx, width - 1 - cx), dy = std::max(cy, height - 1 - cy);
+  const double inv_r2max = 1.0 / std::max(1.0, dx * dx + dy * dy);
+  r2_.create(height, width, CV_32FC1);
+  for (int y = 0; y < height; ++y)
+    for (int x = 0; x < width; ++x)
+      r2_.at<float>(y, x) = static_cast<float>(((x - cx) * (x - cx) + (y - cy) * (y - cy)) * inv_r2max);
+  const auto ringOf = [&](int i) { return std::min(kRings - 1, static_cast<int>(r2_.ptr<float>()[i] * kRings)); };
+  int count[kRings] = {};
+  for (int y = 0; y < height; y += 2)
+    for (int x = 0; x < width; x += 2) ++count[ringOf(y * width + x)];
+  for (int j = 0; j < kRings; ++j) ring_start_[j + 1] = ring_start_[j] + count[j];
+  ring_pixels_.assign(static_cast<size_t>(ring_start_[kRings]), 0);
+  int fill[kRings];
+  std::copy(ring_start_, ring_start_ + kRings, fill);
+  for (int y = 0; y < height; y += 2)
+    for (int x = 0; x < width; x += 2) {
+      const int i = y * width + x, j = ringOf(i);
+      ring_pixels_[static_cast<size_t>(fill[j]++)] = i;
+      ring_r2_[j] += r2_.ptr<float>()[i];
+    }
+  for (int j = 0; j < kRings; ++j) ring_r2_[j] = count[j] > 0 ? ring_r2_[j] / count[j] : 0.0;
   median_buf_.reserve(static_cast<size_t>(((width + 1) / 2) * ((height + 1) / 2)));
   smooth_.create(height, width, CV_32FC1);
   scratch_.create(height, width, CV_32FC1);
@@ -106,6 +136,9 @@ void FixedPattern::reset() {
   inv_gain_.setTo(1.f);
   offset_.setTo(0.f);
   confidence_.setTo(1.f);
+  vig_.setTo(1.f);
+  inv_vig_.setTo(1.f);
+  vig_corner_ = 1.0;
   samples_ = 0.0;
   var_factor_ = 0.0;
   for (Snapshot& s : snapshots_) s.valid = false;
@@ -231,9 +264,10 @@ float FixedPattern::sampleMedian(Value value) {
 void FixedPattern::computeDetail(float* dt, float* sm, float* tmp, float level) {
   const int n = width_ * height_;
   const float* m1 = m1_.ptr<float>();
-  if (!(level > 0.f)) level = std::max(sampleMedian([&](int i) { return m1[i]; }), 1e-6f);
+  const float* iv = inv_vig_.ptr<float>();
+  if (!(level > 0.f)) level = std::max(sampleMedian([&](int i) { return m1[i] * iv[i]; }), 1e-6f);
   const float inv_level = 1.f / level;
-  for (int i = 0; i < n; ++i) dt[i] = m1[i] * inv_level;
+  for (int i = 0; i < n; ++i) dt[i] = m1[i] * iv[i] * inv_level;
   const int half = std::max(1, static_cast<int>(std::lround(0.05 * width_)));
   boxMean(dt, sm, tmp, colsum_.data(), width_, height_, half);
   for (int i = 0; i < n; ++i) dt[i] = dt[i] / std::max(sm[i], 1e-6f) - 1.f;
@@ -249,6 +283,91 @@ void FixedPattern::takeSnapshot() {
   s.valid = true;
 }
 
+void FixedPattern::fitVignetting() {
+  if (!params_.radial_vignetting) return;  // (vig_ stays all 1 from reset())
+  vig_.setTo(1.f);
+  inv_vig_.setTo(1.f);
+  vig_corner_ = 1.0;
+  // The ring medians of the mean: robust to a shadow, dirt or dots covering part of a ring.
+  const float* m1 = m1_.ptr<float>();
+  double q[kRings], w[kRings];
+  int rings = 0;
+  for (int j = 0; j < kRings; ++j) {
+    const int n_j = ring_start_[j + 1] - ring_start_[j];
+    w[j] = 0.0;
+    q[j] = 0.0;
+    if (n_j < 8) continue;
+    median_buf_.clear();
+    for (int k = ring_start_[j]; k < ring_start_[j + 1]; ++k) median_buf_.push_back(m1[ring_pixels_[static_cast<size_t>(k)]]);
+    q[j] = medianOf(&median_buf_);
+    w[j] = n_j;
+    ++rings;
+  }
+  // q = b0 + b1 r^2 + b2 r^4, weighted by the rings' pixel counts; then once more without the rings more than
+  // 3 robust sigmas off (a shadow filling a small ring).
+  Eigen::Vector3d b = Eigen::Vector3d::Zero();
+  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
+  for (int pass = 0; pass < 2; ++pass) {
+    if (rings < 4) return;
+    Eigen::Matrix3d N = Eigen::Matrix3d::Zero();
+    Eigen::Vector3d r = Eigen::Vector3d::Zero();
+    for (int j = 0; j < kRings; ++j) {
+      if (!(w[j] > 0.0)) continue;
+      const Eigen::Vector3d x(1.0, ring_r2_[j], ring_r2_[j] * ring_r2_[j]);
+      N += w[j] * x * x.transpose();
+      r += w[j] * q[j] * x;
+    }
+    const Eigen::LDLT<Eigen::Matrix3d> ldlt(N);
+    if (ldlt.info() != Eigen::Success) return;
+    b = ldlt.solve(r);
+    // Residual scale per unit weight (the rings' scatter about the fit: ground structure the path has not
+    // averaged out, and noise) and the coefficients' covariance.
+    double ss = 0.0, e_norm[kRings];
+    int used = 0;
+    for (int j = 0; j < kRings; ++j) {
+      if (!(w[j] > 0.0)) continue;
+      const double e = q[j] - (b(0) + b(1) * ring_r2_[j] + b(2) * ring_r2_[j] * ring_r2_[j]);
+      ss += w[j] * e * e;
+      e_norm[used++] = std::abs(e) * std::sqrt(w[j]);
+    }
+    const double s2 = ss / std::max(1, rings - 3);
+    cov = s2 * ldlt.solve(Eigen::Matrix3d::Identity());
+    if (pass == 1) break;
+    std::nth_element(e_norm, e_norm + used / 2, e_norm + used);
+    const double scale = 1.4826 * e_norm[used / 2];
+    int dropped = 0;
+    for (int j = 0; j < kRings; ++j) {
+      if (!(w[j] > 0.0)) continue;
+      const double e = q[j] - (b(0) + b(1) * ring_r2_[j] + b(2) * ring_r2_[j] * ring_r2_[j]);
+      if (scale > 0.0 && std::abs(e) * std::sqrt(w[j]) > 3.0 * scale) {
+        w[j] = 0.0;
+        --rings;
+        ++dropped;
+      }
+    }
+    if (dropped == 0) break;
+  }
+  if (!(b(0) > 0.0) || !b.allFinite()) return;
+  // The corner's deviation V(1) - 1 = (b1 + b2) / b0 against its standard error, shrunk like a pixel's.
+  const double dev = (b(1) + b(2)) / b(0);
+  const double se = std::sqrt(std::max(0.0, cov(1, 1) + cov(2, 2) + 2.0 * cov(1, 2))) / b(0);
+  const double kept = shrink(static_cast<float>(dev), static_cast<float>(se),
+                             static_cast<float>(params_.significance_sigma));
+  if (kept == 0.0 || !std::isfinite(kept)) return;
+  const double f = kept / dev;
+  const double v1 = f * b(1) / b(0), v2 = f * b(2) / b(0);
+  const int n = width_ * height_;
+  const float* r2 = r2_.ptr<float>();
+  float* vg = vig_.ptr<float>();
+  float* iv = inv_vig_.ptr<float>();
+  for (int i = 0; i < n; ++i) {
+    const double x = r2[i];
+    vg[i] = static_cast<float>(std::clamp(1.0 + v1 * x + v2 * x * x, 0.05, 2.0));
+    iv[i] = 1.f / vg[i];
+  }
+  vig_corner_ = std::clamp(1.0 + v1 + v2, 0.05, 2.0);
+}
+
 void FixedPattern::refresh() {
   const int n = width_ * height_;
   const float* m1 = m1_.ptr<float>();
@@ -259,10 +378,18 @@ void FixedPattern::refresh() {
   float* conf = confidence_.ptr<float>();
   // Spread per pixel (into a for now); medians of the spread (S) and of the mean (the ground's level) over every
   // 2nd pixel in x and y.
-  for (int i = 0; i < n; ++i) a[i] = std::sqrt(std::max(0.f, m2[i]));
+  // The radial vignetting first (one smooth field); the per-pixel model below sees the mean and the spread
+  // divided by it.
+  fitVignetting();
+  const float* vg = vig_.ptr<float>();
+  const float* iv = inv_vig_.ptr<float>();
+  for (int i = 0; i < n; ++i) a[i] = std::sqrt(std::max(0.f, m2[i])) * iv[i];
   const float S = sampleMedian([&](int i) { return a[i]; });
-  const float level = sampleMedian([&](int i) { return m1[i]; });
+  const float level = sampleMedian([&](int i) { return m1[i] * iv[i]; });
   if (!(S > 1e-6f) || !(level > 1e-6f)) {  // no texture seen: no model
+    vig_.setTo(1.f);
+    inv_vig_.setTo(1.f);
+    vig_corner_ = 1.0;
     gain_.setTo(1.f);
     inv_gain_.setTo(1.f);
     offset_.setTo(0.f);
@@ -342,15 +469,17 @@ void FixedPattern::refresh() {
     // the ground below a working pixel) leaves the corrected pixel with (g_s / g)^2 times the ground's variance,
     // the excess unrelated to the motion; weight g^2 / g_s^2.
     const float gs_s = 1.f + shrink(gs - gain, se_s, k) / std::max(gain, 1e-3f);
-    float c = inv_min_gain > 0.f ? std::min(1.f, (gain * inv_min_gain) * (gain * inv_min_gain)) : 1.f;
+    const float total = vg[i] * gain;  // with the vignetting
+    float c = inv_min_gain > 0.f ? std::min(1.f, (total * inv_min_gain) * (total * inv_min_gain)) : 1.f;
     if (gs_s > 1.f) c /= gs_s * gs_s;
     c *= c_unexplained;
     conf[i] = c;
     if (c < 1.f) has_low_confidence_ = true;
-    g[i] = std::max(gain, g_floor);
+    g[i] = std::max(total, g_floor);
     ig[i] = 1.f / g[i];
-    a[i] = add;
-    if (std::abs(g[i] - 1.f) > 0.3f || add > 0.5f * S || c < 0.5f) ++strong;
+    a[i] = add * vg[i];
+    // (the vignetting, smooth and expected of every lens, is not reported as a strong pattern)
+    if (std::abs(gain - 1.f) > 0.3f || add > 0.5f * S || c < 0.5f) ++strong;
   }
   strong_fraction_ = static_cast<double>(strong) / n;
   // The pattern's share of the image's contrast: the update weighs a pixel by its gradient, so what the pattern

@@ -382,6 +382,7 @@ const std::vector<Entry>& table() {
     t.push_back(real("fixed_pattern/min_gain", DIEKF_FIELD(double, fixed_pattern.min_gain), between(0.0, 1.0)));
     t.push_back(integer("fixed_pattern/refresh_frames", DIEKF_FIELD(int, fixed_pattern.refresh_frames),
                         between(1, 1000)));
+    t.push_back(flag("fixed_pattern/radial_vignetting", DIEKF_FIELD(bool, fixed_pattern.radial_vignetting)));
     t.push_back(real("fixed_pattern/report_fraction", DIEKF_FIELD(double, fixed_pattern.report_fraction),
                      between(0.0, 1.0)));
     t.push_back(flag("fixed_pattern/discount_biased_updates",

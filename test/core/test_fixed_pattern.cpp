@@ -3,6 +3,7 @@
 // that counts as a new sample.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <vector>
@@ -213,6 +214,86 @@ TEST(FixedPattern, CleanImagesAreLeftAlone) {
   cv::Mat img = g.clone();
   fp.apply(img.ptr<float>(), &s, &s2);
   EXPECT_GT(correlation(img, g), 0.999);
+}
+
+/// A lens's vignetting about an optical centre off the image's centre: 1 - 0.3 r^2 - 0.05 r^4, r = 1 at the
+/// farthest corner.
+cv::Mat radialVignetting(double cx, double cy) {
+  cv::Mat v(kH, kW, CV_32FC1);
+  const double dx = std::max(cx, kW - 1 - cx), dy = std::max(cy, kH - 1 - cy);
+  for (int y = 0; y < kH; ++y)
+    for (int x = 0; x < kW; ++x) {
+      const double r2 = ((x - cx) * (x - cx) + (y - cy) * (y - cy)) / (dx * dx + dy * dy);
+      v.at<float>(y, x) = static_cast<float>(1.0 - 0.3 * r2 - 0.05 * r2 * r2);
+    }
+  return v;
+}
+
+/// Largest |gain - truth| over the image, both relative to their medians.
+double maxGainError(const cv::Mat& gain, const cv::Mat& truth) {
+  std::vector<float> a(gain.begin<float>(), gain.end<float>()), b(truth.begin<float>(), truth.end<float>());
+  std::nth_element(a.begin(), a.begin() + a.size() / 2, a.end());
+  std::nth_element(b.begin(), b.begin() + b.size() / 2, b.end());
+  return cv::norm(gain / a[a.size() / 2] - truth / b[b.size() / 2], cv::NORM_INF);
+}
+
+/// Pixels where |gain - truth| exceeds tol, both relative to their medians.
+int pixelsOff(const cv::Mat& gain, const cv::Mat& truth, double tol) {
+  std::vector<float> a(gain.begin<float>(), gain.end<float>()), b(truth.begin<float>(), truth.end<float>());
+  std::nth_element(a.begin(), a.begin() + a.size() / 2, a.end());
+  std::nth_element(b.begin(), b.begin() + b.size() / 2, b.end());
+  const cv::Mat d = cv::abs(gain / a[a.size() / 2] - truth / b[b.size() / 2]);
+  return cv::countNonZero(d > tol);
+}
+
+TEST(FixedPattern, RadialVignettingIsFittedAsOneSmoothField) {
+  const double cx = 70.0, cy = 35.0;  // the principal point, off the image's centre
+  const cv::Mat vig = radialVignetting(cx, cy);
+  FixedPatternParams p = params();
+  p.radial_vignetting = true;
+  FixedPattern fp(p, kW, kH, cv::Mat(), Vec2(cx, cy));
+  FixedPattern per_pixel(params(), kW, kH, cv::Mat(), Vec2(cx, cy));  // the per-pixel model alone
+  cv::RNG rng(13);
+  double s = 0, s2 = 0;
+  for (int i = 0; i < 200; ++i) {
+    const cv::Mat img = (0.7 + 0.6 * rng.uniform(0.0, 1.0)) * ground(&rng).mul(vig);
+    cv::Mat a = img.clone(), b = img.clone();
+    fp.apply(a.ptr<float>(), &s, &s2);
+    fp.learn(10.0);
+    per_pixel.apply(b.ptr<float>(), &s, &s2);
+    per_pixel.learn(10.0);
+  }
+  ASSERT_TRUE(fp.active());
+  // The field is the lens's, everywhere (the per-pixel model leaves the weak parts uncorrected and steps where its
+  // significance test switches on), and it is not reported as a strong pattern.
+  EXPECT_NEAR(fp.vignettingAtCorner(), 0.65, 0.03);
+  const double err = maxGainError(fp.gain(), vig), err_per_pixel = maxGainError(per_pixel.gain(), vig);
+  std::printf("[ vignetting ] corner %.3f (truth 0.650); largest gain error %.3f (per-pixel model alone %.3f)\n",
+              fp.vignettingAtCorner(), err, err_per_pixel);
+  EXPECT_LT(maxGainError(fp.vignetting(), vig), 0.03);
+  EXPECT_LT(err, 0.2);  // the per-pixel model's own few false alarms (CleanImagesAreLeftAlone)
+  const int off = pixelsOff(fp.gain(), vig, 0.04), off_per_pixel = pixelsOff(per_pixel.gain(), vig, 0.04);
+  std::printf("[ vignetting ] gain off by more than 0.04: %d pixels (per-pixel model alone %d) of %d\n", off,
+              off_per_pixel, kW * kH);
+  EXPECT_LT(off, kW * kH / 100);
+  EXPECT_GT(off_per_pixel, kW * kH / 10);
+  EXPECT_LT(fp.strongFraction(), 0.01);
+  // A new image, corrected, is the ground again.
+  const cv::Mat g = ground(&rng);
+  cv::Mat img = g.mul(vig);
+  fp.apply(img.ptr<float>(), &s, &s2);
+  EXPECT_GT(correlation(img, g), 0.995);
+
+  // Without vignetting the fit finds none.
+  FixedPattern flat(p, kW, kH, cv::Mat(), Vec2(cx, cy));
+  for (int i = 0; i < 200; ++i) {
+    cv::Mat img2 = ground(&rng);
+    flat.apply(img2.ptr<float>(), &s, &s2);
+    flat.learn(10.0);
+  }
+  ASSERT_TRUE(flat.active());
+  EXPECT_NEAR(flat.vignettingAtCorner(), 1.0, 0.01);
+  EXPECT_LT(maxGainError(flat.vignetting(), cv::Mat(kH, kW, CV_32FC1, cv::Scalar(1.f))), 0.01);
 }
 
 TEST(FixedPattern, SaturatedPixelsLoseTheirWeight) {

@@ -123,6 +123,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          a.fixed_pattern.significance_sigma == b.fixed_pattern.significance_sigma &&
          a.fixed_pattern.min_gain == b.fixed_pattern.min_gain &&
          a.fixed_pattern.refresh_frames == b.fixed_pattern.refresh_frames &&
+         a.fixed_pattern.radial_vignetting == b.fixed_pattern.radial_vignetting &&
          a.fixed_pattern.report_fraction == b.fixed_pattern.report_fraction &&
          a.fixed_pattern.dominant_contrast_share == b.fixed_pattern.dominant_contrast_share &&
          a.fixed_pattern.discount_biased_updates == b.fixed_pattern.discount_biased_updates &&
