@@ -203,6 +203,10 @@ TEST(SimulatorCli, ParsesAndRejects) {
   EXPECT_EQ(h.texture, "grass");
   EXPECT_DOUBLE_EQ(h.height_amplitude_m, 0.1);
   EXPECT_LT(SimulationOptions().height_amplitude_m, 0.0);  // default: the preset's
+  EXPECT_TRUE(h.lens_distortion);  // the MYNT EYE's distortion unless --no-distortion
+  SimulationOptions pin;
+  EXPECT_EQ(parseSimulateArgs({"--no-distortion", "--output", "x"}, &pin, &err), ParseResult::kOk) << err;
+  EXPECT_FALSE(pin.lens_distortion);
   EXPECT_NE(simulateUsage().find("grass"), std::string::npos);
   const std::vector<std::vector<std::string>> bad = {{"--preset", "flight9", "--output", "x"},
                                                      {"--duration", "abc", "--output", "x"},

@@ -45,6 +45,7 @@ struct SimulationOptions {
   bool imu_errors = true;           ///< IMU noise, biases and vibration
   SensorOptions sensor;             ///< vignetting and image noise
   bool camera_info = true;          ///< also write /mynteye/left/camera_info
+  bool lens_distortion = true;      ///< the MYNT EYE's radial-tangential distortion (false: a pinhole camera)
   bool lz4 = false;                 ///< LZ4-compress the bag chunks
   double start_stamp_s = 1600000000.0;  ///< stamp of t = 0 on the bag clock
   ImuNoiseParams imu_noise;

@@ -130,6 +130,7 @@ std::string simulateUsage() {
         "  --lens-dirt-opacity F    light a blob's centre blocks, 0..1                  [0.5]\n"
         "IMU:\n"
         "  --no-vibration           no propeller vibration (on by default)\n"
+        "  --no-distortion          a pinhole camera (the MYNT EYE's lens distortion off)\n"
         "  --no-imu-noise           exact IMU readings (no noise, bias, vibration)\n"
         "  --accel-noise-density X  m/s^2/sqrt(Hz)                                      [2e-3]\n"
         "  --accel-random-walk X    m/s^3/sqrt(Hz)                                      [4e-4]\n"
@@ -242,6 +243,8 @@ ParseResult parseSimulateArgs(const std::vector<std::string>& args_in, Simulatio
       opt->sensor.noise = false;
     } else if (a == "--write-flat-field") {
       opt->write_flat_field = true;
+    } else if (a == "--no-distortion") {
+      opt->lens_distortion = false;
     } else if (a == "--no-camera-info") {
       opt->camera_info = false;
     } else if (a == "--lz4") {
@@ -480,7 +483,8 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
   if (progress) *progress << "[diekf_simulate] preparing texture '" << tex_name << "'\n";
   const Texture tex = Texture::byName(tex_name, opt.seed, opt.square_m, opt.texture_size_m);
 
-  const CameraModel cam = myntEyeSimCamera(opt.scale);  // the true camera: rendering and extrinsics
+  CameraModel cam = myntEyeSimCamera(opt.scale);  // the true camera: rendering and extrinsics
+  if (!opt.lens_distortion) cam.distortion_coeffs = Vec4::Zero();
   const Renderer renderer(cam, opt.threads);
   // Movers and boxes (their textures are built here, seeded apart from the ground's).
   if (progress && opt.clutter.any()) *progress << "[diekf_simulate] placing movers and boxes\n";
