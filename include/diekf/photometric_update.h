@@ -205,7 +205,9 @@ class PhotometricUpdate {
   cv::Mat weight_cells_;    ///< CV_32FC1, 8 planes of cells: the sums of r^2, gx^2, gx gy, gy^2, gx r, gy r, a^2, a r
   cv::Mat weight_window_;   ///< CV_32FC1, the same planes: their window sums
   cv::Mat weight_cell_w_;   ///< CV_32FC1 per cell: the shift statistic q, then the weight
-  std::vector<float> weight_colsum_;  ///< running column sums of the vertical window (and a row of scratch)
+  std::vector<float> weight_colsum_;  ///< running column sums of the vertical window
+  cv::Mat weight_inv_pixels_;  ///< CV_32FC1 per cell: 1 / pixels in its window (depends only on the sizes)
+  int weight_inv_pixels_hc_ = -1;  ///< the window half-side the table was made for
   std::vector<float> weight_median_buf_;  ///< per-cell values, for their medians; then the rows' flags (border minimum)
   bool use_weight_map_ = false;  ///< weight_map_ applies to the sweeps of the current update
   const cv::Mat* confidence_ = nullptr;  ///< per-pixel confidence (setPixelConfidence), not owned

@@ -1259,9 +1259,9 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
     }
   }
   // Window sums over (2 hc + 1)^2 cells, truncated at the edges: vertical running sums, then horizontal.
-  weight_colsum_.resize(static_cast<size_t>(kCh + 1) * Wp);  // allocates once per image width
+  weight_colsum_.resize(static_cast<size_t>(kCh) * Wp);  // allocates once per image width
   std::fill(weight_colsum_.begin(), weight_colsum_.end(), 0.0f);
-  float* tmp = weight_colsum_.data() + kCh * Wp;
+  const int h_lead = std::min(hc, Wc);  // cells in the running sum before the first window is complete
   for (int c = 0; c < kCh; ++c) {
     float* colsum = weight_colsum_.data() + c * Wp;
     int lo = 0, hi = 0;  // cell rows [lo, hi) in the column sums
@@ -1275,23 +1275,41 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
         const float* row = cells(c, lo);
         for (int i = 0; i < Wp; ++i) colsum[i] -= row[i];
       }
-      // Horizontal running sum of this row's vertical sums: the window [i - hc, i + hc] truncated at the edges.
-      std::copy(colsum, colsum + Wp, tmp);
+      // Horizontal running sum of this row's vertical sums: the window [i - hc, i + hc] truncated at the edges
+      // (the cell i + hc enters, then i - hc - 1 leaves; split at the edges so that the loop has no branch).
       float* out = window(c, j);
       float sum = 0.0f;
-      for (int i = 0; i < std::min(hc, Wc); ++i) sum += tmp[i];
-      for (int i = 0; i < Wc; ++i) {
-        if (i + hc < Wc) sum += tmp[i + hc];
-        if (i - hc - 1 >= 0) sum -= tmp[i - hc - 1];
+      for (int i = 0; i < h_lead; ++i) sum += colsum[i];
+      const int enter_end = std::max(0, Wc - hc);  // cells i that still add i + hc
+      const int leave_begin = std::min(Wc, hc + 1);  // cells i that remove i - hc - 1
+      int i = 0;
+      for (; i < std::min(enter_end, leave_begin); ++i) {
+        sum += colsum[i + hc];
+        out[i] = sum;
+      }
+      for (; i < enter_end; ++i) {
+        sum += colsum[i + hc];
+        sum -= colsum[i - hc - 1];
+        out[i] = sum;
+      }
+      for (; i < leave_begin; ++i) out[i] = sum;  // (a window wider than the image: nothing enters or leaves)
+      for (; i < Wc; ++i) {
+        sum -= colsum[i - hc - 1];
         out[i] = sum;
       }
     }
   }
-  // 1 / pixels in the window of cell (i, j).
-  auto inv_pixels = [&](int j, int i) {
-    return 0.25f / static_cast<float>((std::min(Hc, j + hc + 1) - std::max(0, j - hc)) *
-                                      (std::min(Wc, i + hc + 1) - std::max(0, i - hc)));
-  };
+  // 1 / pixels in the window of cell (i, j): a table, remade only when the sizes change.
+  if (weight_inv_pixels_.rows != Hc || weight_inv_pixels_.cols != Wc || weight_inv_pixels_hc_ != hc) {
+    weight_inv_pixels_.create(Hc, Wc, CV_32FC1);
+    weight_inv_pixels_hc_ = hc;
+    for (int j = 0; j < Hc; ++j)
+      for (int i = 0; i < Wc; ++i)
+        weight_inv_pixels_.ptr<float>(j)[i] =
+            0.25f / static_cast<float>((std::min(Hc, j + hc + 1) - std::max(0, j - hc)) *
+                                       (std::min(Wc, i + hc + 1) - std::max(0, i - hc)));
+  }
+  auto inv_pixels = [&](int j, int i) { return weight_inv_pixels_.ptr<float>(j)[i]; };
   // Medians over every other cell in both directions.
   auto median_of = [&](auto value) {
     weight_median_buf_.clear();
