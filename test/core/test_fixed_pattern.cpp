@@ -229,21 +229,23 @@ cv::Mat radialVignetting(double cx, double cy) {
   return v;
 }
 
-/// Largest |gain - truth| over the image, both relative to their medians.
-double maxGainError(const cv::Mat& gain, const cv::Mat& truth) {
-  std::vector<float> a(gain.begin<float>(), gain.end<float>()), b(truth.begin<float>(), truth.end<float>());
-  std::nth_element(a.begin(), a.begin() + a.size() / 2, a.end());
-  std::nth_element(b.begin(), b.begin() + b.size() / 2, b.end());
-  return cv::norm(gain / a[a.size() / 2] - truth / b[b.size() / 2], cv::NORM_INF);
+/// |gain - truth| per pixel, both relative to their medians.
+cv::Mat relativeGainError(const cv::Mat& gain, const cv::Mat& truth) {
+  const auto median = [](const cv::Mat& m) {
+    std::vector<float> v(m.begin<float>(), m.end<float>());
+    std::nth_element(v.begin(), v.begin() + v.size() / 2, v.end());
+    return v[v.size() / 2];
+  };
+  return cv::abs(gain / median(gain) - truth / median(truth));
 }
 
-/// Pixels where |gain - truth| exceeds tol, both relative to their medians.
+double maxGainError(const cv::Mat& gain, const cv::Mat& truth) {
+  return cv::norm(relativeGainError(gain, truth), cv::NORM_INF);
+}
+
+/// Pixels where the relative gain error exceeds tol.
 int pixelsOff(const cv::Mat& gain, const cv::Mat& truth, double tol) {
-  std::vector<float> a(gain.begin<float>(), gain.end<float>()), b(truth.begin<float>(), truth.end<float>());
-  std::nth_element(a.begin(), a.begin() + a.size() / 2, a.end());
-  std::nth_element(b.begin(), b.begin() + b.size() / 2, b.end());
-  const cv::Mat d = cv::abs(gain / a[a.size() / 2] - truth / b[b.size() / 2]);
-  return cv::countNonZero(d > tol);
+  return cv::countNonZero(relativeGainError(gain, truth) > tol);
 }
 
 TEST(FixedPattern, RadialVignettingIsFittedAsOneSmoothField) {
