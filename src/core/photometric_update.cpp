@@ -8,6 +8,7 @@
 #include <opencv2/core/hal/intrin.hpp>
 
 #include "gauss_newton.h"
+#include "window_sum.h"
 
 // The sweep and the preprocessing are written with OpenCV's universal intrinsics. On 32-bit ARM, NEON is optional
 // (ARMv7) and Debian's / Ubuntu's armhf compilers do not enable it by default: the intrinsics then silently fall back
@@ -1261,7 +1262,6 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
   // Window sums over (2 hc + 1)^2 cells, truncated at the edges: vertical running sums, then horizontal.
   weight_colsum_.resize(static_cast<size_t>(kCh) * Wp);  // allocates once per image width
   std::fill(weight_colsum_.begin(), weight_colsum_.end(), 0.0f);
-  const int h_lead = std::min(hc, Wc);  // cells in the running sum before the first window is complete
   for (int c = 0; c < kCh; ++c) {
     float* colsum = weight_colsum_.data() + c * Wp;
     int lo = 0, hi = 0;  // cell rows [lo, hi) in the column sums
@@ -1275,28 +1275,8 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
         const float* row = cells(c, lo);
         for (int i = 0; i < Wp; ++i) colsum[i] -= row[i];
       }
-      // Horizontal running sum of this row's vertical sums: the window [i - hc, i + hc] truncated at the edges
-      // (the cell i + hc enters, then i - hc - 1 leaves; split at the edges so that the loop has no branch).
-      float* out = window(c, j);
-      float sum = 0.0f;
-      for (int i = 0; i < h_lead; ++i) sum += colsum[i];
-      const int enter_end = std::max(0, Wc - hc);  // cells i that still add i + hc
-      const int leave_begin = std::min(Wc, hc + 1);  // cells i that remove i - hc - 1
-      int i = 0;
-      for (; i < std::min(enter_end, leave_begin); ++i) {
-        sum += colsum[i + hc];
-        out[i] = sum;
-      }
-      for (; i < enter_end; ++i) {
-        sum += colsum[i + hc];
-        sum -= colsum[i - hc - 1];
-        out[i] = sum;
-      }
-      for (; i < leave_begin; ++i) out[i] = sum;  // (a window wider than the image: nothing enters or leaves)
-      for (; i < Wc; ++i) {
-        sum -= colsum[i - hc - 1];
-        out[i] = sum;
-      }
+      // Horizontal running sum of this row's vertical sums: the window [i - hc, i + hc] truncated at the edges.
+      internal::windowSumRow(colsum, Wc, hc, window(c, j));
     }
   }
   // 1 / pixels in the window of cell (i, j): a table, remade only when the sizes change.

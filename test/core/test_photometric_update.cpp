@@ -1,3 +1,4 @@
+#include <algorithm>
 #include <cmath>
 #include <random>
 #include <vector>
@@ -9,6 +10,7 @@
 
 #include "diekf/photometric_update.h"
 #include "two_view_scene.h"
+#include "../../src/core/window_sum.h"
 
 namespace diekf {
 namespace {
@@ -838,6 +840,26 @@ TEST(PhotometricOutliers, ARaisedBoxIsFoundOverTheImagesAndDownWeighted) {
   // texture's inverse depth is measured poorly; |vartheta| 0.5 % higher, against the box's 5.4 % without the test).
   EXPECT_LT(std::abs(clean_parallax.err - clean.err), 0.01);
   EXPECT_LT(clean_parallax.removed, clean.removed + 0.1);
+}
+
+TEST(OutlierWindowSums, EqualTheTruncatedWindowsAtEveryWidth) {
+  // The running window sum of the outlier weights' neighbourhoods (internal::windowSumRow) against the direct sum
+  // over [i - half, i + half] truncated at the edges, including windows wider than the row.
+  std::mt19937 rng(5);
+  std::uniform_real_distribution<float> value(-2.0f, 3.0f);
+  for (int n : {1, 2, 3, 5, 8, 37, 90}) {
+    for (int half : {0, 1, 2, 3, 4, 17, 60, 100}) {
+      std::vector<float> in(static_cast<size_t>(n)), out(static_cast<size_t>(n), -999.0f);
+      for (float& v : in) v = value(rng);
+      internal::windowSumRow(in.data(), n, half, out.data());
+      for (int i = 0; i < n; ++i) {
+        double direct = 0.0;
+        for (int k = std::max(0, i - half); k <= std::min(n - 1, i + half); ++k) direct += in[static_cast<size_t>(k)];
+        EXPECT_NEAR(out[static_cast<size_t>(i)], direct, 1e-4 * (1.0 + std::abs(direct)))
+            << "n " << n << " half " << half << " i " << i;
+      }
+    }
+  }
 }
 
 }  // namespace
