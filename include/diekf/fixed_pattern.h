@@ -98,6 +98,8 @@ class FixedPattern {
   /// squares with one robust refit) into vig_ and inv_vig_, shrunk as a whole toward none unless its corner value
   /// stands significance_sigma standard errors out (the scatter of the rings about the fit).
   void fitVignetting();
+  /// No vignetting: V = 1 everywhere.
+  void clearVignetting();
   /// Median of value(i) over every 2nd pixel in x and y (i: the pixel's index). No allocation.
   template <class Value>
   float sampleMedian(Value value);

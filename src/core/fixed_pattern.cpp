@@ -136,9 +136,7 @@ void FixedPattern::reset() {
   inv_gain_.setTo(1.f);
   offset_.setTo(0.f);
   confidence_.setTo(1.f);
-  vig_.setTo(1.f);
-  inv_vig_.setTo(1.f);
-  vig_corner_ = 1.0;
+  clearVignetting();
   samples_ = 0.0;
   var_factor_ = 0.0;
   for (Snapshot& s : snapshots_) s.valid = false;
@@ -283,11 +281,15 @@ void FixedPattern::takeSnapshot() {
   s.valid = true;
 }
 
-void FixedPattern::fitVignetting() {
-  if (!params_.radial_vignetting) return;  // (vig_ stays all 1 from reset())
+void FixedPattern::clearVignetting() {
   vig_.setTo(1.f);
   inv_vig_.setTo(1.f);
   vig_corner_ = 1.0;
+}
+
+void FixedPattern::fitVignetting() {
+  if (!params_.radial_vignetting) return;  // (vig_ stays all 1 from reset())
+  clearVignetting();
   // The ring medians of the mean: robust to a shadow, dirt or dots covering part of a ring.
   const float* m1 = m1_.ptr<float>();
   double q[kRings], w[kRings];
@@ -322,13 +324,13 @@ void FixedPattern::fitVignetting() {
     b = ldlt.solve(r);
     // Residual scale per unit weight (the rings' scatter about the fit: ground structure the path has not
     // averaged out, and noise) and the coefficients' covariance.
-    double ss = 0.0, e_norm[kRings];
+    double ss = 0.0, e[kRings], e_norm[kRings];
     int used = 0;
     for (int j = 0; j < kRings; ++j) {
       if (!(w[j] > 0.0)) continue;
-      const double e = q[j] - (b(0) + b(1) * ring_r2_[j] + b(2) * ring_r2_[j] * ring_r2_[j]);
-      ss += w[j] * e * e;
-      e_norm[used++] = std::abs(e) * std::sqrt(w[j]);
+      e[j] = q[j] - (b(0) + b(1) * ring_r2_[j] + b(2) * ring_r2_[j] * ring_r2_[j]);
+      ss += w[j] * e[j] * e[j];
+      e_norm[used++] = std::abs(e[j]) * std::sqrt(w[j]);
     }
     const double s2 = ss / std::max(1, rings - 3);
     cov = s2 * ldlt.solve(Eigen::Matrix3d::Identity());
@@ -338,8 +340,7 @@ void FixedPattern::fitVignetting() {
     int dropped = 0;
     for (int j = 0; j < kRings; ++j) {
       if (!(w[j] > 0.0)) continue;
-      const double e = q[j] - (b(0) + b(1) * ring_r2_[j] + b(2) * ring_r2_[j] * ring_r2_[j]);
-      if (scale > 0.0 && std::abs(e) * std::sqrt(w[j]) > 3.0 * scale) {
+      if (scale > 0.0 && std::abs(e[j]) * std::sqrt(w[j]) > 3.0 * scale) {
         w[j] = 0.0;
         --rings;
         ++dropped;
@@ -376,20 +377,18 @@ void FixedPattern::refresh() {
   float* a = offset_.ptr<float>();
   float* ig = inv_gain_.ptr<float>();
   float* conf = confidence_.ptr<float>();
-  // Spread per pixel (into a for now); medians of the spread (S) and of the mean (the ground's level) over every
-  // 2nd pixel in x and y.
   // The radial vignetting first (one smooth field); the per-pixel model below sees the mean and the spread
   // divided by it.
   fitVignetting();
+  // Spread per pixel (into a for now); medians of the spread (S) and of the mean (the ground's level) over every
+  // 2nd pixel in x and y.
   const float* vg = vig_.ptr<float>();
   const float* iv = inv_vig_.ptr<float>();
   for (int i = 0; i < n; ++i) a[i] = std::sqrt(std::max(0.f, m2[i])) * iv[i];
   const float S = sampleMedian([&](int i) { return a[i]; });
   const float level = sampleMedian([&](int i) { return m1[i] * iv[i]; });
   if (!(S > 1e-6f) || !(level > 1e-6f)) {  // no texture seen: no model
-    vig_.setTo(1.f);
-    inv_vig_.setTo(1.f);
-    vig_corner_ = 1.0;
+    clearVignetting();
     gain_.setTo(1.f);
     inv_gain_.setTo(1.f);
     offset_.setTo(0.f);
