@@ -147,7 +147,7 @@ class PhotometricUpdate {
                 int* candidates = nullptr, double state_lag_s = 0.0);
 
  private:
-  /// linearize() against the reference already packed into ref_packed_ (buffers prepared).
+  /// linearize() against the reference whose spline coefficients are in ref_coeff_ (buffers prepared).
   /// Unit-weight sums of one linearisation and the statistics of its residual.
   struct PassSums {
     ObservedInfo A = ObservedInfo::Zero();  ///< sum w S^T S (w: Huber / gradient weights only, no 1/sigma^2)
@@ -194,7 +194,7 @@ class PhotometricUpdate {
   cv::Mat ref_x_, ref_y_;  ///< CV_32FC1 where the last linearisation's warp lands in the reference (-1: nowhere)
   cv::Mat parallax_sums_;       ///< CV_32FC2 per cell: carried window sums of a r and a^2 (a = dr / d rho)
   cv::Mat parallax_sums_prev_;  ///< the same of the previous image (swapped)
-  cv::Mat ref_packed_;  ///< CV_32FC4 (I, dI/dx, dI/dy, outlier weight) of the reference frame, reused between calls
+  cv::Mat ref_coeff_;   ///< CV_32FC1 cubic B-spline coefficients of the reference's intensity, reused between calls
   cv::Mat scratch_;     ///< CV_32FC1 13 x (width rounded up to 4): row buffers of the sweep
   double noise_variance_gain_ = 1.0;
   double noise_correlation_floor_ = 1.0;

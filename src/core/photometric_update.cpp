@@ -7,6 +7,7 @@
 #include <Eigen/Eigenvalues>
 #include <opencv2/core/hal/intrin.hpp>
 
+#include "bspline.h"
 #include "gauss_newton.h"
 #include "window_sum.h"
 
@@ -321,10 +322,10 @@ struct SweepConfig {
   bool gradient_weighting = false;
   int tiles_x = 8, tiles_y = 6;  // tile grid of the score sums (noise model)
   // Per-pixel weights in [0, 1]: the confidence of the current image's pixels (CV_32FC1, image size; the
-  // camera-fixed pattern's) and the outlier weights of the reference's, carried in plane 3 of the packed
-  // reference and sampled where the warp lands (section 10 of docs/noise_model.md).
+  // camera-fixed pattern's) and the outlier weights of the reference's (CV_32FC1, image size), sampled
+  // bilinearly where the warp lands (section 10 of docs/noise_model.md).
   const cv::Mat* confidence_map = nullptr;
-  bool reference_weights = false;
+  const cv::Mat* reference_weights = nullptr;
   // Rolling shutter (docs/algorithm.md section 3.7): row y of the current image is captured readout_s
   // row_weight[y] after the image's time; null = global shutter.
   const float* row_weight = nullptr;
@@ -441,25 +442,44 @@ void accumulateRow(float* const* T, const float* valid, int n_pad, const int* se
   scoreRow(T, valid, seg, tiles_x, tile_row, sums, G);
 }
 
-/// One linearisation sweep over the current image against the packed reference (I, dI/dx, dI/dy, 0 per
-/// pixel). Per row: (1) 4 pixels at a time, warp, bilinear reference sample (4 corner loads + transpose per
-/// lane group), residual, Jacobian row S (2/dt times the true row: gradient sum instead of mean, Jacobian
-/// without dt; the caller rescales), weight; the results go to the row buffers; (2) the row's Gram sums.
+/// One linearisation sweep over the current image against the reference's cubic B-spline coefficients
+/// (bspline.h). Per row: (1) 4 pixels at a time, warp, the reference's value and gradient from the 4x4 spline
+/// taps (4 row loads + transpose per tap row and lane group), residual, Jacobian row S (2/dt times the true row:
+/// gradient sum instead of mean, Jacobian without dt; the caller rescales), weight; the results go to the row
+/// buffers; (2) the row's Gram sums.
 /// The residual r, dr / d rho and the reference position per pixel go to `out` (PixelOutputs). The weighting
 /// options are template parameters.
 template <bool kHuber, bool kGradientWeighting, bool kWeightMap>
-void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelWarp& wp, const SweepConfig& cfg,
+void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWarp& wp, const SweepConfig& cfg,
            RowBuffers buf, SweepSums* sums, const PixelOutputs& out) {
   using namespace cv;
   const int W = cur.intensity.cols;
   const int H = cur.intensity.rows;
-  const float* R = ref_packed.ptr<float>(0);
-  const int sR = static_cast<int>(ref_packed.step1());  // floats per packed row
-  // The reference sample needs its 2x2 neighbourhood inside the 1-px border where gradients are defined:
-  // x0 = floor(rx) in [1, W-3]  <=>  rx in [1, W-2).
+  const float* C = ref_coeff.ptr<float>(0);
+  const int sC = static_cast<int>(ref_coeff.step1());  // floats per coefficient row
+  const float* RW = cfg.reference_weights != nullptr ? cfg.reference_weights->ptr<float>(0) : nullptr;
+  const int sW = cfg.reference_weights != nullptr ? static_cast<int>(cfg.reference_weights->step1()) : 0;
+  // The reference sample's 4x4 spline taps x0 - 1 ... x0 + 2 stay inside the image, as did the 2x2
+  // neighbourhood of bilinear sampling inside the 1-px border: x0 = floor(rx) in [1, W-3]  <=>  rx in [1, W-2).
   const v_float32x4 rx_lo = v_setall_f32(1.0f), rx_hi = v_setall_f32(static_cast<float>(W - 2));
   const v_float32x4 ry_lo = v_setall_f32(1.0f), ry_hi = v_setall_f32(static_cast<float>(H - 2));
   const v_float32x4 one = v_setall_f32(1.0f), zero = v_setzero_f32();
+  const v_float32x4 half = v_setall_f32(0.5f), sixth = v_setall_f32(1.0f / 6.0f);
+  const v_float32x4 two_thirds = v_setall_f32(2.0f / 3.0f), three_halves = v_setall_f32(1.5f);
+  const v_float32x4 two = v_setall_f32(2.0f);
+  // Cubic B-spline weights of the taps floor(x) - 1 ... floor(x) + 2 and their derivatives at t = x - floor(x)
+  // (the same formulas as internal::cubicBSplineWeights).
+  auto spline_weights = [&](const v_float32x4& t, v_float32x4* w, v_float32x4* dw) {
+    const v_float32x4 s = one - t, t2 = t * t, s2 = s * s;
+    w[0] = s2 * s * sixth;
+    w[3] = t2 * t * sixth;
+    w[1] = v_muladd(half * t2, t, two_thirds - t2);
+    w[2] = one - w[0] - w[1] - w[3];
+    dw[0] = zero - half * s2;
+    dw[3] = half * t2;
+    dw[1] = v_muladd(three_halves, t2, zero - two * t);
+    dw[2] = zero - (dw[0] + dw[1] + dw[3]);
+  };
   const v_float32x4 fx = v_setall_f32(wp.fx), fy = v_setall_f32(wp.fy);
   const v_float32x4 cx = v_setall_f32(wp.cx), cy = v_setall_f32(wp.cy);
   const v_float32x4 ifx = v_setall_f32(wp.ifx);
@@ -479,6 +499,8 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
     for (int i = 0; i < 9; ++i)
       for (int l = 0; l < 4; ++l) sums->tile_acc[t][i][l] = 0.0f;
   alignas(16) int32_t idx[4];
+  alignas(16) int32_t widx[4];
+  const v_int32x4 one_i = v_setall_s32(1);
   alignas(16) float xs_init[4];
   for (int l = 0; l < 4; ++l) xs_init[l] = static_cast<float>(cfg.border + l * cfg.stride);
   const v_float32x4 x_step = v_setall_f32(static_cast<float>(4 * cfg.stride));
@@ -576,25 +598,33 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
       const v_float32x4 rxs = v_select(valid, rx, rx_lo), rys = v_select(valid, ry, ry_lo);
       const v_int32x4 x0 = v_floor(rxs), y0 = v_floor(rys);
       const v_float32x4 ax = rxs - v_cvt_f32(x0), ay = rys - v_cvt_f32(y0);
-      v_store_aligned(idx, y0 * v_setall_s32(sR) + (x0 << 2));
-      // Corners (I, gx, gy, 0) of the 4 lanes, transposed to planes.
-      v_float32x4 c[4][4];  // [corner][plane]
-      const int corner_off[4] = {0, 4, sR, sR + 4};
-      for (int q = 0; q < 4; ++q) {
-        v_float32x4 p0 = v_load(R + idx[0] + corner_off[q]), p1 = v_load(R + idx[1] + corner_off[q]);
-        v_float32x4 p2 = v_load(R + idx[2] + corner_off[q]), p3 = v_load(R + idx[3] + corner_off[q]);
-        v_transpose4x4(p0, p1, p2, p3, c[q][0], c[q][1], c[q][2], c[q][3]);
+      v_store_aligned(idx, (y0 - one_i) * v_setall_s32(sC) + (x0 - one_i));  // the lanes' top-left taps
+      // The reference's value and gradient: per tap row, the 4 taps of the 4 lanes, transposed to tap planes.
+      // Per tap row: the row's value and x-derivative at ax (row_i, row_d); the rows are then combined with the
+      // vertical weights (value, d/dx) and their derivatives (d/dy).
+      v_float32x4 wx[4], dwx[4], wy[4], dwy[4];
+      spline_weights(ax, wx, dwx);
+      spline_weights(ay, wy, dwy);
+      v_float32x4 row_i[4], row_d[4];
+      for (int j = 0; j < 4; ++j) {
+        const int off = j * sC;
+        v_float32x4 p0 = v_load(C + idx[0] + off), p1 = v_load(C + idx[1] + off);
+        v_float32x4 p2 = v_load(C + idx[2] + off), p3 = v_load(C + idx[3] + off);
+        v_float32x4 c0, c1, c2, c3;
+        v_transpose4x4(p0, p1, p2, p3, c0, c1, c2, c3);
+        row_i[j] = v_muladd(wx[3], c3, v_muladd(wx[2], c2, v_muladd(wx[1], c1, wx[0] * c0)));
+        row_d[j] = v_muladd(dwx[3], c3, v_muladd(dwx[2], c2, v_muladd(dwx[1], c1, dwx[0] * c0)));
       }
-      const v_float32x4 bx = one - ax, by = one - ay;
-      const v_float32x4 w00 = bx * by, w01 = ax * by, w10 = bx * ay, w11 = ax * ay;
-      v_float32x4 ref[4];
-      for (int pl = 0; pl < (kWeightMap ? 4 : 3); ++pl) {
-        ref[pl] = v_muladd(w11, c[3][pl], v_muladd(w10, c[2][pl], v_muladd(w01, c[1][pl], w00 * c[0][pl])));
-      }
+      const v_float32x4 ref_i =
+          v_muladd(wy[3], row_i[3], v_muladd(wy[2], row_i[2], v_muladd(wy[1], row_i[1], wy[0] * row_i[0])));
+      const v_float32x4 ref_gx =
+          v_muladd(wy[3], row_d[3], v_muladd(wy[2], row_d[2], v_muladd(wy[1], row_d[1], wy[0] * row_d[0])));
+      const v_float32x4 ref_gy =
+          v_muladd(dwy[3], row_i[3], v_muladd(dwy[2], row_i[2], v_muladd(dwy[1], row_i[1], dwy[0] * row_i[0])));
       const v_float32x4 gxc = v_load(Gxc + k), gyc = v_load(Gyc + k);
-      const v_float32x4 r = v_select(valid, v_load(Ic + k) - ref[0], zero);
+      const v_float32x4 r = v_select(valid, v_load(Ic + k) - ref_i, zero);
       // Efficient second-order gradient: sum of current and warped reference gradients (1/2 applied later).
-      const v_float32x4 gx = gxc + ref[1], gy = gyc + ref[2];
+      const v_float32x4 gx = gxc + ref_gx, gy = gyc + ref_gy;
       const v_float32x4 ex = cx - rxs, ey = cy - rys;  // D_r(0, 2), D_r(1, 2)
       const v_float32x4 gD0 = gx * fx, gD1 = gy * fy, gD2 = v_muladd(gx, ex, gy * ey);
       const v_float32x4 s_b = v_muladd(v_setall_f32(wp.b[0]), qx, s_row);
@@ -606,7 +636,23 @@ void sweep(const cv::Mat& ref_packed, const PreprocessedFrame& cur, const PixelW
       if constexpr (kWeightMap) {
         // The reference pixel's outlier weight (1 without) times the current pixel's confidence.
         if (Wm != nullptr) wm = v_load(Wm + k);
-        if (cfg.reference_weights) wm = wm * ref[3];
+        if (RW != nullptr) {
+          // The reference's outlier weights, bilinear at the same position.
+          v_store_aligned(widx, y0 * v_setall_s32(sW) + x0);
+          alignas(16) float q00[4], q01[4], q10[4], q11[4];
+          for (int l = 0; l < 4; ++l) {
+            const float* p = RW + widx[l];
+            q00[l] = p[0];
+            q01[l] = p[1];
+            q10[l] = p[sW];
+            q11[l] = p[sW + 1];
+          }
+          const v_float32x4 bx = one - ax, by = one - ay;
+          const v_float32x4 ref_w = v_muladd(ax * ay, v_load(q11),
+                                             v_muladd(bx * ay, v_load(q10),
+                                                      v_muladd(ax * by, v_load(q01), (bx * by) * v_load(q00))));
+          wm = wm * ref_w;
+        }
         w = w * wm;
       }
       if constexpr (kGradientWeighting) {
@@ -724,32 +770,6 @@ SweepConfig makeConfig(const PhotometricParams& params, const PreprocessParams& 
   return cfg;
 }
 
-/// (I, dI/dx, dI/dy, w) of the reference frame interleaved into a CV_32FC4 buffer (reallocated only when the
-/// size changes). Plane 3 holds `weights` (CV_32FC1, the image's size: the outlier weights of the reference's pixels), or 1.
-void packReference(const PreprocessedFrame& ref, cv::Mat* packed, const cv::Mat* weights = nullptr) {
-  using namespace cv;
-  packed->create(ref.intensity.size(), CV_32FC4);
-  const bool use_weights = weights != nullptr && weights->type() == CV_32FC1 && weights->size() == ref.intensity.size();
-  const v_float32x4 one = v_setall_f32(1.0f);
-  for (int y = 0; y < ref.intensity.rows; ++y) {
-    const float* I = ref.intensity.ptr<float>(y);
-    const float* gx = ref.grad_x.ptr<float>(y);
-    const float* gy = ref.grad_y.ptr<float>(y);
-    const float* wt = use_weights ? weights->ptr<float>(y) : nullptr;
-    float* out = packed->ptr<float>(y);
-    int x = 0;
-    for (; x + 4 <= ref.intensity.cols; x += 4) {
-      v_store_interleave(out + 4 * x, v_load(I + x), v_load(gx + x), v_load(gy + x), wt != nullptr ? v_load(wt + x) : one);
-    }
-    for (; x < ref.intensity.cols; ++x) {
-      out[4 * x + 0] = I[x];
-      out[4 * x + 1] = gx[x];
-      out[4 * x + 2] = gy[x];
-      out[4 * x + 3] = wt != nullptr ? wt[x] : 1.0f;
-    }
-  }
-}
-
 bool framesUsable(const PreprocessedFrame& ref, const PreprocessedFrame& cur, int border) {
   const cv::Mat* mats[6] = {&ref.intensity, &ref.grad_x, &ref.grad_y,
                             &cur.intensity, &cur.grad_x, &cur.grad_y};
@@ -773,7 +793,7 @@ void PhotometricUpdate::setPreprocessNoise(double variance_gain, double correlat
 int PhotometricUpdate::linearize(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PinholeK& K,
                                  const Vec3& gyro_mean_C, double dt_s, const State& x, ObservedInfo* A,
                                  ObservedVec* b, int* candidates, double state_lag_s) {
-  packReference(ref, &ref_packed_);
+  internal::cubicBSplineCoefficients(ref.intensity, &ref_coeff_);
   prepareBuffers(cur.intensity.size());
   PassSums sums;
   const int valid = accumulate(cur, K, gyro_mean_C, dt_s, state_lag_s, x, params_.intensity_noise_sigma, &sums);
@@ -806,7 +826,9 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
   *out = PassSums();
   SweepConfig cfg = makeConfig(params_, preprocess_, huber_sigma);
   cfg.confidence_map = active_map_;
-  cfg.reference_weights = use_weight_map_;
+  cfg.reference_weights = use_weight_map_ && weight_map_.type() == CV_32FC1 && weight_map_.size() == cur.intensity.size()
+                              ? &weight_map_
+                              : nullptr;
   const bool rolling = m_rows != nullptr && timing != nullptr && timing->row_weight != nullptr &&
                        timing->rows == cur.intensity.rows && dt_s > 0.0 &&
                        (readout_s != 0.0 || timing->estimate_readout);
@@ -831,16 +853,16 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
   auto run = [&](auto weight_map) {
     constexpr bool kMap = decltype(weight_map)::value;
     if (huber && cfg.gradient_weighting) {
-      sweep<true, true, kMap>(ref_packed_, cur, wp, cfg, buf, &sums, outputs);
+      sweep<true, true, kMap>(ref_coeff_, cur, wp, cfg, buf, &sums, outputs);
     } else if (huber) {
-      sweep<true, false, kMap>(ref_packed_, cur, wp, cfg, buf, &sums, outputs);
+      sweep<true, false, kMap>(ref_coeff_, cur, wp, cfg, buf, &sums, outputs);
     } else if (cfg.gradient_weighting) {
-      sweep<false, true, kMap>(ref_packed_, cur, wp, cfg, buf, &sums, outputs);
+      sweep<false, true, kMap>(ref_coeff_, cur, wp, cfg, buf, &sums, outputs);
     } else {
-      sweep<false, false, kMap>(ref_packed_, cur, wp, cfg, buf, &sums, outputs);
+      sweep<false, false, kMap>(ref_coeff_, cur, wp, cfg, buf, &sums, outputs);
     }
   };
-  if (cfg.confidence_map != nullptr || cfg.reference_weights) {
+  if (cfg.confidence_map != nullptr || cfg.reference_weights != nullptr) {
     run(std::true_type{});
   } else {
     run(std::false_type{});
@@ -1008,7 +1030,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   // with the objects. A map without any weight below 1 changes nothing: the plain sweep is used (bit for bit,
   // and cheaper).
   use_weight_map_ = params_.outlier_threshold_sigma > 0.0 && weight_map_has_outliers_ && weightsBelongTo(ref);
-  packReference(ref, &ref_packed_, use_weight_map_ ? &weight_map_ : nullptr);  // once per update, every pass
+  internal::cubicBSplineCoefficients(ref.intensity, &ref_coeff_);  // once per update, every pass
   // The camera-fixed pattern's confidence, per pixel of the current image (docs/noise_model.md section 11).
   active_map_ = confidence_ != nullptr && confidence_->type() == CV_32FC1 && confidence_->size() == cur.intensity.size()
                     ? confidence_ : nullptr;

@@ -113,7 +113,10 @@ TEST(FixedPatternFlight, ProjectorDotsAreFoundAndTheBiasedStartIsDiscounted) {
   const PatternRun with = flyOverProjectorDots(true);
   EXPECT_GT(with.found_at_s, 0.0);
   EXPECT_TRUE(with.reported);
-  EXPECT_GT(with.coverage_d, 0.85);
+  // 71 % of the frames within 2 sigma (d RMSE 33 cm at 90 px over this strong pattern). With bilinear interpolation
+  // of the reference it was 100 % (17 cm): the spline reproduces the dots' sharp structure in the reference, so
+  // they pull harder toward "no motion" until the model removes them (docs/results.md, "Spline interpolation").
+  EXPECT_GT(with.coverage_d, 0.6);
   // Without the discount the filter keeps what the uncorrected images said, with the same confidence.
   const PatternRun without = flyOverProjectorDots(false);
   EXPECT_GT(without.found_at_s, 0.0);  // named all the same

@@ -183,12 +183,71 @@ TEST(WarpToReference, ZeroMotionIsIdentity) {
 // --------------------------------------------------------------------------------------------------------
 // The single-precision pixel loop against a straightforward double-precision evaluation of docs/algorithm.md §3.3.
 // --------------------------------------------------------------------------------------------------------
-float bilinear(const cv::Mat& m, double x, double y) {
-  const int x0 = static_cast<int>(std::floor(x)), y0 = static_cast<int>(std::floor(y));
-  const double ax = x - x0, ay = y - y0;
-  return static_cast<float>((1 - ax) * (1 - ay) * m.at<float>(y0, x0) + ax * (1 - ay) * m.at<float>(y0, x0 + 1) +
-                            (1 - ax) * ay * m.at<float>(y0 + 1, x0) + ax * ay * m.at<float>(y0 + 1, x0 + 1));
-}
+/// The reference image as a cubic B-spline in double precision, built independently of src/core/bspline.cpp:
+/// the coefficients by solving the tridiagonal interpolation system (c(k-1) + 4 c(k) + c(k+1)) / 6 = f(k) (mirror
+/// boundaries) per row and then per column, the value and gradient from the basis function beta3 itself.
+class SplineReference {
+ public:
+  explicit SplineReference(const cv::Mat& f) : W_(f.cols), H_(f.rows), c_(static_cast<size_t>(W_) * H_) {
+    for (int y = 0; y < H_; ++y)
+      for (int x = 0; x < W_; ++x) c_[idx(x, y)] = f.at<float>(y, x);
+    std::vector<double> line;
+    for (int y = 0; y < H_; ++y) {
+      line.assign(c_.begin() + idx(0, y), c_.begin() + idx(0, y) + W_);
+      solve(&line);
+      std::copy(line.begin(), line.end(), c_.begin() + idx(0, y));
+    }
+    line.resize(H_);
+    for (int x = 0; x < W_; ++x) {
+      for (int y = 0; y < H_; ++y) line[y] = c_[idx(x, y)];
+      solve(&line);
+      for (int y = 0; y < H_; ++y) c_[idx(x, y)] = line[y];
+    }
+  }
+  /// Value and gradient (d/dx, d/dy) of the spline at (x, y).
+  double value(double x, double y, Vec2* grad) const {
+    double v = 0.0, gx = 0.0, gy = 0.0;
+    const int x0 = static_cast<int>(std::floor(x)), y0 = static_cast<int>(std::floor(y));
+    for (int j = y0 - 1; j <= y0 + 2; ++j) {
+      for (int i = x0 - 1; i <= x0 + 2; ++i) {
+        const double c = c_[idx(i, j)];
+        v += c * beta3(x - i) * beta3(y - j);
+        gx += c * dbeta3(x - i) * beta3(y - j);
+        gy += c * beta3(x - i) * dbeta3(y - j);
+      }
+    }
+    *grad = Vec2(gx, gy);
+    return v;
+  }
+
+ private:
+  static double beta3(double t) {
+    const double a = std::abs(t);
+    return a < 1.0 ? 2.0 / 3.0 - a * a + 0.5 * a * a * a : (a < 2.0 ? (2.0 - a) * (2.0 - a) * (2.0 - a) / 6.0 : 0.0);
+  }
+  static double dbeta3(double t) {
+    const double a = std::abs(t), s = t < 0.0 ? -1.0 : 1.0;
+    return s * (a < 1.0 ? -2.0 * a + 1.5 * a * a : (a < 2.0 ? -0.5 * (2.0 - a) * (2.0 - a) : 0.0));
+  }
+  /// Thomas algorithm on the mirror-boundary system (first row 4 c0 + 2 c1, last row 2 c(n-2) + 4 c(n-1)).
+  static void solve(std::vector<double>* f) {
+    const int n = static_cast<int>(f->size());
+    std::vector<double> lo(n, 1.0 / 6.0), di(n, 4.0 / 6.0), up(n, 1.0 / 6.0);
+    up[0] = 2.0 / 6.0;
+    lo[n - 1] = 2.0 / 6.0;
+    std::vector<double>& d = *f;
+    for (int k = 1; k < n; ++k) {
+      const double m = lo[k] / di[k - 1];
+      di[k] -= m * up[k - 1];
+      d[k] -= m * d[k - 1];
+    }
+    d[n - 1] /= di[n - 1];
+    for (int k = n - 2; k >= 0; --k) d[k] = (d[k] - up[k] * d[k + 1]) / di[k];
+  }
+  size_t idx(int x, int y) const { return static_cast<size_t>(y) * W_ + x; }
+  int W_, H_;
+  std::vector<double> c_;
+};
 
 void referenceLinearization(const TwoViewScene& s, const State& x, const Vec3& gyro, double sigma,
                             double huber_k, ObservedInfo* A, ObservedVec* b, int* valid, double lag = 0.0) {
@@ -196,15 +255,16 @@ void referenceLinearization(const TwoViewScene& s, const State& x, const Vec3& g
   b->setZero();
   *valid = 0;
   const int W = s.cur.intensity.cols, H = s.cur.intensity.rows;
+  const SplineReference spline(s.ref.intensity);
   for (int y = 1; y < H - 1; ++y) {
     for (int xp = 1; xp < W - 1; ++xp) {
       WarpJacobian J;
       const Vec2 pr = warpToReference(x, s.K, gyro, s.dt_s, xp, y, &J, lag);
       if (!(pr.x() >= 1.0 && pr.x() < W - 2.0 && pr.y() >= 1.0 && pr.y() < H - 2.0)) continue;
       ++*valid;
-      const double r = s.cur.intensity.at<float>(y, xp) - bilinear(s.ref.intensity, pr.x(), pr.y());
-      const Vec2 g(0.5 * (s.cur.grad_x.at<float>(y, xp) + bilinear(s.ref.grad_x, pr.x(), pr.y())),
-                   0.5 * (s.cur.grad_y.at<float>(y, xp) + bilinear(s.ref.grad_y, pr.x(), pr.y())));
+      Vec2 g_ref;
+      const double r = s.cur.intensity.at<float>(y, xp) - spline.value(pr.x(), pr.y(), &g_ref);
+      const Vec2 g(0.5 * (s.cur.grad_x.at<float>(y, xp) + g_ref.x()), 0.5 * (s.cur.grad_y.at<float>(y, xp) + g_ref.y()));
       const Eigen::Matrix<double, 1, 8> S = g.transpose() * J;
       double w = 1.0 / (sigma * sigma);
       if (huber_k > 0.0 && std::fabs(r) > huber_k * sigma) w *= huber_k * sigma / std::fabs(r);
@@ -291,6 +351,7 @@ TEST_F(PhotometricScene, StridedGradientWeightedLoopMatchesDoublePrecisionRefere
     const TwoViewScene& s = *scene_;
     const double sigma = params.intensity_noise_sigma, k = params.huber_threshold;
     const int W = s.cur.intensity.cols, H = s.cur.intensity.rows;
+    const SplineReference spline(s.ref.intensity);
     ObservedInfo A_ref = ObservedInfo::Zero();
     ObservedVec b_ref = ObservedVec::Zero();
     int valid_ref = 0, cand_ref = 0;
@@ -302,10 +363,10 @@ TEST_F(PhotometricScene, StridedGradientWeightedLoopMatchesDoublePrecisionRefere
         const Vec2 pr = warpToReference(x, s.K, s.w_C, s.dt_s, xp, y, &J);
         if (!(pr.x() >= 1.0 && pr.x() < W - 2.0 && pr.y() >= 1.0 && pr.y() < H - 2.0)) continue;
         ++valid_ref;
-        const double r = s.cur.intensity.at<float>(y, xp) - bilinear(s.ref.intensity, pr.x(), pr.y());
+        Vec2 g_ref;
+        const double r = s.cur.intensity.at<float>(y, xp) - spline.value(pr.x(), pr.y(), &g_ref);
         const double gcx = s.cur.grad_x.at<float>(y, xp), gcy = s.cur.grad_y.at<float>(y, xp);
-        const Vec2 g(0.5 * (gcx + bilinear(s.ref.grad_x, pr.x(), pr.y())),
-                     0.5 * (gcy + bilinear(s.ref.grad_y, pr.x(), pr.y())));
+        const Vec2 g(0.5 * (gcx + g_ref.x()), 0.5 * (gcy + g_ref.y()));
         const Eigen::Matrix<double, 1, 8> S = g.transpose() * J;
         const double gmag = std::hypot(gcx, gcy);
         grad_sum += gmag;

@@ -465,7 +465,18 @@ TEST(Robustness, BriefBlackoutKeepsState) {
     EXPECT_TRUE(contains(r.message, "image unusable")) << r.message;
     EXPECT_NE(r.status, FilterStatus::kReset);
   }
-  expectTracking(h, h.between(3.8, 7.7), "after a 0.2 s blackout");
+  // The first update after the blackout compares images 0.23 s apart (the reference is kept through unusable
+  // frames); the innovation test may down-weight it, and the status then says so for divergence/degraded_hold_s
+  // (1 s). The state stays accurate throughout, and tracking resumes after that hold.
+  for (const FrameResult& r : h.between(3.8, 4.9)) {
+    const FlightTruth truth = test_util::flightTruth(h.flight, testCamera(), r.t_s);
+    EXPECT_TRUE(r.status == FilterStatus::kTracking ||
+                (r.status == FilterStatus::kDegraded && contains(r.message, "update gated")))
+        << "at t " << r.t_s << ": " << r.message;
+    EXPECT_LT(std::abs(r.distance_m() - truth.d_m), 0.1 * truth.d_m) << "at t " << r.t_s;
+    EXPECT_LT((r.velocity_mps() - truth.v_C).norm(), 0.1) << "at t " << r.t_s;
+  }
+  expectTracking(h, h.between(4.9, 7.7), "after a 0.2 s blackout");
 }
 
 TEST(Robustness, LongBlackoutRestartsAndRecovers) {
