@@ -21,17 +21,23 @@ namespace internal {
 void cubicBSplineCoefficients(const cv::Mat& image, cv::Mat* coeff);
 
 /// The four cubic B-spline weights of the taps at floor(x) - 1 ... floor(x) + 2 for t = x - floor(x) in [0, 1),
-/// and their derivatives d w / d x (they sum to 1 and to 0).
+/// and their derivatives d w / d x (they sum to 1 and to 0). T is float or a SIMD vector of them (the sweep's
+/// v_float32x4, one t per lane); `c` makes a T of a constant (the identity for float, v_setall_f32 for vectors).
+template <class T, class Constant>
+inline void cubicBSplineWeights(const T& t, T* w, T* dw, Constant c) {
+  const T s = c(1.0f) - t, t2 = t * t, s2 = s * s;
+  w[0] = s2 * s * c(1.0f / 6.0f);
+  w[3] = t2 * t * c(1.0f / 6.0f);
+  w[1] = c(0.5f) * t2 * t + (c(2.0f / 3.0f) - t2);
+  w[2] = c(1.0f) - w[0] - w[1] - w[3];
+  dw[0] = c(0.0f) - c(0.5f) * s2;
+  dw[3] = c(0.5f) * t2;
+  dw[1] = c(1.5f) * t2 + (c(0.0f) - c(2.0f) * t);
+  dw[2] = c(0.0f) - (dw[0] + dw[1] + dw[3]);
+}
+
 inline void cubicBSplineWeights(float t, float w[4], float dw[4]) {
-  const float s = 1.0f - t, t2 = t * t, s2 = s * s;
-  w[0] = s2 * s * (1.0f / 6.0f);
-  w[3] = t2 * t * (1.0f / 6.0f);
-  w[1] = 2.0f / 3.0f - t2 + 0.5f * t2 * t;
-  w[2] = 1.0f - w[0] - w[1] - w[3];
-  dw[0] = -0.5f * s2;
-  dw[3] = 0.5f * t2;
-  dw[1] = 1.5f * t2 - 2.0f * t;
-  dw[2] = -(dw[0] + dw[1] + dw[3]);
+  cubicBSplineWeights(t, w, dw, [](float v) { return v; });
 }
 
 }  // namespace internal

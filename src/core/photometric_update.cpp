@@ -464,22 +464,7 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
   const v_float32x4 rx_lo = v_setall_f32(1.0f), rx_hi = v_setall_f32(static_cast<float>(W - 2));
   const v_float32x4 ry_lo = v_setall_f32(1.0f), ry_hi = v_setall_f32(static_cast<float>(H - 2));
   const v_float32x4 one = v_setall_f32(1.0f), zero = v_setzero_f32();
-  const v_float32x4 half = v_setall_f32(0.5f), sixth = v_setall_f32(1.0f / 6.0f);
-  const v_float32x4 two_thirds = v_setall_f32(2.0f / 3.0f), three_halves = v_setall_f32(1.5f);
-  const v_float32x4 two = v_setall_f32(2.0f);
-  // Cubic B-spline weights of the taps floor(x) - 1 ... floor(x) + 2 and their derivatives at t = x - floor(x)
-  // (the same formulas as internal::cubicBSplineWeights).
-  auto spline_weights = [&](const v_float32x4& t, v_float32x4* w, v_float32x4* dw) {
-    const v_float32x4 s = one - t, t2 = t * t, s2 = s * s;
-    w[0] = s2 * s * sixth;
-    w[3] = t2 * t * sixth;
-    w[1] = v_muladd(half * t2, t, two_thirds - t2);
-    w[2] = one - w[0] - w[1] - w[3];
-    dw[0] = zero - half * s2;
-    dw[3] = half * t2;
-    dw[1] = v_muladd(three_halves, t2, zero - two * t);
-    dw[2] = zero - (dw[0] + dw[1] + dw[3]);
-  };
+  const auto splat = [](float v) { return v_setall_f32(v); };  // constants of the spline weights
   const v_float32x4 fx = v_setall_f32(wp.fx), fy = v_setall_f32(wp.fy);
   const v_float32x4 cx = v_setall_f32(wp.cx), cy = v_setall_f32(wp.cy);
   const v_float32x4 ifx = v_setall_f32(wp.ifx);
@@ -599,12 +584,12 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
       const v_int32x4 x0 = v_floor(rxs), y0 = v_floor(rys);
       const v_float32x4 ax = rxs - v_cvt_f32(x0), ay = rys - v_cvt_f32(y0);
       v_store_aligned(idx, (y0 - one_i) * v_setall_s32(sC) + (x0 - one_i));  // the lanes' top-left taps
-      // The reference's value and gradient: per tap row, the 4 taps of the 4 lanes, transposed to tap planes.
-      // Per tap row: the row's value and x-derivative at ax (row_i, row_d); the rows are then combined with the
-      // vertical weights (value, d/dx) and their derivatives (d/dy).
+      // The reference's value and gradient: per tap row, the 4 taps of the 4 lanes transposed to tap planes, and
+      // the row's value and x-derivative at ax (row_i, row_d); the rows are then combined with the vertical
+      // weights (value, d/dx) and their derivatives (d/dy).
       v_float32x4 wx[4], dwx[4], wy[4], dwy[4];
-      spline_weights(ax, wx, dwx);
-      spline_weights(ay, wy, dwy);
+      internal::cubicBSplineWeights(ax, wx, dwx, splat);
+      internal::cubicBSplineWeights(ay, wy, dwy, splat);
       v_float32x4 row_i[4], row_d[4];
       for (int j = 0; j < 4; ++j) {
         const int off = j * sC;

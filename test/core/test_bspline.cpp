@@ -5,6 +5,8 @@
 #include <random>
 #include <vector>
 
+#include <opencv2/core/hal/intrin.hpp>
+
 #include "../../src/core/bspline.h"
 
 namespace diekf {
@@ -84,6 +86,25 @@ TEST(CubicBSpline, WeightsPartitionUnityAndTheirDerivativesMatchFiniteDifference
       cubicBSplineWeights(t + h, wp, dwp);
       cubicBSplineWeights(t - h, wm, dwm);
       for (int i = 0; i < 4; ++i) EXPECT_NEAR(dw[i], (wp[i] - wm[i]) / (2.0f * h), 2e-3f) << "t " << t << " tap " << i;
+    }
+  }
+}
+
+TEST(CubicBSpline, VectorWeightsEqualTheScalarOnes) {
+  // The sweep's instantiation (four t per v_float32x4) against the scalar one tested above.
+  alignas(16) const float t[4] = {0.0f, 0.13f, 0.5f, 0.999f};
+  cv::v_float32x4 w[4], dw[4];
+  internal::cubicBSplineWeights(cv::v_load(t), w, dw, [](float v) { return cv::v_setall_f32(v); });
+  for (int l = 0; l < 4; ++l) {
+    float ws[4], dws[4];
+    cubicBSplineWeights(t[l], ws, dws);
+    for (int i = 0; i < 4; ++i) {
+      alignas(16) float lane_w[4], lane_dw[4];
+      cv::v_store_aligned(lane_w, w[i]);
+      cv::v_store_aligned(lane_dw, dw[i]);
+      // Equal up to rounding (a compiler may fuse the scalar multiply-adds and not the vector ones).
+      EXPECT_NEAR(lane_w[l], ws[i], 1e-6f) << "t " << t[l] << " tap " << i;
+      EXPECT_NEAR(lane_dw[l], dws[i], 1e-6f) << "t " << t[l] << " tap " << i;
     }
   }
 }
