@@ -61,6 +61,7 @@ struct PreprocessParams {
   int working_width_px = 180;                   ///< width of the image the update works on, px (paper: 90)
   int working_height_px = 0;                    ///< height, px; 0 keeps the calibration's aspect ratio
   double blur_sigma_px = 0.8;                   ///< Gaussian blur at working resolution, px (0 = off)
+  double antialias_sigma_px = 0.4;              ///< Gaussian footprint of the resampling, working px (0 = box)
   bool normalize_brightness = true;             ///< zero-mean, unit-variance intensity per frame
   int border_px = 1;                            ///< pixels at the border excluded from the update, px
 };

@@ -3,19 +3,25 @@
 // Resampling (precomputed once): every working pixel p' maps to a raw pixel c = distortedPixel(K'^-1 p').
 // Its footprint in the raw image is the image of a 1x1 working pixel under that map, with extents
 // F_x = |d c / d p'_row 0| and F_y = |row 1| (raw px per working px, from central differences). The pixel's
-// value is a separable average over the footprint with a linear weight tilt that puts the weighted tap centroid
-// exactly on c (up to a 1/16 raw px quantisation of the tilt that lets pixels share weight sets):
-//   weights w_i = 1/n + d (x_i - m) / sum_k (x_k - m)^2   (m = mean tap position, d = c - m, sum w_i = 1).
-//   Along x: n = clamp(round(F_x), 2, 16) CONTIGUOUS raw columns (a box of the footprint's width; 752 -> 90 px:
-//     F_x ~ 8.4 at the centre, 8 columns), read as one window of 8 or 16 bytes.
-//   Along y: n = clamp(ceil(F_y / 2.5), 2, 8) rows spaced max(1, round(F_y / n)) raw px (4 rows 2 px apart at
-//     the centre), padded to an even count with a zero-weight row; weights in Q14 fixed point.
+// value is a separable weighted average over the footprint whose weighted tap centroid is exactly c (up to a
+// 1/16 raw px quantisation that lets pixels share weight sets):
+//   weights: a Gaussian of sigma s = antialias_sigma_px x F raw px about c (default 0.4 working px), taps
+//     within +-2 s (n = ceil(4 s)); with antialias_sigma_px = 0 a box of n = round(F) taps. A linear tilt
+//     w_i += e (x_i - m) / sum_k (x_k - m)^2 (m = mean tap position) then moves the centroid the rest of the way
+//     to c (e: what truncation left; for the box all of c - m), keeping sum w_i = 1.
+//   Along x: n <= 16 CONTIGUOUS raw columns, read as one window of 8 or 16 bytes (180 px: F_x ~ 4.2, 7 taps).
+//   Along y: n <= 8 rows, contiguous while n covers the footprint (7 rows at 180 px), else 8 rows spread evenly
+//     over it (90 px: 2 raw px apart over +-7 px); padded to an even count with a zero-weight row; Q14.
+//   Why a Gaussian: texture between the working and the raw Nyquist frequencies folds to low working
+//   frequencies, where the photometric update reads it as motion the wrong way (pulling the flow toward whole
+//   pixels). A box passes it through its sidelobes with the sign flipped; sparse rows (2 rows 2 raw px apart,
+//   as before) pass raw texture of 4 px period almost unattenuated (docs/results.md "Anti-aliasing").
 // With n = 2 taps 1 px apart this is bilinear interpolation. Per frame the resampling is one pass over a table
 // of (destination, base offset, column-weight set, row set), 16 bytes per working pixel. Per pixel and pair of
 // rows: two 8-byte loads widened to 16 bit, interleaved, and one 16-bit dot product per 4 columns against the
 // two rows' Q14 weights (OpenCV universal intrinsics: SSE2 / NEON / scalar emulation); the column weights are
 // applied in float at the end. Footprints wider than 16 raw px (working images narrower than ~47 px at
-// 752 raw px) or raw images narrower than 16 px use a scalar path with up to 8 x 8 sparse taps.
+// 752 raw px) or raw images narrower than 16 px use a scalar path with up to 8 x 8 taps (the same rules).
 //
 // Then, at working resolution: separable Gaussian blur (radius ceil(3 sigma), replicated border; the
 // resampler writes into a buffer with the border columns pre-allocated), brightness normalisation (zero mean,
@@ -130,6 +136,16 @@ bool tryFast(int win, int ny, const Pix* pix, std::size_t count, const Cols* col
   return true;
 }
 
+// The kernels of one window width for every even row count up to kMaxRows (8).
+template <int WIN, typename Pix, typename Cols, typename Rows>
+bool tryFastRows(int win, int ny, const Pix* pix, std::size_t count, const Cols* cols, const Rows* rows,
+                 const uint8_t* src, float* dst, uint8_t* g8) {
+  return tryFast<WIN, 2>(win, ny, pix, count, cols, rows, src, dst, g8) ||
+         tryFast<WIN, 4>(win, ny, pix, count, cols, rows, src, dst, g8) ||
+         tryFast<WIN, 6>(win, ny, pix, count, cols, rows, src, dst, g8) ||
+         tryFast<WIN, 8>(win, ny, pix, count, cols, rows, src, dst, g8);
+}
+
 // Horizontal blur of one row with a symmetric kernel of radius R (compile time): in[-R .. W-1+R] readable.
 template <int R>
 void blurRowH(const float* in, const float* kern, int W, float* out) {
@@ -213,6 +229,9 @@ ImagePreprocessor::ImagePreprocessor(const CameraModel& camera, const Preprocess
   if (!(params.blur_sigma_px >= 0.0) || params.blur_sigma_px > 20.0) {
     throw std::invalid_argument("ImagePreprocessor: blur_sigma_px outside [0, 20]");
   }
+  if (!(params.antialias_sigma_px >= 0.0) || params.antialias_sigma_px > 2.0) {
+    throw std::invalid_argument("ImagePreprocessor: antialias_sigma_px outside [0, 2]");
+  }
 
   // ---- working camera ----
   const int W = params.working_width_px;
@@ -245,19 +264,6 @@ ImagePreprocessor::ImagePreprocessor(const CameraModel& camera, const Preprocess
     for (int i = 0; i <= r; ++i) blur_kernel_[i] = static_cast<float>(std::exp(-0.5 * i * i / (s * s)) / sum);
     pad_ = r;
   }
-  // Noise propagation: an area average over a x b raw pixels divides white-noise variance by a b (not below 1:
-  // upsampling does not create independent samples); a separable blur k multiplies it by (sum_i k_i^2)^2 and
-  // correlates neighbours: the sum over a large area then has the variance of 1 / (sum_i k_i^2)^2 fewer pixels.
-  {
-    const double raw_per_working = std::max(1.0, 1.0 / sx) * std::max(1.0, 1.0 / sy);
-    double k2 = 1.0;
-    if (!blur_kernel_.empty()) {
-      k2 = static_cast<double>(blur_kernel_[0]) * blur_kernel_[0];
-      for (std::size_t i = 1; i < blur_kernel_.size(); ++i) k2 += 2.0 * blur_kernel_[i] * blur_kernel_[i];
-    }
-    noise_variance_gain_ = k2 * k2 / raw_per_working;
-    noise_correlation_area_px_ = std::max(1.0, 1.0 / (k2 * k2));
-  }
   const int padded_W = W + 2 * pad_;
 
   // ---- resampling table ----
@@ -268,9 +274,16 @@ ImagePreprocessor::ImagePreprocessor(const CameraModel& camera, const Preprocess
   };
   const int raw_stride = w;  // process() hands a continuous CV_8UC1 image to the resampler
 
-  // 1-D taps: n taps `step` raw px apart around centre c in an axis of `size` px. Returns the first tap's
-  // coordinate, the quantised tilt dq (1/16 px) and fills the weights (sum 1, centroid first + span/2 + dq/16).
-  auto taps1d = [](double c, int n, int step, int size, double* wts, int* dq_out) {
+  // Footprint (docs/noise_model.md section 2): with antialias_sigma_px > 0 a Gaussian of that sigma in working px
+  // (aa F raw px for a footprint F), its taps within +-2 sigma; else a box of the working pixel's width.
+  const double aa = params.antialias_sigma_px;
+  // F quantised to 1/8 raw px: pixels share weight sets (F changes slowly across the image with the distortion).
+  auto quantF = [](double F) { return static_cast<int>(std::lround(std::clamp(F, 0.0, 1e4) * 8.0)); };
+  // 1-D taps: n taps `step` raw px apart around centre c in an axis of `size` px, weights of the footprint
+  // (Gaussian of sigma_raw, or uniform for 0). Returns the first tap's coordinate and the quantised offset dq
+  // (1/16 px) of c from the taps' middle, and fills the weights (sum 1, centroid first + span/2 + dq/16: a linear
+  // tilt puts it there exactly).
+  auto taps1d = [](double c, int n, int step, int size, double sigma_raw, double* wts, int* dq_out) {
     while ((n - 1) * step > size - 1 && step > 1) --step;
     while ((n - 1) * step > size - 1 && n > 2) --n;
     const int span = (n - 1) * step;
@@ -281,23 +294,72 @@ ImagePreprocessor::ImagePreprocessor(const CameraModel& camera, const Preprocess
     for (int i = 0; i < n; ++i) sum_sq += (i * step - 0.5 * span) * (i * step - 0.5 * span);
     int dq = 0;
     if (n > 1 && span > 0) {
-      // Largest |d| keeping every weight >= 0 (only reached for pixels mapping outside the raw image).
+      // Largest |d| keeping every box weight >= 0 (only reached for pixels mapping outside the raw image).
       const double d_max = sum_sq / (n * 0.5 * span);
       const int dq_max = static_cast<int>(std::floor(d_max * 16.0));
       dq = std::clamp(static_cast<int>(std::lround((c - m) * 16.0)), -dq_max, dq_max);
     }
     const double d = dq / 16.0;
+    double centroid = 0.0;  // of the footprint's own weights, relative to m
     for (int i = 0; i < n; ++i) {
       const double xi = i * step - 0.5 * span;
-      wts[i] = 1.0 / n + (span > 0 ? d * xi / sum_sq : 0.0);
+      wts[i] = sigma_raw > 0.0 ? std::exp(-0.5 * (xi - d) * (xi - d) / (sigma_raw * sigma_raw)) : 1.0;
+    }
+    double sum = 0.0;
+    for (int i = 0; i < n; ++i) sum += wts[i];
+    for (int i = 0; i < n; ++i) {
+      wts[i] /= sum;
+      centroid += wts[i] * (i * step - 0.5 * span);
+    }
+    if (span > 0) {
+      sum = 0.0;
+      for (int i = 0; i < n; ++i) {
+        wts[i] = std::max(0.0, wts[i] + (d - centroid) * (i * step - 0.5 * span) / sum_sq);
+        sum += wts[i];
+      }
+      for (int i = 0; i < n; ++i) wts[i] /= sum;  // 1 but where a weight was clipped (outside the raw image)
     }
     *dq_out = dq;
     return std::make_tuple(first, n, step);
   };
-  auto rowsFor = [&](double F) {
-    return std::clamp(static_cast<int>(std::ceil(F / 2.5 - 1e-9)), 2, kMaxTaps);
+  // Taps of a footprint F raw px wide: a box of round(F) taps or the Gaussian's 4 sigma, contiguous up to
+  // `max_taps`; wider footprints spread that many taps evenly over the extent. Returns (n, step).
+  auto tapsFor = [aa](double F, int max_taps) {
+    const double extent = aa > 0.0 ? 4.0 * aa * F : F;
+    const int wanted = std::max(2, static_cast<int>(aa > 0.0 ? std::ceil(extent - 1e-9) : std::lround(extent)));
+    const int n = std::min(wanted, max_taps);
+    const int step = wanted > max_taps ? std::max(1, static_cast<int>(std::lround(extent / n))) : 1;
+    return std::make_pair(n, step);
   };
-  auto stepFor = [](double F, int n) { return std::max(1, static_cast<int>(std::lround(F / n))); };
+  auto sigmaFor = [&](double F) { return aa * quantF(F) / 8.0; };
+  // Each set is keyed by its footprint too when that is a Gaussian (its width changes across the image).
+  auto footprintKey = [&](double F) { return aa > 0.0 ? quantF(F) : 0; };
+
+  // Noise propagation (docs/noise_model.md sections 2-3), from the tables themselves: along the middle row
+  // (x) and column (y), the raw-space weights of the middle working pixel after the blur (K) and every raw
+  // pixel's total weight over all working pixels (T). For white raw noise of variance s^2: a working pixel has
+  // the variance s^2 sum K^2, and a sum over a large area of working pixels s^2 sum T^2 (the blur moves weight
+  // between working pixels but keeps its total), i.e. as much as sum T^2 / (n sum K^2) independent pixels
+  // each (the correlation area).
+  const int u_mid = W / 2, v_mid = H / 2;
+  const int blur_r = blur_kernel_.empty() ? 0 : static_cast<int>(blur_kernel_.size()) - 1;
+  auto blurWeight = [&](int offset) {
+    return blur_kernel_.empty() ? 1.0 : static_cast<double>(blur_kernel_[std::abs(offset)]);
+  };
+  std::vector<double> K_x(w, 0.0), T_x(w, 0.0), K_y(h, 0.0), T_y(h, 0.0);
+  double c_lo_x = 0.0, c_hi_x = 0.0, c_lo_y = 0.0, c_hi_y = 0.0;  // raw centres of the span's ends
+  auto collect = [&](bool is_x, int index, int mid, double c, int first, int n, int step, const double* wts) {
+    std::vector<double>& K = is_x ? K_x : K_y;
+    std::vector<double>& T = is_x ? T_x : T_y;
+    const int size = is_x ? W : H;
+    const double kb = std::abs(index - mid) <= blur_r ? blurWeight(index - mid) : 0.0;
+    for (int i = 0; i < n; ++i) {
+      T[first + i * step] += wts[i];
+      K[first + i * step] += kb * wts[i];
+    }
+    if (index == mid - std::max(2, size / 16)) (is_x ? c_lo_x : c_lo_y) = c;
+    if (index == mid + std::max(2, size / 16)) (is_x ? c_hi_x : c_hi_y) = c;
+  };
 
   std::map<std::tuple<int, int, int, int>, uint16_t> col_index, row_index, set_index;
   std::map<std::pair<int, int>, std::size_t> group_of;
@@ -305,12 +367,14 @@ ImagePreprocessor::ImagePreprocessor(const CameraModel& camera, const Preprocess
     if (n >= 65535) throw std::logic_error("ImagePreprocessor: too many resampling weight sets");
   };
   // Sparse tap set of the generic path (x: byte offsets i*step, y: j*step*raw_stride).
-  auto sparseSet = [&](int axis, double c, double F, int size) -> std::pair<int, uint16_t> {
-    const int n0 = rowsFor(F);
+  // `index`: the working pixel's column (axis 0) or row; `record`: it lies on the middle row or column.
+  auto sparseSet = [&](int axis, double c, double F, int size, int index, bool record) -> std::pair<int, uint16_t> {
+    const auto [n0, step0] = tapsFor(F, kMaxTaps);
     double wts[kMaxTaps];
     int dq = 0;
-    const auto [first, n, step] = taps1d(c, n0, stepFor(F, n0), size, wts, &dq);
-    const auto key = std::make_tuple(axis, n, step, dq);
+    const auto [first, n, step] = taps1d(c, n0, step0, size, sigmaFor(F), wts, &dq);
+    if (record) collect(axis == 0, index, axis == 0 ? u_mid : v_mid, c, first, n, step, wts);
+    const auto key = std::make_tuple(axis + 2 * footprintKey(F), n, step, dq);
     auto it = set_index.find(key);
     if (it == set_index.end()) {
       checkCount(tapsets_.size());
@@ -346,8 +410,8 @@ ImagePreprocessor::ImagePreprocessor(const CameraModel& camera, const Preprocess
       const int out8 = v * W + u;
 
       if (w < kMaxWindow || Fx > kMaxWindow) {
-        const auto tx = sparseSet(0, cxr, Fx, w);
-        const auto ty = sparseSet(1, cyr, Fy, h);
+        const auto tx = sparseSet(0, cxr, Fx, w, u, v == v_mid);
+        const auto ty = sparseSet(1, cyr, Fy, h, v, u == u_mid);
         SlowPixel p;
         p.dst = dst;
         p.out8 = out8;
@@ -358,16 +422,17 @@ ImagePreprocessor::ImagePreprocessor(const CameraModel& camera, const Preprocess
         continue;
       }
 
-      // Columns: contiguous box of about the footprint's width inside an 8- or 16-byte window.
+      // Columns: the footprint's contiguous taps inside an 8- or 16-byte window.
       double wx[kMaxWindow];
       int dqx = 0;
-      const int nx_wanted = std::clamp(static_cast<int>(std::lround(Fx)), 2, kMaxWindow);
-      const auto [first_x, nx, step_x] = taps1d(cxr, nx_wanted, 1, w, wx, &dqx);
+      const int nx_wanted = tapsFor(Fx, kMaxWindow).first;
+      const auto [first_x, nx, step_x] = taps1d(cxr, nx_wanted, 1, w, sigmaFor(Fx), wx, &dqx);
       (void)step_x;
+      if (v == v_mid) collect(true, u, u_mid, cxr, first_x, nx, 1, wx);
       const int window = nx <= 8 ? 8 : 16;
       const int win_start = std::min(first_x, w - window);
       const int lane = first_x - win_start;
-      const auto ckey = std::make_tuple(window, nx, lane, dqx);
+      const auto ckey = std::make_tuple(window + 32 * footprintKey(Fx), nx, lane, dqx);
       auto cit = col_index.find(ckey);
       if (cit == col_index.end()) {
         checkCount(columns_.size());
@@ -377,13 +442,15 @@ ImagePreprocessor::ImagePreprocessor(const CameraModel& camera, const Preprocess
         columns_.push_back(cw);
       }
 
-      // Rows: sparse taps, even count, Q14 weights summing exactly to 2^14.
+      // Rows: the same footprint (contiguous up to kMaxRows, evenly spread beyond), even count, Q14 weights
+      // summing exactly to 2^14.
       double wy[kMaxRows];
       int dqy = 0;
-      const int ny0 = rowsFor(Fy);
-      const auto [first_y, ny, step_y] = taps1d(cyr, ny0, stepFor(Fy, ny0), h, wy, &dqy);
+      const auto [ny0, step_y0] = tapsFor(Fy, kMaxRows);
+      const auto [first_y, ny, step_y] = taps1d(cyr, ny0, step_y0, h, sigmaFor(Fy), wy, &dqy);
+      if (u == u_mid) collect(false, v, v_mid, cyr, first_y, ny, step_y, wy);
       const int ny_even = (ny + 1) / 2 * 2;
-      const auto rkey = std::make_tuple(ny, step_y, dqy, 0);
+      const auto rkey = std::make_tuple(ny, step_y, dqy, footprintKey(Fy));
       auto rit = row_index.find(rkey);
       if (rit == row_index.end()) {
         checkCount(rows_.size());
@@ -423,6 +490,27 @@ ImagePreprocessor::ImagePreprocessor(const CameraModel& camera, const Preprocess
       fast_groups_[git->second].pixels.push_back(p);
     }
   }
+
+  // Noise propagation, per axis (the footprint and the blur are separable): the middle pixel's sum K^2, and
+  // the large-area sum's sum T^2 per working pixel over the raw span around it (+-W/16 working px: the
+  // distortion changes the footprint across the image).
+  auto axisFigures = [](const std::vector<double>& K, const std::vector<double>& T, double c_lo, double c_hi,
+                        int n_work) {
+    double k2 = 0.0, t2 = 0.0;
+    for (double k : K) k2 += k * k;
+    const int lo = static_cast<int>(std::ceil(std::min(c_lo, c_hi)));
+    const int hi = static_cast<int>(std::floor(std::max(c_lo, c_hi)));
+    for (int i = std::max(lo, 0); i <= std::min(hi, static_cast<int>(T.size()) - 1); ++i) t2 += T[i] * T[i];
+    // Mean T^2 per raw pixel times the raw pixels per working pixel (the span between the centres is n_work
+    // working pixels), over sum K^2.
+    const double span = std::abs(c_hi - c_lo);
+    const double area = k2 > 0.0 && hi > lo ? t2 / (hi - lo + 1.0) * (span / n_work) / k2 : 1.0;
+    return std::make_pair(k2, area);
+  };
+  const auto [kx2, area_x] = axisFigures(K_x, T_x, c_lo_x, c_hi_x, 2 * std::max(2, W / 16));
+  const auto [ky2, area_y] = axisFigures(K_y, T_y, c_lo_y, c_hi_y, 2 * std::max(2, H / 16));
+  noise_variance_gain_ = kx2 * ky2;
+  noise_correlation_area_px_ = std::max(1.0, area_x * area_y);
 }
 
 void ImagePreprocessor::resample(const uint8_t* src, float* dst, uint8_t* g8) const {
@@ -431,14 +519,8 @@ void ImagePreprocessor::resample(const uint8_t* src, float* dst, uint8_t* g8) co
     const std::size_t n = g.pixels.size();
     const ColumnWeights* cols = columns_.data();
     const RowTaps* rows = rows_.data();
-    const bool done = tryFast<8, 2>(g.window, g.rows, pix, n, cols, rows, src, dst, g8) ||
-                      tryFast<8, 4>(g.window, g.rows, pix, n, cols, rows, src, dst, g8) ||
-                      tryFast<8, 6>(g.window, g.rows, pix, n, cols, rows, src, dst, g8) ||
-                      tryFast<8, 8>(g.window, g.rows, pix, n, cols, rows, src, dst, g8) ||
-                      tryFast<16, 2>(g.window, g.rows, pix, n, cols, rows, src, dst, g8) ||
-                      tryFast<16, 4>(g.window, g.rows, pix, n, cols, rows, src, dst, g8) ||
-                      tryFast<16, 6>(g.window, g.rows, pix, n, cols, rows, src, dst, g8) ||
-                      tryFast<16, 8>(g.window, g.rows, pix, n, cols, rows, src, dst, g8);
+    const bool done = tryFastRows<8>(g.window, g.rows, pix, n, cols, rows, src, dst, g8) ||
+                      tryFastRows<16>(g.window, g.rows, pix, n, cols, rows, src, dst, g8);
     if (!done) throw std::logic_error("ImagePreprocessor: resampling group outside the fast kernels");
   }
   for (const SlowPixel& p : slow_pixels_) {

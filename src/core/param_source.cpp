@@ -332,6 +332,8 @@ const std::vector<Entry>& table() {
     t.push_back(integer("preprocess/working_height_px", DIEKF_FIELD(int, preprocess.working_height_px),
                         between(0, 4096)));
     t.push_back(real("preprocess/blur_sigma_px", DIEKF_FIELD(double, preprocess.blur_sigma_px), between(0.0, 20.0)));
+    t.push_back(real("preprocess/antialias_sigma_px", DIEKF_FIELD(double, preprocess.antialias_sigma_px),
+                     between(0.0, 2.0)));
     t.push_back(flag("preprocess/normalize_brightness", DIEKF_FIELD(bool, preprocess.normalize_brightness)));
     t.push_back(integer("preprocess/border_px", DIEKF_FIELD(int, preprocess.border_px), between(1, 100)));
     // photometric update

@@ -34,6 +34,17 @@ cv::Mat texture(int w, int h, int seed) {
   return img;
 }
 
+// A 752 x 480 raw image of sinusoidal stripes, amplitude 100 grey levels about 128.
+cv::Mat stripes(double period_px, double angle_rad) {
+  cv::Mat raw(480, 752, CV_8UC1);
+  const double cx = std::cos(angle_rad), sy = std::sin(angle_rad);
+  for (int y = 0; y < raw.rows; ++y)
+    for (int x = 0; x < raw.cols; ++x)
+      raw.at<uint8_t>(y, x) =
+          cv::saturate_cast<uint8_t>(128.0 + 100.0 * std::sin(2.0 * M_PI * (cx * x + sy * y) / period_px));
+  return raw;
+}
+
 double stdDev(const cv::Mat& m, int border) {
   cv::Scalar mean, sd;
   cv::meanStdDev(m(cv::Rect(border, border, m.cols - 2 * border, m.rows - 2 * border)), mean, sd);
@@ -125,15 +136,6 @@ TEST(ImagePreprocessor, AntiAliasing) {
   p.working_width_px = 90;
   p.normalize_brightness = false;  // keep grey-level units (intensity = grey / 255)
   ImagePreprocessor pre(cam, p);
-  auto stripes = [](double period_px, double angle_rad) {
-    cv::Mat raw(480, 752, CV_8UC1);
-    const double cx = std::cos(angle_rad), sy = std::sin(angle_rad);
-    for (int y = 0; y < raw.rows; ++y)
-      for (int x = 0; x < raw.cols; ++x)
-        raw.at<uint8_t>(y, x) =
-            cv::saturate_cast<uint8_t>(128.0 + 100.0 * std::sin(2.0 * M_PI * (cx * x + sy * y) / period_px));
-    return raw;
-  };
   const double in_std = 100.0 / std::sqrt(2.0);
   PreprocessedFrame f;
   double worst_ratio = 0.0;
@@ -166,6 +168,93 @@ TEST(ImagePreprocessor, AntiAliasing) {
   // Low frequency (period 60 raw px = 7.2 working px) keeps most of its amplitude.
   pre.process(stripes(60.0, 0.3), 0.0, &f);
   EXPECT_GT(255.0 * stdDev(f.intensity, 3), 0.5 * in_std);
+}
+
+// Texture between the working Nyquist frequency and the raw one folds to low working frequencies, where the
+// photometric update reads it as motion the wrong way. At 180 px (4.2 raw px per working px) the Gaussian
+// footprint must suppress stripes of 3-7 raw px period in every direction much more than a box does.
+TEST(ImagePreprocessor, GaussianFootprintSuppressesAliasesAt180) {
+  const CameraModel cam = myntEyeCamera();
+  const double in_std = 100.0 / std::sqrt(2.0);
+  double worst[2] = {0.0, 0.0};  // box, Gaussian
+  for (int k = 0; k < 2; ++k) {
+    PreprocessParams p;
+    p.working_width_px = 180;
+    p.normalize_brightness = false;
+    p.antialias_sigma_px = k == 0 ? 0.0 : 0.4;
+    ImagePreprocessor pre(cam, p);
+    PreprocessedFrame f;
+    for (double period : {3.0, 4.4, 5.5, 7.0}) {
+      for (double angle : {0.0, M_PI / 2, 0.6}) {
+        pre.process(stripes(period, angle), 0.0, &f);
+        worst[k] = std::max(worst[k], 255.0 * stdDev(f.intensity, 2) / in_std);
+      }
+    }
+    // Low frequency (period 60 raw px = 14 working px) keeps most of its amplitude.
+    pre.process(stripes(60.0, 0.3), 0.0, &f);
+    EXPECT_GT(255.0 * stdDev(f.intensity, 3), 0.75 * in_std) << "footprint " << k;
+  }
+  ::testing::Test::RecordProperty("worst_alias_box", std::to_string(worst[0]));
+  ::testing::Test::RecordProperty("worst_alias_gaussian", std::to_string(worst[1]));
+  // Measured: box 0.177 (vertical stripes of 4.4 px), Gaussian 0.098 (7 px, just above the working Nyquist
+  // frequency; 0.066 at 4.4 px, the Gaussian's own response there).
+  EXPECT_LT(worst[0], 0.2);
+  EXPECT_LT(worst[1], 0.11);
+  EXPECT_LT(worst[1], 0.6 * worst[0]);
+}
+
+// The noise figures the update's noise floor and correlation area come from (noiseVarianceGain,
+// noiseCorrelationAreaPx, derived from the resampling tables and the blur) against a Monte-Carlo measurement on
+// white raw noise (within 10 % and 15 %): the variance of a working pixel, and the sum of its autocorrelation over lags up to 6 px
+// (the variance of a large area's sum over that of as many independent pixels). The box footprint's
+// figures are checked too (antialias_sigma_px = 0).
+TEST(ImagePreprocessor, NoiseFiguresMatchMonteCarlo) {
+  const CameraModel cam = myntEyeCamera();
+  cv::RNG rng(7);
+  constexpr int kLag = 6;
+  for (int width : {90, 180}) {
+    for (double aa : {0.0, 0.4}) {
+      PreprocessParams p;
+      p.working_width_px = width;
+      p.normalize_brightness = false;
+      p.antialias_sigma_px = aa;
+      ImagePreprocessor pre(cam, p);
+      const PinholeK& K = pre.workingK();
+      const double sigma_grey = 12.0;
+      double cov[2 * kLag + 1][2 * kLag + 1] = {};
+      long n = 0;
+      cv::Mat raw(480, 752, CV_8UC1);
+      PreprocessedFrame f;
+      // The middle of the image, where the figures are derived (the distortion changes them across it).
+      const int u0 = 3 * K.width / 8, u1 = 5 * K.width / 8, v0 = 3 * K.height / 8, v1 = 5 * K.height / 8;
+      for (int frame = 0; frame < 100; ++frame) {
+        for (int y = 0; y < raw.rows; ++y)
+          for (int x = 0; x < raw.cols; ++x)
+            raw.at<uint8_t>(y, x) = cv::saturate_cast<uint8_t>(128.0 + rng.gaussian(sigma_grey));
+        pre.process(raw, 0.0, &f);
+        auto e = [&](int u, int v) { return 255.0 * f.intensity.at<float>(v, u) - 128.0; };
+        for (int v = v0; v < v1; ++v)
+          for (int u = u0; u < u1; ++u) {
+            const double ep = e(u, v);
+            for (int dv = -kLag; dv <= kLag; ++dv)
+              for (int du = -kLag; du <= kLag; ++du) cov[dv + kLag][du + kLag] += ep * e(u + du, v + dv);
+            ++n;
+          }
+      }
+      const double var_pix = cov[kLag][kLag] / n;
+      double area = 0.0;
+      for (const auto& row : cov)
+        for (double c : row) area += c / cov[kLag][kLag];
+      const double gain_ratio = pre.noiseVarianceGain() * sigma_grey * sigma_grey / var_pix;
+      const double area_ratio = pre.noiseCorrelationAreaPx() / area;
+      EXPECT_NEAR(gain_ratio, 1.0, 0.1) << width << " px, aa " << aa;  // measured: 0.94-1.01
+      EXPECT_NEAR(area_ratio, 1.0, 0.15) << width << " px, aa " << aa;  // measured: 0.99-1.13
+      const std::string tag = std::to_string(width) + (aa > 0.0 ? "_gaussian" : "_box");
+      ::testing::Test::RecordProperty("gain_ratio_" + tag, std::to_string(gain_ratio));
+      ::testing::Test::RecordProperty("area_ratio_" + tag, std::to_string(area_ratio));
+      ::testing::Test::RecordProperty("area_" + tag, std::to_string(area));
+    }
+  }
 }
 
 // Every resampling path (8- and 16-column windows of the vectorised kernel, the scalar path for footprints
@@ -216,6 +305,7 @@ TEST(ImagePreprocessor, ResamplingAgainstOpenCvRoutes) {
   for (int width : {90, 180, 376}) {
     PreprocessParams p;
     p.working_width_px = width;
+    p.antialias_sigma_px = 0.0;  // the reference below is the mean over the footprint: the box
     ImagePreprocessor pre(cam, p);
     PreprocessedFrame out;
     pre.process(raw, 0.0, &out);

@@ -77,7 +77,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          pa.time_offset_s_per_sqrt_s == pb.time_offset_s_per_sqrt_s && pa.readout_s_per_sqrt_s == pb.readout_s_per_sqrt_s &&
          pa.focal_scale_per_sqrt_s == pb.focal_scale_per_sqrt_s &&
          ra.working_width_px == rb.working_width_px && ra.working_height_px == rb.working_height_px &&
-         ra.blur_sigma_px == rb.blur_sigma_px && ra.normalize_brightness == rb.normalize_brightness &&
+         ra.blur_sigma_px == rb.blur_sigma_px && ra.antialias_sigma_px == rb.antialias_sigma_px && ra.normalize_brightness == rb.normalize_brightness &&
          ra.border_px == rb.border_px && ha.max_passes == hb.max_passes && ha.stop_threshold == hb.stop_threshold &&
          ha.intensity_noise_sigma == hb.intensity_noise_sigma && ha.gradient_weighting == hb.gradient_weighting &&
          ha.huber_threshold == hb.huber_threshold && ha.min_valid_ratio == hb.min_valid_ratio &&
@@ -279,6 +279,7 @@ TEST(EstimatorParams, ValidationErrorsNameOriginAndKey) {
       {"preprocess:\n  working_width_px: 90.5\n", "preprocess/working_width_px"},
       {"preprocess:\n  working_height_px: 2\n", "preprocess/working_height_px"},
       {"preprocess:\n  blur_sigma_px: -0.1\n", "preprocess/blur_sigma_px"},
+      {"preprocess:\n  antialias_sigma_px: 3\n", "preprocess/antialias_sigma_px"},
       {"photometric:\n  max_passes: 0\n", "photometric/max_passes"},
       {"photometric:\n  min_valid_ratio: 1.5\n", "photometric/min_valid_ratio"},
       {"divergence:\n  max_distance_m: 0.01\n", "divergence/max_distance_m"},
