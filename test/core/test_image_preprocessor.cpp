@@ -143,9 +143,9 @@ TEST(ImagePreprocessor, AntiAliasing) {
     for (double angle : {0.0, M_PI / 2, 0.6}) {
       pre.process(stripes(period, angle), 0.0, &f);
       const double out_std = 255.0 * stdDev(f.intensity, 2);
-      // The footprint is a box (area average, like INTER_AREA): its sinc response leaves up to ~15 % of the
-      // amplitude for periods of 5-7 raw px even after the blur; point sampling keeps ~100 % (below).
-      EXPECT_LT(out_std, 0.16 * in_std) << "period " << period << " angle " << angle;
+      // The default footprint (a Gaussian of 0.4 working px) leaves up to ~4 % of the amplitude (a box: ~15 %
+      // for periods of 5-7 raw px even after the blur); point sampling keeps ~100 % (below).
+      EXPECT_LT(out_std, 0.08 * in_std) << "period " << period << " angle " << angle;
       worst_ratio = std::max(worst_ratio, out_std / in_std);
     }
   }
@@ -205,9 +205,9 @@ TEST(ImagePreprocessor, GaussianFootprintSuppressesAliasesAt180) {
 
 // The noise figures the update's noise floor and correlation area come from (noiseVarianceGain,
 // noiseCorrelationAreaPx, derived from the resampling tables and the blur) against a Monte-Carlo measurement on
-// white raw noise (within 10 % and 15 %): the variance of a working pixel, and the sum of its autocorrelation over lags up to 6 px
-// (the variance of a large area's sum over that of as many independent pixels). The box footprint's
-// figures are checked too (antialias_sigma_px = 0).
+// white raw noise, within 10 % and 15 %: the variance of a working pixel, and the sum of its autocorrelation
+// over lags up to 6 px (the variance of a large area's sum over that of as many independent pixels). The box
+// footprint's figures are checked too (antialias_sigma_px = 0).
 TEST(ImagePreprocessor, NoiseFiguresMatchMonteCarlo) {
   const CameraModel cam = myntEyeCamera();
   cv::RNG rng(7);
