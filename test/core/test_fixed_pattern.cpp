@@ -273,7 +273,9 @@ TEST(FixedPattern, RadialVignettingIsFittedAsOneSmoothField) {
   std::printf("[ vignetting ] corner %.3f (truth 0.650); largest gain error %.3f (per-pixel model alone %.3f)\n",
               fp.vignettingAtCorner(), err, err_per_pixel);
   EXPECT_LT(maxGainError(fp.vignetting(), vig), 0.03);
-  EXPECT_LT(err, 0.2);  // the per-pixel model's own few false alarms (CleanImagesAreLeftAlone)
+  // The largest error is one of the per-pixel model's own few false alarms (CleanImagesAreLeftAlone): 0.184 on
+  // x86-64, 0.203 on arm64 (fused multiply-adds round differently); how many pixels are off is bounded below.
+  EXPECT_LT(err, 0.25);
   const int off = pixelsOff(fp.gain(), vig, 0.04), off_per_pixel = pixelsOff(per_pixel.gain(), vig, 0.04);
   std::printf("[ vignetting ] gain off by more than 0.04: %d pixels (per-pixel model alone %d) of %d\n", off,
               off_per_pixel, kW * kH);
