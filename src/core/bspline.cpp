@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <cstddef>
 
 namespace diekf {
 namespace internal {
@@ -13,27 +14,40 @@ constexpr float kGain = 6.0f;
 // Terms of the causal recursion's initial value: |z|^12 < 1.5e-7, below float resolution of a unit signal.
 constexpr int kInitTerms = 12;
 
-/// The prefilter along one row of n samples, in place, gain included: c+(0) = 6 sum_k z^k f(k) (mirror boundary,
-/// truncated), c+(k) = 6 f(k) + z c+(k - 1); then c(n - 1) = z / (z^2 - 1) (c+(n - 1) + z c+(n - 2)) and
-/// c(k) = z (c(k + 1) - c+(k)).
-void filterRow(float* c, int n) {
+/// The prefilter along n samples `step` floats apart, each sample `lanes` contiguous floats filtered independently
+/// (kLanes > 0: that many, fixed at compile time; 0: `lanes`), in place, gain included:
+///   c+(0) = 6 sum_k z^k f(k) (mirror boundary, truncated), c+(k) = 6 f(k) + z c+(k - 1);
+///   then c(n - 1) = z / (z^2 - 1) (c+(n - 1) + z c+(n - 2)) and c(k) = z (c(k + 1) - c+(k)).
+/// Along a row: one lane, the samples contiguous; down the columns: the rows are the samples and every column a
+/// lane (contiguous inner loops, vectorised).
+template <int kLanes>
+void filterSamples(float* c, std::ptrdiff_t step, int n, int lanes) {
+  const int L = kLanes > 0 ? kLanes : lanes;
   const float z = static_cast<float>(kPole);
-  float zk = z, sum = c[0];
-  for (int k = 1; k < std::min(n, kInitTerms); ++k) {
-    sum += zk * c[k];
-    zk *= z;
+  {
+    float zk = z;
+    for (int k = 1; k < std::min(n, kInitTerms); ++k) {
+      const float* ck = c + k * step;
+      for (int l = 0; l < L; ++l) c[l] += zk * ck[l];
+      zk *= z;
+    }
+    for (int l = 0; l < L; ++l) c[l] *= kGain;
   }
-  float prev = kGain * sum;
-  c[0] = prev;
   for (int k = 1; k < n; ++k) {
-    prev = kGain * c[k] + z * prev;
-    c[k] = prev;
+    float* ck = c + k * step;
+    const float* prev = ck - step;
+    for (int l = 0; l < L; ++l) ck[l] = kGain * ck[l] + z * prev[l];
   }
-  float next = (z / (z * z - 1.0f)) * (c[n - 1] + z * c[n - 2]);
-  c[n - 1] = next;
+  {
+    float* last = c + (n - 1) * step;
+    const float* before = last - step;
+    const float a = z / (z * z - 1.0f);
+    for (int l = 0; l < L; ++l) last[l] = a * (last[l] + z * before[l]);
+  }
   for (int k = n - 2; k >= 0; --k) {
-    next = z * (next - c[k]);
-    c[k] = next;
+    float* ck = c + k * step;
+    const float* next = ck + step;
+    for (int l = 0; l < L; ++l) ck[l] = z * (next[l] - ck[l]);
   }
 }
 
@@ -45,36 +59,8 @@ void cubicBSplineCoefficients(const cv::Mat& image, cv::Mat* coeff) {
   image.copyTo(*coeff);
   const int W = coeff->cols, H = coeff->rows;
   if (W >= 2)
-    for (int y = 0; y < H; ++y) filterRow(coeff->ptr<float>(y), W);
-  if (H < 2) return;
-  // Columns: the same recursions with whole rows as the samples (contiguous inner loops, vectorised).
-  const float z = static_cast<float>(kPole);
-  {
-    float* r0 = coeff->ptr<float>(0);
-    float zk = z;
-    for (int k = 1; k < std::min(H, kInitTerms); ++k) {
-      const float* rk = coeff->ptr<float>(k);
-      for (int x = 0; x < W; ++x) r0[x] += zk * rk[x];
-      zk *= z;
-    }
-    for (int x = 0; x < W; ++x) r0[x] *= kGain;
-  }
-  for (int y = 1; y < H; ++y) {
-    float* r = coeff->ptr<float>(y);
-    const float* up = coeff->ptr<float>(y - 1);
-    for (int x = 0; x < W; ++x) r[x] = kGain * r[x] + z * up[x];
-  }
-  {
-    float* rl = coeff->ptr<float>(H - 1);
-    const float* rp = coeff->ptr<float>(H - 2);
-    const float a = z / (z * z - 1.0f);
-    for (int x = 0; x < W; ++x) rl[x] = a * (rl[x] + z * rp[x]);
-  }
-  for (int y = H - 2; y >= 0; --y) {
-    float* r = coeff->ptr<float>(y);
-    const float* dn = coeff->ptr<float>(y + 1);
-    for (int x = 0; x < W; ++x) r[x] = z * (dn[x] - r[x]);
-  }
+    for (int y = 0; y < H; ++y) filterSamples<1>(coeff->ptr<float>(y), 1, W, 1);
+  if (H >= 2) filterSamples<0>(coeff->ptr<float>(0), static_cast<std::ptrdiff_t>(coeff->step1()), H, W);
 }
 
 }  // namespace internal
