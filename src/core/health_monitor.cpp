@@ -58,6 +58,9 @@ void HealthMonitor::checkDivergence(const State& x, const ErrorCov& P, bool appl
   if (!(sigma_d <= dv.max_sigma_distance_m)) {
     std::ostringstream os;
     os << "distance 1-sigma " << sigma_d << " m above " << dv.max_sigma_distance_m << " m";
+    // Before the first convergence this is the usual way a still or hovering camera ends a run: nothing tells
+    // the distance until the camera accelerates (docs/results.md, "Start-up").
+    if (!converged_) os << " before convergence (no scale until the camera accelerates)";
     *reason = os.str();
     return;
   }
