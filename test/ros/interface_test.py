@@ -7,6 +7,7 @@ camera exists and the static part matches the calibration; /diagnostics carries 
 service (std_srvs/Trigger) brings the filter back to initializing, then tracking again; keys of the node's
 namespace that nothing reads are warned about with the namespace, the key and the closest known key.
 """
+import math
 import os
 import subprocess
 import sys
@@ -174,14 +175,25 @@ class Interface(unittest.TestCase):
         with self.lock:
             frame_odom, fast_odom = list(self.odom_frames), list(self.odom_fast)
         stamps = np.array([m.header.stamp.to_sec() for m in fast_odom])
-        gaps = []
+        # The prediction nearest an image's stamp is made from the previous frame's posterior (the image's update
+        # needs IMU samples after its stamp), so it differs from that image's posterior by the update's correction:
+        # within a few sigma of the predicted height (pose covariance z-z), and small in the median. A frame or sign
+        # error between the two outputs would show on every frame. (The wall-clock reset above falls at a different
+        # point of the flight on every run; the frames compared may include its re-convergence.)
+        gaps, sigmas = [], []
         for m in frame_odom[len(frame_odom) // 2:]:
             t = m.header.stamp.to_sec()
             k = int(np.argmin(np.abs(stamps - t)))
             if abs(stamps[k] - t) < 0.006:  # a prediction within one 100 Hz period of the image
                 gaps.append(abs(fast_odom[k].pose.pose.position.z - m.pose.pose.position.z))
+                sigmas.append(math.sqrt(fast_odom[k].pose.covariance[14]))
         self.assertGreater(len(gaps), 10, "no IMU-rate odometry near the images' stamps")
-        self.assertLess(max(gaps), 0.02, "IMU-rate odometry z departs from the image-rate odometry's: %s" % gaps)
+        gaps, sigmas = np.array(gaps), np.array(sigmas)
+        self.assertTrue(np.all(sigmas < 0.2), "IMU-rate odometry height 1-sigma implausible: %s" % sigmas)
+        self.assertTrue(np.all(gaps < 3.0 * sigmas),
+                        "IMU-rate odometry z departs from the image-rate odometry's by more than 3 sigma: %s" %
+                        list(zip(gaps, sigmas)))
+        self.assertLess(np.median(gaps), 0.005, "IMU-rate odometry z departs from the image-rate odometry's: %s" % gaps)
         for topic in (NODE + "/path", NODE + "/markers", NODE + "/residual_image"):
             self.assertGreater(counts[topic], 0, topic + " never published while subscribed")
 
