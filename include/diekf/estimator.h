@@ -70,7 +70,8 @@ class Estimator {
   /// then accepted as the first of the new run). Never throws (docs/robustness.md).
   bool addImu(const ImuSample& raw_imu);
   /// Image at the calibration resolution (8-bit grey, 16-bit grey, BGR or BGRA), stamp on the camera clock
-  /// (timeshift applied inside). The image is converted to grey if needed and processed as soon as filtered IMU
+  /// (timeshift applied inside). The image is resampled to the working size at once (converted to grey first if
+  /// needed; the caller's buffer is not kept, nor copied for 8-bit grey) and processed as soon as filtered IMU
   /// data covers its stamp. Wrong size or type, non-finite, duplicated or out-of-order stamps are rejected
   /// (returns false). Never throws.
   bool addImage(double t_cam_s, const cv::Mat& image);

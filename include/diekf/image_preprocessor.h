@@ -36,6 +36,15 @@ struct PreprocessedFrame {
   bool valid = false;
 };
 
+/// Stage 1 of the preprocessing (ImagePreprocessor::resample): the raw image undistorted and resampled to the
+/// working size, before blur. Depends on the raw image alone, so it can be made when the image arrives and the
+/// raw image need not be kept (Estimator::addImage).
+struct ResampledImage {
+  cv::Mat padded;  ///< CV_32FC1 H x (W + 2 blur radius): grey levels, border columns replicated
+  cv::Mat gray8;   ///< CV_8UC1 H x W: the same, rounded (PreprocessedFrame::gray8)
+  bool valid = false;
+};
+
 class ImagePreprocessor {
  public:
   /// Throws std::invalid_argument on a camera without resolution or a working size below 3x3 px.
@@ -58,6 +67,11 @@ class ImagePreprocessor {
   /// `pattern` (optional): the camera-fixed pattern model, applied to the blurred image before the brightness
   /// normalisation (FixedPattern::apply; it also keeps the uncorrected image for FixedPattern::learn).
   void process(const cv::Mat& raw, double t_s, PreprocessedFrame* out, FixedPattern* pattern = nullptr);
+  /// process() in two stages: resample() needs only the raw image (same contract for `raw`; the buffers of
+  /// `stage` are reused), finish() the rest (blur, pattern, normalisation, gradients) and marks `stage`
+  /// used (finish() again without a new resample() throws). Same results and buffers as process().
+  void resample(const cv::Mat& raw, ResampledImage* stage);
+  void finish(ResampledImage* stage, double t_s, PreprocessedFrame* out, FixedPattern* pattern = nullptr);
   /// `frame` (the last one process() gave `pattern`) corrected again with the pattern's current fields
   /// (FixedPattern::reapply), normalised and differentiated again: after the fields changed, so that the next
   /// pair sees one correction in both images. No-op when the pattern cannot (nothing kept, or disabled).
@@ -101,7 +115,7 @@ class ImagePreprocessor {
     uint16_t tx = 0, ty = 0;
   };
 
-  void resample(const uint8_t* src, float* dst, uint8_t* g8) const;
+  void resampleTable(const uint8_t* src, float* dst, uint8_t* g8) const;
   /// Steps 3 and 4 of process(): brightness normalisation from the moments of intensity - pivot, gradients.
   void normalizeAndGradients(double sum, double sum_sq, float pivot, PreprocessedFrame* out) const;
 
@@ -118,7 +132,7 @@ class ImagePreprocessor {
   double noise_correlation_area_px_ = 1.0;
   int pad_ = 0;                     // blur radius, px: columns of replicated border on each side of resampled_
   cv::Mat raw_copy_;                // continuous copy of a non-continuous input
-  cv::Mat resampled_;               // CV_32FC1 H x (W + 2 pad_): working image before blur, grey levels
+  ResampledImage stage_;            // process()'s own stage-1 buffers
   cv::Mat blur_tmp_;                // CV_32FC1 H x W: horizontal pass of the blur
 };
 

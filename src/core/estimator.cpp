@@ -53,7 +53,8 @@ namespace {
 struct PendingImage {
   double t_s = 0.0;      // IMU clock
   double stamp_s = 0.0;  // the stamp it was given (camera clock)
-  cv::Mat gray;          // CV_8UC1 at calibration resolution (reused buffer)
+  ResampledImage stage;  // the image resampled to the working size on arrival (reused buffers; no raw copy kept)
+  double resample_ms = 0.0;  // time of that stage, added to the frame's update_ms
 };
 
 constexpr size_t kResultCapacity = 64;  // unread results kept (oldest dropped): nobody reads, memory bounded
@@ -177,7 +178,7 @@ struct Estimator::Impl {
     // Preprocessing.
     PreprocessedFrame& cur = frames[1 - ref_index];
     const bool pattern_on = params.fixed_pattern.enabled || !params.fixed_pattern.vignetting_file.empty();
-    img_pre.process(img.gray, img.t_s, &cur, pattern_on ? &fixed_pattern : nullptr);
+    img_pre.finish(&img.stage, img.t_s, &cur, pattern_on ? &fixed_pattern : nullptr);
     std::string usable_why;
     const bool usable = update.usable(cur.gray8, &usable_why);
 
@@ -235,7 +236,7 @@ struct Estimator::Impl {
     }
 
     const auto t1 = std::chrono::steady_clock::now();
-    r.update_ms = std::chrono::duration<double, std::milli>(t1 - t0).count();
+    r.update_ms = img.resample_ms + std::chrono::duration<double, std::milli>(t1 - t0).count();
     fillStats(stats, &r);
     r.fixed_pattern_active = fixed_pattern.active();
     r.fixed_pattern_fraction = fixed_pattern.strongFraction();
@@ -363,6 +364,7 @@ struct Estimator::Impl {
   EstimatorParams params;
   ImuPreprocessor imu_pre;           // raw IMU -> filtered samples in C
   ImagePreprocessor img_pre;         // raw image -> working image
+  cv::Mat grey_scratch;              // colour or 16-bit input converted to 8-bit grey (reused buffer)
   FixedPattern fixed_pattern;        // camera-fixed gain and offset fields (docs/noise_model.md section 11)
   double discounted_share = 0.0;     // the pattern's contrast share the covariance allows for (discountPattern...)
   bool pattern_named = false;        // the status has named the dominant pattern in view
@@ -490,7 +492,16 @@ bool Estimator::addImage(double t_cam_s, const cv::Mat& image) {
     PendingImage& slot = m.images.emplaceSlot();
     slot.t_s = t_s;
     slot.stamp_s = t_cam_s;
-    toGrey8(image, ChannelOrder::kBgr, &slot.gray);  // the package's one grey conversion (grey_image.h)
+    // The first stage of the preprocessing now, straight from the caller's pixels (8-bit grey: no copy);
+    // other types through the package's one grey conversion (grey_image.h) into a reused buffer.
+    const auto t0 = std::chrono::steady_clock::now();
+    if (depth == CV_8U && channels == 1) {
+      m.img_pre.resample(image, &slot.stage);
+    } else {
+      toGrey8(image, ChannelOrder::kBgr, &m.grey_scratch);
+      m.img_pre.resample(m.grey_scratch, &slot.stage);
+    }
+    slot.resample_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     m.last_image_t_s = t_s;
     m.processReady();
     return true;

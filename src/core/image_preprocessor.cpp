@@ -513,7 +513,7 @@ ImagePreprocessor::ImagePreprocessor(const CameraModel& camera, const Preprocess
   noise_correlation_area_px_ = std::max(1.0, area_x * area_y);
 }
 
-void ImagePreprocessor::resample(const uint8_t* src, float* dst, uint8_t* g8) const {
+void ImagePreprocessor::resampleTable(const uint8_t* src, float* dst, uint8_t* g8) const {
   for (const FastGroup& g : fast_groups_) {
     const FastPixel* pix = g.pixels.data();
     const std::size_t n = g.pixels.size();
@@ -541,6 +541,12 @@ void ImagePreprocessor::resample(const uint8_t* src, float* dst, uint8_t* g8) co
 
 void ImagePreprocessor::process(const cv::Mat& raw, double t_s, PreprocessedFrame* out, FixedPattern* pattern) {
   if (out == nullptr) throw std::invalid_argument("ImagePreprocessor::process: null output frame");
+  resample(raw, &stage_);
+  finish(&stage_, t_s, out, pattern);
+}
+
+void ImagePreprocessor::resample(const cv::Mat& raw, ResampledImage* stage) {
+  if (stage == nullptr) throw std::invalid_argument("ImagePreprocessor::resample: null stage");
   if (raw.type() != CV_8UC1 || raw.cols != raw_K_.width || raw.rows != raw_K_.height || raw.dims != 2) {
     throw std::invalid_argument("ImagePreprocessor::process: expected CV_8UC1 " + std::to_string(raw_K_.width) +
                                 "x" + std::to_string(raw_K_.height) + " (calibration resolution), got " +
@@ -554,15 +560,12 @@ void ImagePreprocessor::process(const cv::Mat& raw, double t_s, PreprocessedFram
   }
   const int W = working_K_.width, H = working_K_.height;
   const int PW = W + 2 * pad_;
-  ensure(resampled_, H, PW, CV_32FC1);
-  ensure(out->gray8, H, W, CV_8UC1);
-  ensure(out->intensity, H, W, CV_32FC1);
-  ensure(out->grad_x, H, W, CV_32FC1);
-  ensure(out->grad_y, H, W, CV_32FC1);
+  ensure(stage->padded, H, PW, CV_32FC1);
+  ensure(stage->gray8, H, W, CV_8UC1);
 
   // 1. Anti-aliased resampling through the lookup table into the padded buffer; replicate the border columns.
-  float* res = resampled_.ptr<float>();
-  resample(src, res, out->gray8.ptr<uint8_t>());
+  float* res = stage->padded.ptr<float>();
+  resampleTable(src, res, stage->gray8.ptr<uint8_t>());
   if (pad_ > 0) {
     for (int y = 0; y < H; ++y) {
       float* r = res + y * PW;
@@ -570,6 +573,21 @@ void ImagePreprocessor::process(const cv::Mat& raw, double t_s, PreprocessedFram
       std::fill(r + pad_ + W, r + PW, r[pad_ + W - 1]);
     }
   }
+  stage->valid = true;
+}
+
+void ImagePreprocessor::finish(ResampledImage* stage, double t_s, PreprocessedFrame* out, FixedPattern* pattern) {
+  if (out == nullptr || stage == nullptr) throw std::invalid_argument("ImagePreprocessor::finish: null argument");
+  if (!stage->valid) throw std::invalid_argument("ImagePreprocessor::finish: no resampled image (resample() first)");
+  const int W = working_K_.width, H = working_K_.height;
+  const int PW = W + 2 * pad_;
+  ensure(out->gray8, H, W, CV_8UC1);
+  ensure(out->intensity, H, W, CV_32FC1);
+  ensure(out->grad_x, H, W, CV_32FC1);
+  ensure(out->grad_y, H, W, CV_32FC1);
+  stage->gray8.copyTo(out->gray8);  // W x H bytes, into the frame's own buffer
+  stage->valid = false;
+  const float* res = stage->padded.ptr<float>();
 
   // 2. Separable Gaussian blur -> intensity (grey levels), with the moments for the normalisation.
   float* I = out->intensity.ptr<float>();

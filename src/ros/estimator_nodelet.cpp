@@ -687,8 +687,8 @@ void EstimatorNodelet::forwardImu(const diekf::ImuSample& s) {
 }
 
 void EstimatorNodelet::forwardImage(const sensor_msgs::ImageConstPtr& msg) {
-  // The message's own pixels (zero-copy); Estimator::addImage converts them to grey once (diekf::toGrey8) into its
-  // queue. Colour in RGB order is converted here, the estimator taking colour as BGR.
+  // The message's own pixels (zero-copy); Estimator::addImage resamples them to the working size at once (colour
+  // converted to grey first, diekf::toGrey8) and keeps only that. Colour in RGB order is converted here, the estimator taking colour as BGR.
   cv_bridge::CvImageConstPtr shared;
   diekf::ChannelOrder order = diekf::ChannelOrder::kBgr;
   std::string error;

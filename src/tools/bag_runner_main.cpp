@@ -158,7 +158,7 @@ double stampOf(const ros::Time& header_stamp, const ros::Time& record_time) {
 }
 
 /// The image's pixels for the estimator (docs/conventions.md section 2): the message's own buffer in any supported
-/// encoding (no copy; Estimator::addImage converts to grey once, diekf::toGrey8); colour in RGB order is converted
+/// encoding (no copy; Estimator::addImage resamples it at once, converting colour to grey with diekf::toGrey8); colour in RGB order is converted
 /// here, the estimator taking colour as BGR.
 cv::Mat imagePixels(const sensor_msgs::ImageConstPtr& msg) {
   int type = -1;

@@ -446,5 +446,32 @@ TEST(ImagePreprocessor, ReusesBuffersAndAcceptsRoi) {
   EXPECT_EQ(cv::norm(first, f.intensity, cv::NORM_INF), 0.0);
 }
 
+TEST(ImagePreprocessor, TwoStagesGiveTheSameFrameAsProcess) {
+  // Estimator::addImage resamples on arrival and finishes when the IMU covers the image: bit-identical to
+  // process(), with several staged images in flight (the estimator's queue).
+  PreprocessParams pp;
+  pp.working_width_px = 180;
+  ImagePreprocessor pre(myntEyeCamera(), pp);
+  ImagePreprocessor staged(myntEyeCamera(), pp);
+  ResampledImage a, b;
+  staged.resample(texture(752, 480, 11), &a);
+  staged.resample(texture(752, 480, 12), &b);
+  for (int k = 0; k < 2; ++k) {
+    PreprocessedFrame ref, got;
+    pre.process(texture(752, 480, 11 + k), 0.1 * k, &ref);
+    staged.finish(k == 0 ? &a : &b, 0.1 * k, &got);
+    EXPECT_EQ(cv::norm(ref.intensity, got.intensity, cv::NORM_INF), 0.0);
+    EXPECT_EQ(cv::norm(ref.grad_x, got.grad_x, cv::NORM_INF), 0.0);
+    EXPECT_EQ(cv::norm(ref.grad_y, got.grad_y, cv::NORM_INF), 0.0);
+    EXPECT_EQ(cv::norm(ref.gray8, got.gray8, cv::NORM_INF), 0.0);
+    EXPECT_EQ(ref.grey_per_unit, got.grey_per_unit);
+    EXPECT_TRUE(got.valid);
+    EXPECT_DOUBLE_EQ(got.t_s, 0.1 * k);
+  }
+  PreprocessedFrame again;
+  EXPECT_THROW(staged.finish(&a, 0.2, &again), std::invalid_argument);  // a stage is finished once
+  EXPECT_THROW(staged.resample(cv::Mat(480, 752, CV_8UC3), &a), std::invalid_argument);
+}
+
 }  // namespace
 }  // namespace diekf
