@@ -58,6 +58,9 @@ class ImuPreprocessor {
   std::vector<BiquadState> states_;
   double delay_s_ = 0.0;
   bool primed_ = false;
+  Vec6 prime_sum_ = Vec6::Zero();  // sum of the first samples (rotated into C), before the filter starts
+  int prime_count_ = 0;
+  int prime_samples_ = 1;  // samples averaged for the start: one period of the cutoff
   int counter_ = 0;
   Vec3 last_gyro_C_ = Vec3::Zero();  // filtered gyro of the previous raw sample, rad/s
 };

@@ -27,6 +27,11 @@ struct InitParams {
   double sigma_readout_s = 0.01;                ///< 1-sigma of the rolling-shutter readout around the configured, s
   double sigma_focal_scale = 0.02;              ///< 1-sigma of the focal length's relative error (calibration), unitless
   double tracking_max_relative_sigma_d = 0.15;  ///< status turns tracking once sigma_d / d falls below this
+  bool scale_batch = false;                     ///< hold alpha until the images see translation, then solve the
+                                                ///< scale in one batch (docs/algorithm.md section 7.1)
+  double scale_window_s = 1.0;                  ///< seconds of motion the batch uses, s
+  double scale_max_window_s = 3.0;              ///< longest wait for an accepted batch, then alpha is freed, s
+  double scale_max_relative_sigma = 0.1;        ///< a batch is accepted when its 1-sigma of the scale is below this
   bool warm_restart = true;                     ///< automatic restarts start from the last tracked distance
   double warm_restart_max_age_s = 10.0;         ///< ... if it is at most this old, s
   double warm_restart_sigma_alpha_relative = 0.35;  ///< 1-sigma of alpha on a warm restart, relative to it
@@ -43,6 +48,8 @@ struct ImuParams {
   int decimation_factor = 5;                    ///< keep every n-th filtered sample (500 Hz -> 100 Hz)
   bool compensate_filter_delay = true;          ///< shift output stamps back by the filter's group delay
   bool lever_arm_compensation = true;           ///< add w x (w x r) for the IMU-camera translation
+  bool prime_from_mean = false;                 ///< start the low-pass from the mean of its first samples (one
+                                                ///< period of the cutoff) instead of the first raw sample
   double gravity_mps2 = 9.81;                   ///< magnitude of gravity, m/s^2
 };
 

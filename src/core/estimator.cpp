@@ -4,6 +4,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstdlib>
 #include <sstream>
 
 #include "diekf/grey_image.h"
@@ -15,6 +16,7 @@
 #include "image_update.h"
 #include "imu_propagator.h"
 #include "restart_policy.h"
+#include "scale_initializer.h"
 #include "ring.h"
 
 // The estimator is a manager over four parts, each in its own file (docs/algorithm.md section 9):
@@ -89,6 +91,13 @@ struct Estimator::Impl {
     const double line_delay_raw_s = p.line_delay_s > 0.0 ? p.line_delay_s : cam.line_delay_s;
     configured_readout_s = line_delay_raw_s * std::max(0, cam.K.height - 1);
     stamp_shift_s = imageStampShift(p.image_stamp, p.exposure_time_s, configured_readout_s);
+    internal::ScaleInitializer::Config sc;
+    sc.window_s = p.init.scale_window_s;
+    sc.max_window_s = std::max(p.init.scale_window_s, p.init.scale_max_window_s);
+    sc.max_relative_sigma = p.init.scale_max_relative_sigma;
+    sc.accel_noise_density = p.imu.accel_noise_density;
+    sc.gravity_mps2 = p.imu.gravity_mps2;
+    scale_init.configure(sc);
     resetFilter();
   }
 
@@ -115,6 +124,25 @@ struct Estimator::Impl {
     health.startRun();
     skip_reason.clear();
     update.resetNoiseModel();
+    scale_init.reset();
+    if (!params.init.scale_batch) scale_init.finish();
+  }
+
+  /// Start-up while the camera is still (ScaleInitializer): the update leaves alpha and its variance as they were
+  /// before it (`alpha0`, `var_alpha0`; a "consider" state) and its correlations are dropped (P stays positive
+  /// definite).
+  void holdAlpha(double alpha0, double var_alpha0) {
+    x.alpha = alpha0;
+    P.row(ErrIdx::kAlpha).setZero();
+    P.col(ErrIdx::kAlpha).setZero();
+    P(ErrIdx::kAlpha, ErrIdx::kAlpha) = var_alpha0;
+  }
+
+  /// The warm prior of a restart (RestartPolicy::applyWarmPrior); a run that starts from a known distance needs
+  /// no start-up of the scale.
+  void applyWarmPrior(double t_s) {
+    restarts.applyWarmPrior(t_s, &x, &P);
+    if (restarts.warmStarted()) scale_init.finish();
   }
 
   /// The camera-fixed pattern just learned holds a share s of the image's contrast (FixedPattern::contrastShare):
@@ -161,7 +189,7 @@ struct Estimator::Impl {
     restarts.noteRestart(reason);
     warn("filter reset: " + reason);
     resetFilter();
-    restarts.applyWarmPrior(t_s, &x, &P);
+    applyWarmPrior(t_s);
   }
 
   /// The steps of one image, in order: preprocessing, restart after a long image gap, prediction (to the
@@ -192,6 +220,11 @@ struct Estimator::Impl {
       restartAtImage(img.t_s, restart_reason);
     }
 
+    // The IMU of this interval for the start-up of the distance (while it collects).
+    if (state_initialized && scale_init.phase() == internal::ScaleInitializer::Phase::kCollecting) {
+      scale_init.integrate(imu.stateTime(), img.t_s, x, [this](double t) { return imu.imuAt(t); });
+    }
+
     // Prediction.
     if (!state_initialized) {
       if (usable) startAt(img.t_s);  // otherwise the filter keeps waiting for a usable image
@@ -212,7 +245,9 @@ struct Estimator::Impl {
       skip_reason = usable_why;
     } else if (have_reference) {
       update.setPixelConfidence(fixed_pattern.confidence());
+      const double alpha0 = x.alpha, var_alpha0 = P(ErrIdx::kAlpha, ErrIdx::kAlpha);
       stats = update.apply(frames[ref_index], cur, img.t_s, imu, last_imu_gap_end_s, &health, &x, &P, &skip_reason);
+      if (stats.applied && scale_init.holdsAlpha()) holdAlpha(alpha0, var_alpha0);
       if (update.lastPairPhotometric()) {
         // The camera-fixed pattern learns by how far the ground moved: the rotation (gyro) always, the translation
         // once the filter has converged and accepted the image (docs/noise_model.md section 11).
@@ -227,6 +262,16 @@ struct Estimator::Impl {
       }
     }
     if (state_initialized && imu.stateTime() < img.t_s) imu.propagateTo(img.t_s, &x, &P);  // from the midpoint
+    if (stats.applied && scale_init.addFrame(img.t_s, x, P)) {
+      // The batch's distance, fused as a measurement of alpha = 1 / d.
+      const double d = scale_init.distance(), sigma_alpha = scale_init.sigmaDistance() / (d * d);
+      const double S = P(ErrIdx::kAlpha, ErrIdx::kAlpha) + sigma_alpha * sigma_alpha;
+      const ErrorVec K = P.col(ErrIdx::kAlpha) / S;
+      x = x.boxplus(K * (1.0 / d - x.alpha));
+      const ErrorCov KP = K * P.row(ErrIdx::kAlpha);
+      P -= KP;
+      P = 0.5 * (P + P.transpose()).eval();
+    }
     const bool had_reference = have_reference;
     if (usable) {  // this image is the next reference
       last_usable_image_t_s = img.t_s;
@@ -254,7 +299,7 @@ struct Estimator::Impl {
       const int bad = health.badFrames();
       const std::string skipped = skip_reason;
       resetFilter();
-      if (warm) restarts.applyWarmPrior(img.t_s, &x, &P);
+      if (warm) applyWarmPrior(img.t_s);
       restarts.setWarmStarted(warm);
       health.startRun(bad);
       skip_reason = skipped;
@@ -347,7 +392,7 @@ struct Estimator::Impl {
     restarts.noteRestart(reason);
     resetFilter();
     if (warm) {
-      restarts.applyWarmPrior(t_now_s, &x, &P);
+      applyWarmPrior(t_now_s);
     } else {
       restarts.forgetHistory();
     }
@@ -372,6 +417,7 @@ struct Estimator::Impl {
   internal::ImageUpdate update;      // update from an image pair
   internal::HealthMonitor health;    // checks and status
   internal::RestartPolicy restarts;  // priors of a run, restart count
+  internal::ScaleInitializer scale_init;  // start-up of the distance (hold alpha, then one batch solve)
 
   Ring<PendingImage> images;  // images waiting for IMU coverage
   Ring<FrameResult> results;  // unread results

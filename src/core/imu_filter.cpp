@@ -1,5 +1,6 @@
 #include "diekf/imu_filter.h"
 
+#include <algorithm>
 #include <cmath>
 #include <complex>
 #include <stdexcept>
@@ -69,6 +70,9 @@ ImuPreprocessor::ImuPreprocessor(const Eigen::Isometry3d& T_cam_imu, const ImuPa
     delay_samples += (s.b1 + 2.0 * s.b2) / (s.b0 + s.b1 + s.b2) - (s.a1 + 2.0 * s.a2) / (1.0 + s.a1 + s.a2);
   }
   delay_s_ = delay_samples / fs;
+  prime_samples_ = order > 0 && params.prime_from_mean
+                       ? std::max(1, static_cast<int>(std::lround(fs / params.lowpass_cutoff_hz)))
+                       : 1;
 }
 
 double ImuPreprocessor::magnitudeResponse(double f_hz) const {
@@ -83,6 +87,8 @@ double ImuPreprocessor::magnitudeResponse(double f_hz) const {
 
 void ImuPreprocessor::reset() {
   primed_ = false;
+  prime_sum_.setZero();
+  prime_count_ = 0;
   counter_ = 0;
   for (BiquadState& st : states_) {
     st.z1.setZero();
@@ -123,10 +129,16 @@ bool ImuPreprocessor::push(const ImuSample& raw_imu, ImuSample* out) {
   in.head<3>() = R_CI_ * raw_imu.accel_mps2;  // specific force at the IMU, in C, m/s^2
   in.tail<3>() = R_CI_ * raw_imu.gyro_radps;  // body rate in C, rad/s
   if (!primed_) {
-    prime(in);
+    // imu.prime_from_mean: start from the mean of the first samples over one period of the cutoff, not from one
+    // raw sample, which carries the vibration's instantaneous value (m/s^2 on a flying drone): a filter primed
+    // on it emits a decaying burst of acceleration the images never show (docs/results.md "Start-up").
+    prime_sum_ += in;
+    if (++prime_count_ < prime_samples_) return false;
+    const Vec6 mean = prime_sum_ / static_cast<double>(prime_count_);
+    prime(mean);
     primed_ = true;
     counter_ = 0;
-    last_gyro_C_ = in.tail<3>();
+    last_gyro_C_ = mean.tail<3>();
   }
   const Vec6 y = filter(in);
   const Vec3 w = y.tail<3>();

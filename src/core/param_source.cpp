@@ -295,6 +295,11 @@ const std::vector<Entry>& table() {
     t.push_back(real("init/sigma_focal_scale", DIEKF_FIELD(double, init.sigma_focal_scale), positive(0.5)));
     t.push_back(real("init/tracking_max_relative_sigma_d", DIEKF_FIELD(double, init.tracking_max_relative_sigma_d),
                      positive()));
+    t.push_back(flag("init/scale_batch", DIEKF_FIELD(bool, init.scale_batch)));
+    t.push_back(real("init/scale_window_s", DIEKF_FIELD(double, init.scale_window_s), positive(30.0)));
+    t.push_back(real("init/scale_max_window_s", DIEKF_FIELD(double, init.scale_max_window_s), positive(60.0)));
+    t.push_back(real("init/scale_max_relative_sigma", DIEKF_FIELD(double, init.scale_max_relative_sigma),
+                     positive(1.0)));
     t.push_back(flag("init/warm_restart", DIEKF_FIELD(bool, init.warm_restart)));
     t.push_back(real("init/warm_restart_max_age_s", DIEKF_FIELD(double, init.warm_restart_max_age_s), nonNegative()));
     t.push_back(real("init/warm_restart_sigma_alpha_relative",
@@ -310,6 +315,7 @@ const std::vector<Entry>& table() {
     t.push_back(integer("imu/decimation_factor", DIEKF_FIELD(int, imu.decimation_factor), between(1, 1000)));
     t.push_back(flag("imu/compensate_filter_delay", DIEKF_FIELD(bool, imu.compensate_filter_delay)));
     t.push_back(flag("imu/lever_arm_compensation", DIEKF_FIELD(bool, imu.lever_arm_compensation)));
+    t.push_back(flag("imu/prime_from_mean", DIEKF_FIELD(bool, imu.prime_from_mean)));
     t.push_back(real("imu/gravity_mps2", DIEKF_FIELD(double, imu.gravity_mps2), between(1.0, 30.0)));
     // process noise
     t.push_back(real("process/alpha_inv_m_per_sqrt_s", DIEKF_FIELD(double, process.alpha_inv_m_per_sqrt_s),

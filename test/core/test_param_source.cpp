@@ -65,6 +65,9 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          ia.sigma_focal_scale == ib.sigma_focal_scale &&
          ia.tracking_max_relative_sigma_d == ib.tracking_max_relative_sigma_d &&
          ia.warm_restart == ib.warm_restart && ia.warm_restart_max_age_s == ib.warm_restart_max_age_s &&
+         ia.scale_batch == ib.scale_batch && ia.scale_window_s == ib.scale_window_s &&
+         ia.scale_max_window_s == ib.scale_max_window_s &&
+         ia.scale_max_relative_sigma == ib.scale_max_relative_sigma && ma.prime_from_mean == mb.prime_from_mean &&
          ma.accel_noise_density == mb.accel_noise_density && ma.gyro_noise_density == mb.gyro_noise_density &&
          ma.accel_random_walk == mb.accel_random_walk && ma.gyro_random_walk == mb.gyro_random_walk &&
          ma.input_rate_hz == mb.input_rate_hz && ma.lowpass_cutoff_hz == mb.lowpass_cutoff_hz &&
