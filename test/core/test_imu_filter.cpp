@@ -250,3 +250,30 @@ TEST(ImuFilter, InputRateDrivesTheDesign) {
 
 }  // namespace
 }  // namespace diekf
+
+namespace diekf {
+namespace {
+
+TEST(ImuFilter, PrimeFromMeanAvoidsTheStartBurst) {
+  // imu.prime_from_mean: the first raw sample 1.5 m/s^2 off (a vibration peak), the rest at rest. Primed on that
+  // sample the filter replays the offset as a decaying burst; primed on the mean of one cutoff period (25 samples
+  // at 500 Hz) it starts within 1.5 / 25 of the rest value, 24 samples later.
+  const auto accel = [](double t) { return Vec3(t < 100.001 ? 1.5 : 0.0, 0.0, 9.81); };
+  ImuParams one = defaultParams();
+  ImuParams mean = one;
+  mean.prime_from_mean = true;
+  ImuPreprocessor f1(Eigen::Isometry3d::Identity(), one), fm(Eigen::Isometry3d::Identity(), mean);
+  const std::vector<ImuSample> o1 = run(&f1, 0.2, accel), om = run(&fm, 0.2, accel);
+  ASSERT_GT(o1.size(), 10u);
+  ASSERT_GT(om.size(), 10u);
+  EXPECT_NEAR(om.front().t_s - o1.front().t_s, 24.0 / kRateHz, 1e-9);
+  std::printf("[ImuFilter] first raw sample 1.5 m/s^2 off: first outputs' x %.3f, %.3f m/s^2 (one sample), "
+              "%.3f, %.3f (mean)\n", o1[0].accel_mps2.x(), o1[1].accel_mps2.x(), om[0].accel_mps2.x(),
+              om[1].accel_mps2.x());
+  EXPECT_GT(o1[1].accel_mps2.x(), 0.5);  // 10 ms after the start, still a third of the way down from 1.5
+  EXPECT_LT(std::abs(om[0].accel_mps2.x()), 1.5 / 25.0 + 1e-9);
+  EXPECT_LT(std::abs(om[1].accel_mps2.x()), 1.5 / 25.0 + 1e-9);
+}
+
+}  // namespace
+}  // namespace diekf

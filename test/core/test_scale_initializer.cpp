@@ -102,11 +102,16 @@ double run(const Flight& f, internal::ScaleInitializer* init, const Vec3& g_erro
   return -1.0;
 }
 
-TEST(ScaleInitializer, WaitsForMotionThenSolvesTheDistance) {
-  Flight f;
-  internal::ScaleInitializer init;
+internal::ScaleInitializer::Config config() {
   internal::ScaleInitializer::Config cfg;
   cfg.gravity_mps2 = kG0;
+  return cfg;
+}
+
+TEST(ScaleInitializer, WaitsForMotionThenSolvesTheDistance) {
+  Flight f;
+  const internal::ScaleInitializer::Config cfg = config();
+  internal::ScaleInitializer init;
   init.configure(cfg);
   init.reset();
   // Still: alpha held, nothing collected.
@@ -129,9 +134,8 @@ TEST(ScaleInitializer, WaitsForMotionThenSolvesTheDistance) {
 TEST(ScaleInitializer, GravityTiltIsAbsorbedWithinItsSigma) {
   // The filter's gravity 1 deg off: the constant acceleration error c takes it.
   Flight f;
+  const internal::ScaleInitializer::Config cfg = config();
   internal::ScaleInitializer init;
-  internal::ScaleInitializer::Config cfg;
-  cfg.gravity_mps2 = kG0;
   init.configure(cfg);
   double d = 0, sigma = 0, truth = 0;
   const double t = run(f, &init, Vec3(0.0175, 0.0, 0.0), 5.0, &d, &sigma, &truth);
@@ -146,9 +150,8 @@ TEST(ScaleInitializer, GivesUpWithoutAcceleration) {
   Flight f;
   f.freq = Vec3(0.01, 0.01, 0.01);  // over a few seconds: a straight, constant-speed line
   f.amp = Vec3(3.0, 2.0, 0.5);
+  const internal::ScaleInitializer::Config cfg = config();
   internal::ScaleInitializer init;
-  internal::ScaleInitializer::Config cfg;
-  cfg.gravity_mps2 = kG0;
   init.configure(cfg);
   double d = 0, sigma = 0, truth = 0;
   EXPECT_LT(run(f, &init, Vec3::Zero(), f.t_move_s + cfg.max_window_s + 0.5, &d, &sigma, &truth), 0.0);
