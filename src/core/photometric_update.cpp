@@ -1414,23 +1414,28 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
     }
   }
   // A pixel is as suspect as the most suspect window that contains it: each cell takes the minimum of its own
-  // weight and of the clearly low weights (below 1/2) over the (2 hc + 1)^2 cells around (separable: rows into
-  // the free plane 0 of weight_window_, then columns). Without it an object's border, where the windows lie only
-  // partly on it, keeps about half its weight; the mild reductions of the bulk are not spread.
+  // weight and of the clearly low weights over the (2 hc + 1)^2 cells around (separable: rows into the free plane
+  // 0 of weight_window_, then columns). Without it an object's border, where the windows lie only partly on it,
+  // keeps about half its weight; the mild reductions of the bulk are not spread. What a cell of weight w spreads
+  // rises continuously from w (below kLow) to 1 (from kHigh): a threshold would make the weights, and the
+  // estimate, jump when rounding moves a weight across it (different CPUs, compilers).
   {
-    constexpr float kClear = 0.5f;
+    constexpr float kLow = 0.4f, kHigh = 0.6f;
+    const auto spread = [](float w) {
+      return w <= kLow ? w : (w >= kHigh ? 1.0f : w + (1.0f - w) * (w - kLow) / (kHigh - kLow));
+    };
     // Rows with a clearly low weight (most have none: they are skipped).
     weight_median_buf_.assign(static_cast<size_t>(Hc), 0.0f);  // capacity kept between images
     float* row_has = weight_median_buf_.data();
     for (int j = 0; j < Hc; ++j) {
       const float* w = weight_cell_w_.ptr<float>(j);
       float* rowmin = window(0, j);
-      for (int i = 0; i < Wc; ++i) row_has[j] = w[i] < kClear ? 1.0f : row_has[j];
+      for (int i = 0; i < Wc; ++i) row_has[j] = w[i] < kHigh ? 1.0f : row_has[j];
       if (row_has[j] == 0.0f) continue;
       for (int i = 0; i < Wc; ++i) {
         float m = 1.0f;
         for (int d = std::max(0, i - hc); d <= std::min(Wc - 1, i + hc); ++d)
-          if (w[d] < kClear) m = std::min(m, w[d]);
+          if (w[d] < kHigh) m = std::min(m, spread(w[d]));
         rowmin[i] = m;
       }
     }
