@@ -130,7 +130,7 @@ class ImagePreprocessor {
   std::vector<float> blur_kernel_;  // symmetric Gaussian, taps 0..radius (empty: no blur)
   double noise_variance_gain_ = 1.0;
   double noise_correlation_area_px_ = 1.0;
-  int pad_ = 0;                     // blur radius, px: columns of replicated border on each side of resampled_
+  int pad_ = 0;                     // blur radius, px: columns of replicated border on each side of the padded stage
   cv::Mat raw_copy_;                // continuous copy of a non-continuous input
   ResampledImage stage_;            // process()'s own stage-1 buffers
   cv::Mat blur_tmp_;                // CV_32FC1 H x W: horizontal pass of the blur

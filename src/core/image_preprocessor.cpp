@@ -548,7 +548,7 @@ void ImagePreprocessor::process(const cv::Mat& raw, double t_s, PreprocessedFram
 void ImagePreprocessor::resample(const cv::Mat& raw, ResampledImage* stage) {
   if (stage == nullptr) throw std::invalid_argument("ImagePreprocessor::resample: null stage");
   if (raw.type() != CV_8UC1 || raw.cols != raw_K_.width || raw.rows != raw_K_.height || raw.dims != 2) {
-    throw std::invalid_argument("ImagePreprocessor::process: expected CV_8UC1 " + std::to_string(raw_K_.width) +
+    throw std::invalid_argument("ImagePreprocessor::resample: expected CV_8UC1 " + std::to_string(raw_K_.width) +
                                 "x" + std::to_string(raw_K_.height) + " (calibration resolution), got " +
                                 describe(raw));
   }
