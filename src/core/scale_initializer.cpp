@@ -66,7 +66,7 @@ bool ScaleInitializer::addFrame(double t_s, const State& x, const ErrorCov& P) {
   t_last_s_ = t_s;
   const double t_rel = t_s - t_first_s_;
   if (t_rel - rows_.back().t_s >= cfg_.row_spacing_s) record(t_rel);
-  if (t_rel >= cfg_.window_s && solve() && d0_m_ > 0.0 && sigma_d0_m_ < cfg_.max_relative_sigma * d0_m_) {
+  if (t_rel >= cfg_.window_s && solve() && sigma_d0_m_ < cfg_.max_relative_sigma * d0_m_) {
     phase_ = Phase::kDone;
     distance_m_ = d0_m_ * std::exp(log_rho_);
     sigma_distance_m_ = sigma_d0_m_ * std::exp(log_rho_);
@@ -81,10 +81,12 @@ bool ScaleInitializer::solve() {
   const double g0 = cfg_.gravity_mps2;
   const double q = cfg_.accel_noise_density * cfg_.accel_noise_density;
   double s = 1.0;  // d_0 (the rows' weights depend on it)
+  // Row r: A theta = target, A = [a | -I | -t I], weighted by the inverse of its variance at d_0 = s.
+  const auto target = [&](const Row& r) -> Vec3 { return r.delta + g0 * r.t_s * g_first_; };
+  const auto weight = [&](const Row& r) { return 1.0 / (s * s * r.var_a + q * r.t_s + 1e-8); };
   Eigen::Matrix<double, kUnknowns, kUnknowns> N;
   Eigen::Matrix<double, kUnknowns, 1> theta;
-  double chi2 = 0.0;
-  for (int iter = 0; iter < 3; ++iter) {  // the rows' weights depend on s
+  for (int iter = 0; iter < 3; ++iter) {
     N.setZero();
     Eigen::Matrix<double, kUnknowns, 1> rhs = Eigen::Matrix<double, kUnknowns, 1>::Zero();
     for (int i = 4; i < kUnknowns; ++i) N(i, i) = 1.0 / var_c_;  // prior c ~ N(0, var_c I)
@@ -93,10 +95,9 @@ bool ScaleInitializer::solve() {
       A.col(0) = r.a;
       A.block<3, 3>(0, 1) = -Mat3::Identity();
       A.block<3, 3>(0, 4) = -r.t_s * Mat3::Identity();
-      const Vec3 b = r.delta + g0 * r.t_s * g_first_;
-      const double w = 1.0 / (s * s * r.var_a + q * r.t_s + 1e-8);
+      const double w = weight(r);
       N += w * A.transpose() * A;
-      rhs += w * A.transpose() * b;
+      rhs += w * A.transpose() * target(r);
     }
     const Eigen::LDLT<Eigen::Matrix<double, kUnknowns, kUnknowns>> ldlt(N);
     if (ldlt.info() != Eigen::Success) return false;
@@ -106,10 +107,10 @@ bool ScaleInitializer::solve() {
   }
   // Weighted residual (rows and prior) against its degrees of freedom: a fit worse than its noise widens the
   // 1-sigma (model error: the window's velocities, gravity, bias).
-  chi2 = theta.tail<3>().squaredNorm() / var_c_;
+  double chi2 = theta.tail<3>().squaredNorm() / var_c_;
   for (const Row& r : rows_) {
-    const Vec3 e = s * r.a - theta.segment<3>(1) - r.t_s * theta.tail<3>() - r.delta - g0 * r.t_s * g_first_;
-    chi2 += e.squaredNorm() / (s * s * r.var_a + q * r.t_s + 1e-8);
+    const Vec3 e = s * r.a - theta.segment<3>(1) - r.t_s * theta.tail<3>() - target(r);
+    chi2 += e.squaredNorm() * weight(r);
   }
   const double dof = 3.0 * static_cast<double>(rows_.size()) + 3.0 - kUnknowns;
   const Eigen::Matrix<double, kUnknowns, kUnknowns> cov =

@@ -68,8 +68,6 @@ class ScaleInitializer {
   /// The solved distance at the last frame and its 1-sigma, m (valid after addFrame returned true).
   double distance() const { return distance_m_; }
   double sigmaDistance() const { return sigma_distance_m_; }
-  /// Seconds of motion collected so far.
-  double collectedSeconds() const { return rows_.empty() ? 0.0 : rows_.back().t_s; }
 
  private:
   struct Row {
