@@ -46,11 +46,7 @@ struct Driver {
   }
 }
 
-void BM_EstimatorFrame(benchmark::State& bs) {
-  diekf::EstimatorParams params;
-  params.preprocess.working_width_px = static_cast<int>(bs.range(0));
-  params.mode = bs.range(1) == 0 ? diekf::UpdateMode::kIterated : diekf::UpdateMode::kEkf;
-  params.init.alpha0_inv_m = 1.0;  // start near the truth (d = 1 m): timing of the tracking phase
+void runFrames(benchmark::State& bs, const diekf::EstimatorParams& params) {
   Driver d(params);
   for (int i = 0; i < 60; ++i) feedFrame(&d);  // 2 s: converged, buffers allocated
   d.update_ms_sum = 0.0;
@@ -65,12 +61,34 @@ void BM_EstimatorFrame(benchmark::State& bs) {
   bs.counters["update_ms"] = d.results > 0 ? d.update_ms_sum / d.results : 0.0;
   bs.counters["passes"] = static_cast<double>(passes) / static_cast<double>(bs.iterations());
 }
+
+void BM_EstimatorFrame(benchmark::State& bs) {
+  diekf::EstimatorParams params;
+  params.preprocess.working_width_px = static_cast<int>(bs.range(0));
+  params.mode = bs.range(1) == 0 ? diekf::UpdateMode::kIterated : diekf::UpdateMode::kEkf;
+  params.init.alpha0_inv_m = 1.0;  // start near the truth (d = 1 m): timing of the tracking phase
+  runFrames(bs, params);
+}
+
+// The same frame with the pair's brightness estimated (photometric/brightness_model; docs/noise_model.md
+// section 12).
+void BM_EstimatorFrameBrightness(benchmark::State& bs) {
+  diekf::EstimatorParams params;
+  params.preprocess.working_width_px = static_cast<int>(bs.range(0));
+  params.photometric.brightness_model =
+      bs.range(1) == 1 ? diekf::BrightnessModel::kGain : diekf::BrightnessModel::kAffine;
+  params.init.alpha0_inv_m = 1.0;
+  runFrames(bs, params);
+}
 // Args: working width (px), mode (0 = iterated "iekf", 3 passes max; 1 = one pass "ekf").
 BENCHMARK(BM_EstimatorFrame)
     ->Args({90, 0})
     ->Args({90, 1})
     ->Args({180, 0})
     ->Args({376, 0})
+    ->Unit(benchmark::kMillisecond);
+// Args: working width (px), brightness model (1 = gain, 2 = affine).
+BENCHMARK(BM_EstimatorFrameBrightness)->Args({90, 1})->Args({90, 2})->Args({180, 1})->Args({180, 2})
     ->Unit(benchmark::kMillisecond);
 
 }  // namespace

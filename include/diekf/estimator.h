@@ -44,6 +44,10 @@ struct FrameResult {
   bool fixed_pattern_active = false; ///< the camera-fixed pattern model corrects the images (start-up done)
   double fixed_pattern_fraction = 0.0;  ///< share of the image under a strong camera-fixed pattern (0..1)
   double fixed_pattern_contrast_share = 0.0;  ///< the learned pattern's share of the image's gradient energy (0..1)
+  /// The pair's brightness change (photometric/brightness_model): current = gain reference + offset, in
+  /// normalised units; 1 and 0 when not estimated.
+  double brightness_gain = 1.0;
+  double brightness_offset = 0.0;
   std::string message;               ///< why initializing / reset / skipped (empty when tracking normally)
   int resets = 0;                    ///< filter restarts since construction (automatic and requested)
   std::string last_reset_reason;     ///< why the filter last restarted (empty if it never did)

@@ -73,6 +73,13 @@ struct PreprocessParams {
   int border_px = 1;                            ///< pixels at the border excluded from the update, px
 };
 
+/// How the photometric update models a brightness change between the two images of a pair
+/// (PhotometricParams::brightness_model).
+enum class BrightnessModel { kNormalised, kGain, kAffine };
+/// "normalised" | "gain" | "affine" -> BrightnessModel; throws std::invalid_argument naming the value otherwise.
+BrightnessModel parseBrightnessModel(const std::string& name);
+const char* toString(BrightnessModel model);
+
 struct PhotometricParams {
   int max_passes = 3;                           ///< Gauss-Newton passes per image (1 = plain EKF)
   double stop_threshold = 0.05;                 ///< stop iterating when |delta| < this
@@ -103,6 +110,11 @@ struct PhotometricParams {
   /// dominant plane's by this relative amount gets half weight (twice as much: 6 %); it is not the ground; 0 = off.
   double parallax_tolerance = 0.05;
   double parallax_time_constant_s = 0.5;        ///< memory of that measurement over the images, s
+  /// Brightness change of the pair (docs/noise_model.md section 12): kNormalised compares the images as they are
+  /// (each divided by its own mean); kGain compares the current image with g I_r and kAffine with g I_r + o, the
+  /// pair's gain g (and offset o) estimated in the update's Gauss-Newton passes and marginalised from the
+  /// information.
+  BrightnessModel brightness_model = BrightnessModel::kNormalised;
 };
 
 /// Camera-fixed photometric structure (docs/noise_model.md section 11, FixedPattern): per working pixel the image

@@ -31,6 +31,10 @@ struct UpdateStats {
   double gate_inflation = 1.0;   ///< factor the measurement noise was inflated by at the gate (1: passed)
   double outlier_fraction = 0.0; ///< share of the valid pixels' weight removed by the outlier weights (0..1)
   bool gated = false;            ///< the innovation failed the gate: the update was down-weighted
+  /// Brightness change of the pair (PhotometricParams::brightness_model): the current image is modelled as
+  /// brightness_gain I_r + brightness_offset (normalised units); 1 and 0 when not estimated.
+  double brightness_gain = 1.0;
+  double brightness_offset = 0.0;
 };
 
 /// Observed error-state columns: vartheta (3), mu (2), b_w (3).
@@ -163,6 +167,10 @@ class PhotometricUpdate {
     ObservedInfo A1 = ObservedInfo::Zero();  ///< sum w_y S^T S
     ObservedInfo A2 = ObservedInfo::Zero();  ///< sum w_y^2 S^T S
     ObservedVec b1 = ObservedVec::Zero();    ///< sum w_y S^T r
+    // Brightness model (when estimated): the step of (gain, offset) that minimises the residual at this
+    // linearisation with the state held (A and b above already have its columns marginalised).
+    bool has_brightness = false;
+    Eigen::Vector2d brightness_step = Eigen::Vector2d::Zero();
   };
   struct NoiseEstimate {
     bool valid = false;
@@ -170,10 +178,12 @@ class PhotometricUpdate {
     double correlation = 1.0;  ///< pixels per independent measurement
     double nis_scale = 1.0;    ///< innovation-based inflation (>= 1): E[NIS] = 8 when consistent
   };
-  /// `m_rows` (stateRateMap), `timing` and the readout time `readout_s` only for a rolling shutter.
+  /// `m_rows` (stateRateMap), `timing` and the readout time `readout_s` only for a rolling shutter;
+  /// `brightness` = (gain, offset) of the pair's brightness model (used unless brightness_model is kNormalised).
   int accumulate(const PreprocessedFrame& cur, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s,
                  double state_lag_s, const State& x, double huber_sigma, PassSums* out,
-                 const ObservedVec* m_rows = nullptr, const ImageTiming* timing = nullptr, double readout_s = 0.0);
+                 const ObservedVec* m_rows = nullptr, const ImageTiming* timing = nullptr, double readout_s = 0.0,
+                 const Eigen::Vector2d& brightness = Eigen::Vector2d(1.0, 0.0));
   /// Residual image and row scratch for images of `size` (allocates only when the size changes).
   void prepareBuffers(const cv::Size& size);
   /// Outlier weights for the next image from this update's last residual (docs/noise_model.md, section 10).

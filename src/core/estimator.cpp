@@ -358,6 +358,8 @@ struct Estimator::Impl {
     r->nis_scale = std::isfinite(stats.nis_scale) ? stats.nis_scale : 1.0;
     r->outlier_fraction = std::isfinite(stats.outlier_fraction) ? stats.outlier_fraction : 0.0;
     r->valid_ratio = std::isfinite(stats.valid_ratio) ? stats.valid_ratio : 0.0;
+    r->brightness_gain = std::isfinite(stats.brightness_gain) ? stats.brightness_gain : 1.0;
+    r->brightness_offset = std::isfinite(stats.brightness_offset) ? stats.brightness_offset : 0.0;
   }
 
   /// Processes every pending image whose stamp is covered by filtered IMU data. Before the filter has started,

@@ -377,6 +377,15 @@ const std::vector<Entry>& table() {
                      between(0.0, 10.0)));
     t.push_back(real("photometric/parallax_time_constant_s",
                      DIEKF_FIELD(double, photometric.parallax_time_constant_s), between(0.0, 100.0)));
+    t.push_back({"photometric/brightness_model", [](const ParamSource& s, EstimatorParams& p) {
+                   std::string name;
+                   if (!s.get("photometric/brightness_model", &name)) return;
+                   try {
+                     p.photometric.brightness_model = parseBrightnessModel(name);
+                   } catch (const std::invalid_argument& e) {
+                     failKey(s.origin(), "photometric/brightness_model", e.what());
+                   }
+                 }});
     // camera-fixed pattern (FixedPattern)
     t.push_back(flag("fixed_pattern/enabled", DIEKF_FIELD(bool, fixed_pattern.enabled)));
     t.push_back(real("fixed_pattern/decorrelation_px", DIEKF_FIELD(double, fixed_pattern.decorrelation_px),

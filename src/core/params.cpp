@@ -23,6 +23,25 @@ const char* toString(UpdateMode mode) {
   return "unknown";
 }
 
+BrightnessModel parseBrightnessModel(const std::string& name) {
+  if (name == "normalised") return BrightnessModel::kNormalised;
+  if (name == "gain") return BrightnessModel::kGain;
+  if (name == "affine") return BrightnessModel::kAffine;
+  throw std::invalid_argument("unknown brightness model '" + name + "' (expected normalised, gain or affine)");
+}
+
+const char* toString(BrightnessModel model) {
+  switch (model) {
+    case BrightnessModel::kNormalised:
+      return "normalised";
+    case BrightnessModel::kGain:
+      return "gain";
+    case BrightnessModel::kAffine:
+      return "affine";
+  }
+  return "?";
+}
+
 ImageStamp parseImageStamp(const std::string& name) {
   if (name == "middle") return ImageStamp::kMiddle;
   if (name == "start") return ImageStamp::kStart;

@@ -335,6 +335,11 @@ struct SweepConfig {
   // (dt / 2) T_vartheta vartheta: with the sweep's rows S' (S = (dt / 2) S' T), S'_vartheta . depth_dir is the
   // residual's derivative over a relative change of the pixel's inverse depth (dr / d rho, section 10).
   float depth_dir[3] = {0.0f, 0.0f, 0.0f};
+  // Brightness of the pair (docs/noise_model.md section 12): the model of the current image is gain I_r + offset;
+  // the sweep also accumulates the model's columns I_r (T_9; brightness_columns >= 1) and 1 (T_10; = 2).
+  int brightness_columns = 0;
+  float gain = 1.0f;
+  float offset = 0.0f;
 };
 
 /// Per-pixel outputs of a sweep (CV_32FC1, the current image's size; entries the sweep does not visit keep their
@@ -348,10 +353,15 @@ struct PixelOutputs {
 };
 
 constexpr int kMaxTilesPerAxis = 16;
+/// Columns of the sweep's Gram sums: the 8 observed columns S', the residual t (column 8) and the brightness
+/// model's columns I_r (9) and 1 (10).
+constexpr int kGramCols = 11;
 constexpr int kMaxTiles = kMaxTilesPerAxis * kMaxTilesPerAxis;
 
-/// Sums of one sweep in double: G = [A | b] (A upper triangle, i <= j < 8; b in column 8), and per tile of the
-/// image the score sum_tile sqrt(w) S'^T t and the valid pixel count (docs/noise_model.md).
+/// Sums of one sweep in double: G = [A | b] (A upper triangle, i <= j < 8; b in column 8; with the brightness
+/// columns k = 9, 10 in use also G[i][k] (i < 8: their cross terms with S'), G[8][k] (their scores) and
+/// G[k][l]), and per tile of the image the score sum_tile sqrt(w) S'^T t and the valid pixel count
+/// (docs/noise_model.md).
 struct SweepSums {
   int candidates = 0;
   int valid = 0;
@@ -359,7 +369,7 @@ struct SweepSums {
   double sum_abs_r = 0.0;  // sum of w_map |r| over valid pixels (w_map = 1 without a weight map)
   double sum_w = 0.0;      // sum of w_map over valid pixels
   double grad_sum = 0.0;  // sum of |grad I_c| over valid pixels (gradient weighting normalisation)
-  double G[8][9] = {};
+  double G[kGramCols][kGramCols] = {};
   // Row moments for the rolling-shutter readout (SweepConfig::row_moments): sum_y w_y G_y and sum_y w_y^2 G_y
   // over the rows' Gram sums G_y, w_y = readout_weight_per_row (y - zero_row).
   double G1[8][9] = {};
@@ -372,10 +382,10 @@ struct SweepSums {
 };
 
 /// Row buffers of one sweep (structure of arrays, length padded to a multiple of 4):
-/// T_k = sqrt(w) S_k (k = 0..7) and t = sqrt(w) r, zero for invalid pixels, the valid mask (1/0), and the
-/// current image's samples.
+/// T_k = sqrt(w) S_k (k = 0..7), t = T_8 = sqrt(w) r and (brightness model only) T_9 = sqrt(w) I_r,
+/// T_10 = sqrt(w), zero for invalid pixels, the valid mask (1/0), and the current image's samples.
 struct RowBuffers {
-  float* T[9];
+  float* T[kGramCols];
   float* valid;
   float* cur[3];  // I_c, dI_c/dx, dI_c/dy at the row's candidates (strided rows only)
   float* wmap;    // outlier weights at the row's candidates (strided rows only)
@@ -384,7 +394,7 @@ struct RowBuffers {
 /// Gram sums of one block of pairs over a row: G[i][j] += sum_k T_i[k] T_j[k] for i in [I0, I0 + NI), j in
 /// [J0, J0 + NJ) (j >= i when kUpper). Compile-time bounds: the accumulators stay in registers.
 template <int I0, int NI, int J0, int NJ, bool kUpper>
-void gramBlock(float* const* T, int n_pad, double (*G)[9]) {
+void gramBlock(float* const* T, int n_pad, double (*G)[kGramCols]) {
   using namespace cv;
   v_float32x4 acc[NI][NJ];
   for (int i = 0; i < NI; ++i)
@@ -406,7 +416,7 @@ void gramBlock(float* const* T, int n_pad, double (*G)[9]) {
 /// tile-column segment [seg[c], seg[c+1]) (multiples of 4) the lane sums added to the tiles of row `tile_row`
 /// with their valid counts (float lanes: a tile's sums only feed the noise statistics).
 void scoreRow(float* const* T, const float* valid, const int* seg, int tiles_x, int tile_row, SweepSums* sums,
-              double (*G)[9]) {
+              double (*G)[kGramCols]) {
   using namespace cv;
   v_float32x4 row[8];
   for (int i = 0; i < 8; ++i) row[i] = v_setzero_f32();
@@ -432,14 +442,24 @@ void scoreRow(float* const* T, const float* valid, const int* seg, int tiles_x, 
 
 /// Gram sums of one row over [T_0..T_7 | t]: A_ij += sum T_i T_j (i <= j < 8) in blocks of at most 10
 /// accumulators (4 lanes each) so that nothing spills, and the score sums per tile (scoreRow).
-/// The row's Gram sums go to G (zeroed by the caller), its tile scores to sums.
+/// The row's Gram sums go to G (zeroed by the caller), its tile scores to sums. With `brightness_columns` (1 or 2)
+/// also the sums of the brightness columns T_9 (and T_10) against [T_0..T_7 | t] and themselves.
 void accumulateRow(float* const* T, const float* valid, int n_pad, const int* seg, int tiles_x, int tile_row,
-                   SweepSums* sums, double (*G)[9]) {
+                   int brightness_columns, SweepSums* sums, double (*G)[kGramCols]) {
   gramBlock<0, 4, 0, 4, true>(T, n_pad, G);
   gramBlock<4, 4, 4, 4, true>(T, n_pad, G);
   gramBlock<0, 4, 4, 2, false>(T, n_pad, G);
   gramBlock<0, 4, 6, 2, false>(T, n_pad, G);
   scoreRow(T, valid, seg, tiles_x, tile_row, sums, G);
+  if (brightness_columns == 1) {
+    gramBlock<0, 4, 9, 1, false>(T, n_pad, G);
+    gramBlock<4, 4, 9, 1, false>(T, n_pad, G);
+    gramBlock<8, 2, 8, 2, true>(T, n_pad, G);  // t t (unused), t T_9, T_9 T_9
+  } else if (brightness_columns == 2) {
+    gramBlock<0, 4, 9, 2, false>(T, n_pad, G);
+    gramBlock<4, 4, 9, 2, false>(T, n_pad, G);
+    gramBlock<8, 3, 8, 3, true>(T, n_pad, G);  // t t (unused), t T_9, t T_10, T_9 T_9, T_9 T_10, T_10 T_10
+  }
 }
 
 /// One linearisation sweep over the current image against the reference's cubic B-spline coefficients
@@ -470,6 +490,8 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
   const v_float32x4 ifx = v_setall_f32(wp.ifx);
   const v_float32x4 min_depth = v_setall_f32(static_cast<float>(kMinDepthRatio));
   const v_float32x4 huber = v_setall_f32(cfg.huber_abs);
+  const bool brightness = cfg.brightness_columns > 0;
+  const v_float32x4 gain = v_setall_f32(cfg.gain), offset = v_setall_f32(cfg.offset);
   const int n = (W - 2 * cfg.border + cfg.stride - 1) / cfg.stride;  // candidates per row
   if (n <= 0) return;
   const int n_pad = (n + 3) & ~3;
@@ -607,9 +629,16 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
       const v_float32x4 ref_gy =
           v_muladd(dwy[3], row_i[3], v_muladd(dwy[2], row_i[2], v_muladd(dwy[1], row_i[1], dwy[0] * row_i[0])));
       const v_float32x4 gxc = v_load(Gxc + k), gyc = v_load(Gyc + k);
-      const v_float32x4 r = v_select(valid, v_load(Ic + k) - ref_i, zero);
+      // The reference through the pair's brightness model, gain I_r + offset (section 12; off: I_r itself).
+      v_float32x4 model = ref_i, model_gx = ref_gx, model_gy = ref_gy;
+      if (brightness) {
+        model = v_muladd(gain, ref_i, offset);
+        model_gx = gain * ref_gx;
+        model_gy = gain * ref_gy;
+      }
+      const v_float32x4 r = v_select(valid, v_load(Ic + k) - model, zero);
       // Efficient second-order gradient: sum of current and warped reference gradients (1/2 applied later).
-      const v_float32x4 gx = gxc + ref_gx, gy = gyc + ref_gy;
+      const v_float32x4 gx = gxc + model_gx, gy = gyc + model_gy;
       const v_float32x4 ex = cx - rxs, ey = cy - rys;  // D_r(0, 2), D_r(1, 2)
       const v_float32x4 gD0 = gx * fx, gD1 = gy * fy, gD2 = v_muladd(gx, ex, gy * ey);
       const v_float32x4 s_b = v_muladd(v_setall_f32(wp.b[0]), qx, s_row);
@@ -677,6 +706,10 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
       v_store_aligned(buf.T[6] + k, swj * v_bw[1]);
       v_store_aligned(buf.T[7] + k, swj * v_bw[2]);
       v_store_aligned(buf.T[8] + k, sw * r);
+      if (brightness) {
+        v_store_aligned(buf.T[9] + k, sw * ref_i);
+        if (cfg.brightness_columns > 1) v_store_aligned(buf.T[10] + k, sw);
+      }
       r2 = v_muladd(r, r, r2);
       const v_float32x4 valid01 = v_select(valid, one, zero);
       if constexpr (kWeightMap) {
@@ -717,10 +750,13 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
       }
     }
     const int tile_row = std::min(tiles_y - 1, ((y - cfg.border) * tiles_y) / rows_used);
-    double Grow[8][9] = {};
-    accumulateRow(buf.T, buf.valid, n_pad, seg, tiles_x, tile_row, sums, Grow);
+    double Grow[kGramCols][kGramCols] = {};
+    accumulateRow(buf.T, buf.valid, n_pad, seg, tiles_x, tile_row, cfg.brightness_columns, sums, Grow);
     for (int i = 0; i < 8; ++i)
       for (int j = i; j < 9; ++j) sums->G[i][j] += Grow[i][j];
+    const int j_end = 9 + cfg.brightness_columns;
+    for (int i = 0; i < j_end; ++i)
+      for (int j = std::max(i, 9); j < j_end; ++j) sums->G[i][j] += Grow[i][j];
     if (cfg.row_moments) {
       const double w = cfg.row_weight[y];
       for (int i = 0; i < 8; ++i)
@@ -753,6 +789,44 @@ SweepConfig makeConfig(const PhotometricParams& params, const PreprocessParams& 
   cfg.tiles_x = params.noise_tiles_x;
   cfg.tiles_y = params.noise_tiles_y;
   return cfg;
+}
+
+/// Bounds of the pair's brightness gain and offset (normalised units: each image divided by its own mean).
+constexpr double kMinBrightnessGain = 0.25, kMaxBrightnessGain = 4.0, kMaxBrightnessOffset = 2.0;
+
+/// Marginalises the pair's brightness (gain, and offset with `columns` = 2) from a sweep's information
+/// (docs/noise_model.md section 12). With the brightness columns N = [I_r, 1] (the model's derivatives,
+/// sqrt(w)-weighted in the sums), C = sum S^T N, D = sum N^T N and e = sum N^T r, the state's information is
+/// A - C D^-1 C^T, b - C D^-1 e (A, b as accumulate() scales them: S = (dt / 2) S' T, times `scale`), and D^-1 e
+/// is the brightness step with the state held. With the gain alone the offset's column is left out (its step 0).
+/// Returns false (nothing changed) when D is singular.
+bool marginalizeBrightness(const double (*G)[kGramCols], int columns, double scale, double half_dt,
+                           const ObservedInfo& T, ObservedInfo* A, ObservedVec* b, Eigen::Vector2d* step) {
+  Eigen::Matrix<double, 8, 2> C;
+  for (int i = 0; i < 8; ++i) {
+    C(i, 0) = G[i][9];
+    C(i, 1) = columns > 1 ? G[i][10] : 0.0;
+  }
+  C = ((scale * half_dt) * (T.transpose() * C)).eval();
+  Eigen::Matrix2d D;
+  if (columns > 1) {
+    D << G[9][9], G[9][10], G[9][10], G[10][10];
+  } else {
+    D << G[9][9], 0.0, 0.0, G[9][9];  // the offset's row uncoupled, its score 0: no step, no information
+  }
+  D *= scale;
+  const Eigen::Vector2d e = scale * Eigen::Vector2d(G[8][9], columns > 1 ? G[8][10] : 0.0);
+  if (!(D(0, 0) > 0.0) || !(D(1, 1) > 0.0) || !C.allFinite() || !D.allFinite() || !e.allFinite()) return false;
+  const Eigen::LLT<Eigen::Matrix2d> llt(D + (1e-9 * D.trace()) * Eigen::Matrix2d::Identity());
+  if (llt.info() != Eigen::Success) return false;
+  const Eigen::Matrix<double, 2, 8> K = llt.solve(C.transpose());  // D^-1 C^T
+  const Eigen::Vector2d s = llt.solve(e);
+  if (!K.allFinite() || !s.allFinite()) return false;
+  *A -= C * K;
+  *A = (0.5 * (*A + A->transpose())).eval();
+  *b -= K.transpose() * e;
+  *step = s;
+  return true;
 }
 
 bool framesUsable(const PreprocessedFrame& ref, const PreprocessedFrame& cur, int border) {
@@ -801,15 +875,20 @@ void PhotometricUpdate::prepareBuffers(const cv::Size& size) {
     ref_y_.setTo(-1.0f);
   }
   const int n_pad = (size.width + 3) & ~3;
-  if (scratch_.rows != 14 || scratch_.cols < n_pad) scratch_.create(14, n_pad, CV_32FC1);
+  if (scratch_.rows != 16 || scratch_.cols < n_pad) scratch_.create(16, n_pad, CV_32FC1);
 }
 
 int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& K, const Vec3& gyro_mean_C,
                                   double dt_s, double state_lag_s, const State& x, double huber_sigma,
                                   PassSums* out, const ObservedVec* m_rows, const ImageTiming* timing,
-                                  double readout_s) {
+                                  double readout_s, const Eigen::Vector2d& brightness) {
   *out = PassSums();
   SweepConfig cfg = makeConfig(params_, preprocess_, huber_sigma);
+  if (params_.brightness_model != BrightnessModel::kNormalised) {
+    cfg.brightness_columns = params_.brightness_model == BrightnessModel::kAffine ? 2 : 1;
+    cfg.gain = static_cast<float>(brightness(0));
+    cfg.offset = cfg.brightness_columns > 1 ? static_cast<float>(brightness(1)) : 0.0f;
+  }
   cfg.confidence_map = active_map_;
   cfg.reference_weights = use_weight_map_ && weight_map_.type() == CV_32FC1 && weight_map_.size() == cur.intensity.size()
                               ? &weight_map_
@@ -830,10 +909,10 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
   const PixelOutputs outputs{&residual_, &depth_jac_, &ref_x_, &ref_y_};
   SweepSums sums;
   RowBuffers buf;
-  for (int i = 0; i < 9; ++i) buf.T[i] = scratch_.ptr<float>(i);
-  buf.valid = scratch_.ptr<float>(9);
-  for (int i = 0; i < 3; ++i) buf.cur[i] = scratch_.ptr<float>(10 + i);
-  buf.wmap = scratch_.ptr<float>(13);
+  for (int i = 0; i < kGramCols; ++i) buf.T[i] = scratch_.ptr<float>(i);
+  buf.valid = scratch_.ptr<float>(11);
+  for (int i = 0; i < 3; ++i) buf.cur[i] = scratch_.ptr<float>(12 + i);
+  buf.wmap = scratch_.ptr<float>(15);
   const bool huber = cfg.huber_abs > 0.0f;
   auto run = [&](auto weight_map) {
     constexpr bool kMap = decltype(weight_map)::value;
@@ -871,6 +950,9 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
   A = (wp.T.transpose() * A * wp.T).eval();
   A = (0.5 * (A + A.transpose())).eval();
   b = (wp.T.transpose() * b).eval();
+  if (cfg.brightness_columns > 0)
+    out->has_brightness = marginalizeBrightness(sums.G, cfg.brightness_columns, scale, half_dt, wp.T, &A, &b,
+                                            &out->brightness_step);
   if (cfg.row_moments) {
     // The readout's information (docs/algorithm.md section 3.7): its column is w_y S m, so it needs the row
     // moments sum w S^T S, sum w^2 S^T S and sum w S^T r, scaled and turned like A and b.
@@ -1059,6 +1141,9 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
 
   double info_scale = 0.0;  // 1 / (sigma^2 c gamma): fixed at the first pass, used by every pass
   int pass = 0;
+  // The pair's brightness (gain, offset), section 12: from (1, 0), stepped after every linearisation to its best
+  // value with the state held there (the state's steps see it marginalised).
+  Eigen::Vector2d brightness(1.0, 0.0);
   PassSums sums;
   // Every pass writes the residual image; the RMS and the valid ratio are those of the last linearisation.
   auto linearize_at = [&](const State& x_j, internal::ObsMat* A, internal::ObsVec* b, internal::ObsVec* m,
@@ -1075,7 +1160,15 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
                          (x_j.readout_s != 0.0 || timing.estimate_readout);
     const ObservedVec m_rows = rolling ? stateRateMap(x_seen, gyro_mean_C, timing, dt_s) : ObservedVec::Zero();
     const int valid = accumulate(cur, K_j, gyro_mean_C, dt_s, state_lag_s, x_seen, huber_sigma, &sums,
-                                 rolling ? &m_rows : nullptr, rolling ? &timing : nullptr, x_j.readout_s);
+                                 rolling ? &m_rows : nullptr, rolling ? &timing : nullptr, x_j.readout_s,
+                                 brightness);
+    if (sums.has_brightness) {
+      brightness += sums.brightness_step;
+      brightness(0) = std::clamp(brightness(0), kMinBrightnessGain, kMaxBrightnessGain);
+      brightness(1) = std::clamp(brightness(1), -kMaxBrightnessOffset, kMaxBrightnessOffset);
+      stats.brightness_gain = brightness(0);
+      stats.brightness_offset = brightness(1);
+    }
     stats.valid_ratio = sums.candidates > 0 ? static_cast<double>(valid) / sums.candidates : 0.0;
     stats.rms_residual = valid > 0 ? std::sqrt(sums.sum_r2 / valid) : 0.0;
     stats.residual_sigma = sums.robust_sigma;

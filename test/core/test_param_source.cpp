@@ -92,6 +92,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          ha.rotation_scale_sigma == hb.rotation_scale_sigma && ha.time_offset_sigma_s == hb.time_offset_sigma_s &&
          ha.outlier_threshold_sigma == hb.outlier_threshold_sigma && ha.outlier_window_fraction == hb.outlier_window_fraction &&
          ha.parallax_tolerance == hb.parallax_tolerance && ha.parallax_time_constant_s == hb.parallax_time_constant_s &&
+         ha.brightness_model == hb.brightness_model &&
          da.max_step_sigma == db.max_step_sigma && da.degraded_hold_s == db.degraded_hold_s &&
          da.max_nis_ratio == db.max_nis_ratio && a.input.gap_accel_sigma_mps2 == b.input.gap_accel_sigma_mps2 &&
          a.input.gap_gyro_sigma_radps == b.input.gap_gyro_sigma_radps && fa.max_corners == fb.max_corners && fa.predict_flow == fb.predict_flow &&
@@ -226,6 +227,7 @@ TEST(EstimatorParams, ConfigFileHasExactlyTheTableKeys) {
 std::string perturbed(const std::string& key, const YAML::Node& def) {
   if (key == "mode") return "lk";
   if (key == "image_stamp") return "start";
+  if (key == "photometric/brightness_model") return "gain";
   if (key == "line_delay_s") return "3.3e-05";  // s per row: a 16 ms readout of 480 rows
   if (key == "fixed_pattern/vignetting_file") return "flat_field.png";  // a path (read by the estimator, not here)
   if (def.IsSequence()) return "[0.1, 0.2, 0.9]";
@@ -286,6 +288,7 @@ TEST(EstimatorParams, ValidationErrorsNameOriginAndKey) {
       {"preprocess:\n  antialias_sigma_px: 3\n", "preprocess/antialias_sigma_px"},
       {"photometric:\n  max_passes: 0\n", "photometric/max_passes"},
       {"photometric:\n  min_valid_ratio: 1.5\n", "photometric/min_valid_ratio"},
+      {"photometric:\n  brightness_model: linear\n", "photometric/brightness_model"},
       {"divergence:\n  max_distance_m: 0.01\n", "divergence/max_distance_m"},
       {"max_queued_images: 0\n", "max_queued_images"},
       {"preprocess: 5\n", "preprocess/"},

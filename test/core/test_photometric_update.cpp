@@ -4,6 +4,8 @@
 #include <vector>
 
 #include <Eigen/Cholesky>
+#include <Eigen/Eigenvalues>
+#include <Eigen/LU>
 #include <gtest/gtest.h>
 
 #include <opencv2/imgproc.hpp>
@@ -393,6 +395,115 @@ TEST_F(PhotometricScene, StridedGradientWeightedLoopMatchesDoublePrecisionRefere
 // --------------------------------------------------------------------------------------------------------
 // Update behaviour.
 // --------------------------------------------------------------------------------------------------------
+// The brightness model's columns (docs/noise_model.md section 12): the sweep's information with the pair's gain
+// (and offset) marginalised equals the Schur complement of a double-precision system over [S, I_r (, 1)] (the
+// model g I_r + o at g = 1, o = 0: its derivatives are I_r and 1).
+TEST_F(PhotometricScene, BrightnessModelIsMarginalisedLikeTheDoublePrecisionSystem) {
+  const double dt = scene_->dt_s;
+  PreprocessParams pre;
+  pre.border_px = 1;
+  const State x = startState(0.5);
+  ObservedInfo A_plain;
+  ObservedVec b_plain;
+  PhotometricUpdate plain(PhotometricParams{}, pre);
+  plain.linearize(scene_->ref, scene_->cur, scene_->K, scene_->w_C, dt, x, &A_plain, &b_plain);
+
+  using Mat10 = Eigen::Matrix<double, 10, 10>;
+  using Vec10 = Eigen::Matrix<double, 10, 1>;
+  Mat10 A10 = Mat10::Zero();
+  Vec10 b10 = Vec10::Zero();
+  const int W = scene_->cur.intensity.cols, H = scene_->cur.intensity.rows;
+  const SplineReference spline(scene_->ref.intensity);
+  const double w = 1.0 / (PhotometricParams{}.intensity_noise_sigma * PhotometricParams{}.intensity_noise_sigma);
+  for (int y = 1; y < H - 1; ++y) {
+    for (int xp = 1; xp < W - 1; ++xp) {
+      WarpJacobian J;
+      const Vec2 pr = warpToReference(x, scene_->K, scene_->w_C, dt, xp, y, &J);
+      if (!(pr.x() >= 1.0 && pr.x() < W - 2.0 && pr.y() >= 1.0 && pr.y() < H - 2.0)) continue;
+      Vec2 g_ref;
+      const double ref = spline.value(pr.x(), pr.y(), &g_ref);
+      const double r = scene_->cur.intensity.at<float>(y, xp) - ref;
+      const Vec2 g(0.5 * (scene_->cur.grad_x.at<float>(y, xp) + g_ref.x()),
+                   0.5 * (scene_->cur.grad_y.at<float>(y, xp) + g_ref.y()));
+      Vec10 row;
+      row.head<8>() = (g.transpose() * J).transpose();
+      row(8) = ref;
+      row(9) = 1.0;
+      A10 += w * row * row.transpose();
+      b10 += w * row * r;
+    }
+  }
+  for (BrightnessModel model : {BrightnessModel::kGain, BrightnessModel::kAffine}) {
+    PhotometricParams params;
+    params.brightness_model = model;
+    PhotometricUpdate update(params, pre);
+    ObservedInfo A;
+    ObservedVec b;
+    update.linearize(scene_->ref, scene_->cur, scene_->K, scene_->w_C, dt, x, &A, &b);
+    const int k = model == BrightnessModel::kAffine ? 2 : 1;
+    const Eigen::MatrixXd D = A10.block(8, 8, k, k);
+    const Eigen::MatrixXd C = A10.block(0, 8, 8, k);
+    const ObservedInfo A_ref = A10.topLeftCorner<8, 8>() - C * D.inverse() * C.transpose();
+    const ObservedVec b_ref = b10.head<8>() - C * D.inverse() * b10.segment(8, k);
+    EXPECT_LT((A - A_ref).norm(), 1e-3 * A_ref.norm()) << toString(model);
+    EXPECT_LT((b - b_ref).norm(), 1e-3 * b_ref.norm()) << toString(model);
+    // The marginalisation removes information, never adds any.
+    const Eigen::SelfAdjointEigenSolver<ObservedInfo> lost(A_plain - A);
+    EXPECT_GT(lost.eigenvalues().minCoeff(), -1e-6 * A_plain.norm()) << toString(model);
+    EXPECT_GT(lost.eigenvalues().maxCoeff(), 0.0) << toString(model);
+  }
+}
+
+// A pair whose current image is g I + o of the scene's (an exposure and black-level change the per-image
+// normalisation does not remove): the affine model finds g and o and moves the state as it does on the unchanged
+// pair; the gain model finds g of a pure gain change; the images compared as they are keep the change in the
+// residual.
+TEST_F(PhotometricScene, BrightnessModelRecoversAGainAndOffsetChange) {
+  auto changedBy = [](double gain, double offset) {
+    // New buffers: assigning an expression to a header that shares the scene's data would write into it.
+    PreprocessedFrame changed = scene_->cur;
+    changed.intensity = cv::Mat(scene_->cur.intensity * gain + offset);
+    changed.grad_x = cv::Mat(scene_->cur.grad_x * gain);
+    changed.grad_y = cv::Mat(scene_->cur.grad_y * gain);
+    return changed;
+  };
+  constexpr double kGain = 1.15, kOffset = -0.08;
+  const PreprocessedFrame affine_change = changedBy(kGain, kOffset), gain_change = changedBy(kGain, 0.0);
+  const Vec3 truth = scene_->truth.vartheta_inv_s;
+  auto run = [&](BrightnessModel model, const PreprocessedFrame& cur, UpdateStats* st) {
+    PhotometricParams params;
+    params.brightness_model = model;
+    params.stop_threshold = 0.0;
+    PhotometricUpdate update(params, PreprocessParams{});
+    State x = startState(0.5);
+    ErrorCov P = priorCov();
+    *st = update.update(scene_->ref, cur, scene_->K, scene_->w_C, scene_->dt_s, &x, &P);
+    EXPECT_TRUE(st->applied);
+    return (x.vartheta - truth).norm();
+  };
+  UpdateStats st_same, st_affine, st_plain, st_off, st_gain;
+  const double e_same = run(BrightnessModel::kAffine, scene_->cur, &st_same);
+  const double e_affine = run(BrightnessModel::kAffine, affine_change, &st_affine);
+  const double e_off = run(BrightnessModel::kNormalised, scene_->cur, &st_off);
+  const double e_gain = run(BrightnessModel::kGain, gain_change, &st_gain);
+  run(BrightnessModel::kNormalised, affine_change, &st_plain);
+  EXPECT_NEAR(st_same.brightness_gain, 1.0, 0.01);
+  EXPECT_NEAR(st_same.brightness_offset, 0.0, 0.01);
+  EXPECT_NEAR(st_affine.brightness_gain, kGain, 0.01);
+  EXPECT_NEAR(st_affine.brightness_offset, kOffset, 0.01);
+  EXPECT_NEAR(st_gain.brightness_gain, kGain, 0.01);
+  EXPECT_EQ(st_gain.brightness_offset, 0.0);
+  EXPECT_EQ(st_plain.brightness_gain, 1.0);
+  EXPECT_EQ(st_plain.brightness_offset, 0.0);
+  EXPECT_LT(e_affine, e_same + 0.005 * truth.norm()) << e_same << " -> " << e_affine;
+  EXPECT_LT(e_gain, e_off + 0.005 * truth.norm()) << e_off << " -> " << e_gain;
+  EXPECT_LT(e_same, e_off + 0.005 * truth.norm()) << "the model on an unchanged pair";
+  // The residual of the last linearisation: the change removed with the model, kept without.
+  EXPECT_LT(st_affine.rms_residual, 1.5 * st_same.rms_residual + 1e-3);
+  EXPECT_LT(st_gain.rms_residual, 1.5 * st_off.rms_residual + 1e-3);
+  EXPECT_GT(st_plain.rms_residual, 3.0 * st_affine.rms_residual);
+}
+
 TEST_F(PhotometricScene, ZeroMotionLeavesStateAlone) {
   PhotometricUpdate update(PhotometricParams{}, PreprocessParams{});
   State x;

@@ -28,6 +28,9 @@ struct SensorOptions {
   double vignetting = 0.35;        ///< brightness loss at the image corner (1 - v r^2, r = 1 at the corner)
   double read_noise_dn = 1.5;      ///< read noise, 1-sigma (grey levels)
   double shot_noise_dn = 0.04;     ///< shot-noise variance per grey level of signal (DN)
+  /// Black level (pedestal, grey levels) added to the signal after the gain: a gain change (auto-exposure) then
+  /// changes the image affinely, gain x signal + black level, not by a pure factor. 0: none.
+  double black_level_dn = 0.0;
   bool noise = true;
   /// Camera-fixed patterns (not owned, width x height of the renderer, or null): the signal of pixel i is
   /// gain ((1 - v r^2) fixed_gain[i] radiance[i] + fixed_add[i]) before noise (shadow, projector dots, lens dirt).

@@ -73,6 +73,8 @@ std::string simulateUsage() {
         "  --scale F                resolution/intrinsics scale (e.g. 0.25)             [1]\n"
         "  --vignetting V           brightness loss at the corners (0..1)               [0.35]\n"
         "  --read-noise DN          image read noise, 1-sigma grey levels               [1.5]\n"
+        "  --black-level DN         pedestal added after the gain (an exposure step then changes the image\n"
+        "                           affinely, not by a factor)                          [0]\n"
         "  --no-image-noise         noise-free images\n"
         "  --gain-ramp R            slow brightness change, relative amplitude          [0]\n"
         "  --gain-ramp-period S     its period (s)                                      [20]\n"
@@ -176,6 +178,7 @@ ParseResult parseSimulateArgs(const std::vector<std::string>& args_in, Simulatio
       {"--scale", {&opt->scale, 0.05, 4}},
       {"--vignetting", {&opt->sensor.vignetting, 0, 1}},
       {"--read-noise", {&opt->sensor.read_noise_dn, 0, 100}},
+      {"--black-level", {&opt->sensor.black_level_dn, 0, 128}},
       {"--gain-ramp", {&opt->gain_ramp, 0, 0.9}},
       {"--gain-ramp-period", {&opt->gain_ramp_period_s, 0.1, 1e6}},
       {"--flicker-prob", {&opt->flicker_prob, 0, 1}},
