@@ -35,6 +35,13 @@ struct UpdateStats {
   /// brightness_gain I_r + brightness_offset (normalised units); 1 and 0 when not estimated.
   double brightness_gain = 1.0;
   double brightness_offset = 0.0;
+  /// The image pair's own measurement of vartheta, without its prior (1/s): one Gauss-Newton step from the last
+  /// linearisation point on the image's information alone, with mu and b_w marginalised under their prior; and
+  /// its covariance. For the batch start-up of the distance (docs/algorithm.md section 7.1). Valid when
+  /// vartheta_image_valid (computed only after setReportImageVartheta(true)).
+  bool vartheta_image_valid = false;
+  Vec3 vartheta_image = Vec3::Zero();
+  Mat3 vartheta_image_cov = Mat3::Zero();
 };
 
 /// Observed error-state columns: vartheta (3), mu (2), b_w (3).
@@ -133,6 +140,8 @@ class PhotometricUpdate {
   /// multiplies the pixels' weights in the next updates, with the outlier weights when there are any
   /// (FixedPattern::confidence, docs/noise_model.md section 11); null: none.
   void setPixelConfidence(const cv::Mat* confidence) { confidence_ = confidence; }
+  /// Whether update() also computes UpdateStats::vartheta_image (the batch start-up needs it; off by default).
+  void setReportImageVartheta(bool on) { report_image_vartheta_ = on; }
   /// Forgets the smoothed noise estimates (the next update starts from its own residuals).
   void resetNoiseModel() {
     noise_ = NoiseEstimate();
@@ -221,6 +230,7 @@ class PhotometricUpdate {
   std::vector<float> weight_median_buf_;  ///< per-cell values, for their medians; then the rows' flags (border minimum)
   bool use_weight_map_ = false;  ///< weight_map_ applies to the sweeps of the current update
   const cv::Mat* confidence_ = nullptr;  ///< per-pixel confidence (setPixelConfidence), not owned
+  bool report_image_vartheta_ = false;
   const cv::Mat* active_map_ = nullptr;  ///< the weights the sweeps of the current update use (null: none)
   bool weight_map_has_outliers_ = false;  ///< some weight of weight_map_ is below 1
   double weight_map_t_s_ = 0.0;           ///< stamp of the image weight_map_'s pixels (and parallax_sums_) belong to

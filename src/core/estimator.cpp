@@ -245,6 +245,7 @@ struct Estimator::Impl {
     } else if (have_reference) {
       update.setPixelConfidence(fixed_pattern.confidence());
       const double alpha0 = x.alpha, var_alpha0 = P(ErrIdx::kAlpha, ErrIdx::kAlpha);
+      update.setReportImageVartheta(scale_init.phase() != internal::ScaleInitializer::Phase::kDone);
       stats = update.apply(frames[ref_index], cur, img.t_s, imu, last_imu_gap_end_s, &health, &x, &P, &skip_reason);
       if (stats.applied && scale_init.holdsAlpha()) holdAlpha(alpha0, var_alpha0);
       if (update.lastPairPhotometric()) {
@@ -260,8 +261,16 @@ struct Estimator::Impl {
         }
       }
     }
+    const double t_update_s = imu.stateTime();
     if (state_initialized && imu.stateTime() < img.t_s) imu.propagateTo(img.t_s, &x, &P);  // from the midpoint
-    if (stats.applied && scale_init.addFrame(img.t_s, x, P)) {
+    internal::ScaleInitializer::ImageVartheta image_vartheta;
+    if (stats.vartheta_image_valid) {
+      image_vartheta.vartheta = stats.vartheta_image;
+      image_vartheta.cov = stats.vartheta_image_cov;
+      image_vartheta.lag_s = img.t_s - t_update_s;
+    }
+    if (stats.applied &&
+        scale_init.addFrame(img.t_s, x, P, stats.vartheta_image_valid ? &image_vartheta : nullptr)) {
       // The batch's distance, fused as a measurement of alpha = 1 / d.
       const double d = scale_init.distance(), sigma_alpha = scale_init.sigmaDistance() / (d * d);
       const double S = P(ErrIdx::kAlpha, ErrIdx::kAlpha) + sigma_alpha * sigma_alpha;

@@ -45,6 +45,8 @@ class ImageUpdate {
   /// Per-pixel confidence for the next photometric updates (PhotometricUpdate::setPixelConfidence; the camera-fixed
   /// pattern's, docs/noise_model.md section 11); null: none.
   void setPixelConfidence(const cv::Mat* confidence) { photometric_.setPixelConfidence(confidence); }
+  /// Whether the photometric updates also report the image's own vartheta (PhotometricUpdate::setReportImageVartheta).
+  void setReportImageVartheta(bool on) { photometric_.setReportImageVartheta(on); }
   /// Whether the last apply() ran the photometric update on its pair (not skipped, not the feature mode), and that
   /// pair's mean raw gyro (rad/s) and interval (s).
   bool lastPairPhotometric() const { return last_pair_photometric_; }

@@ -1079,6 +1079,34 @@ void marginalizeRotationError(double var_bw, ObservedInfo* A, ObservedVec* b) {
   *b -= G.transpose() * b->segment<3>(w0);
 }
 
+/// The image's own measurement of vartheta (UpdateStats::vartheta_image): from the last pass's information (A, b)
+/// at x_j, with the prior of (mu, b_w) only (P_other; its right-hand side -P_other^-1 (x_j [-] x_prior)), the
+/// Schur complement onto vartheta gives I z = r; the measurement is x_j.vartheta + z, its covariance I^-1.
+void imageOnlyVartheta(const ObservedInfo& A, const ObservedVec& b, const State& x_j, const State& x_prior,
+                       const Eigen::Matrix<double, 5, 5>& P_other, UpdateStats* stats) {
+  const Eigen::LDLT<Eigen::Matrix<double, 5, 5>> prior(P_other);
+  if (prior.info() != Eigen::Success || !prior.isPositive()) return;
+  const ErrorVec e = x_j.boxminus(x_prior);
+  Eigen::Matrix<double, 5, 1> e_o;
+  for (int r = 0; r < 5; ++r) e_o(r) = e(internal::kObsToErr[3 + r]);
+  const Eigen::Matrix<double, 5, 5> L_oo =
+      A.bottomRightCorner<5, 5>() + prior.solve(Eigen::Matrix<double, 5, 5>::Identity());
+  const Eigen::Matrix<double, 5, 1> r_o = b.tail<5>() - prior.solve(e_o);
+  const Eigen::LLT<Eigen::Matrix<double, 5, 5>> llt_o(L_oo);
+  if (llt_o.info() != Eigen::Success) return;
+  const Eigen::Matrix<double, 5, 3> G = llt_o.solve(A.bottomLeftCorner<5, 3>());  // L_oo^-1 A_o.vartheta
+  const Mat3 I = A.topLeftCorner<3, 3>() - A.topRightCorner<3, 5>() * G;
+  const Vec3 r = b.head<3>() - G.transpose() * r_o;
+  const Eigen::LLT<Mat3> llt(0.5 * (I + I.transpose()));
+  if (llt.info() != Eigen::Success) return;
+  const Mat3 cov = llt.solve(Mat3::Identity());
+  const Vec3 z = x_j.vartheta + llt.solve(r);
+  if (!cov.allFinite() || !z.allFinite()) return;
+  stats->vartheta_image_valid = true;
+  stats->vartheta_image = z;
+  stats->vartheta_image_cov = cov;
+}
+
 }  // namespace
 
 UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const PreprocessedFrame& cur,
@@ -1141,6 +1169,17 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
 
   double info_scale = 0.0;  // 1 / (sigma^2 c gamma): fixed at the first pass, used by every pass
   int pass = 0;
+  // The last pass's information over the observed columns and where it was linearised (vartheta_image).
+  ObservedInfo A_last = ObservedInfo::Zero();
+  ObservedVec b_last = ObservedVec::Zero();
+  State x_last = *x;
+  const State x_prior = *x;
+  const Eigen::Matrix<double, 5, 5> P_other = [&] {  // prior of (mu, b_w)
+    Eigen::Matrix<double, 5, 5> m;
+    for (int r = 0; r < 5; ++r)
+      for (int c = 0; c < 5; ++c) m(r, c) = (*P)(internal::kObsToErr[3 + r], internal::kObsToErr[3 + c]);
+    return m;
+  }();
   // The pair's brightness (gain, offset), section 12: from (1, 0), stepped after every linearisation to its best
   // value with the state held there (the state's steps see it marginalised).
   Eigen::Vector2d brightness(1.0, 0.0);
@@ -1247,6 +1286,9 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
       *b = info_scale * sums.b;
       marginalizeRotationError(var_bw_equiv, A, b);
     }
+    A_last = *A;
+    b_last = *b;
+    x_last = x_j;
     ++pass;
     return true;
   };
@@ -1255,6 +1297,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   use_weight_map_ = false;
   active_map_ = nullptr;
   stats.applied = it.ok;
+  if (report_image_vartheta_ && it.ok && !stats.gated) imageOnlyVartheta(A_last, b_last, x_last, x_prior, P_other, &stats);
   stats.outlier_fraction = sums.valid > 0 ? std::clamp(1.0 - sums.weight_sum / sums.valid, 0.0, 1.0) : 0.0;
   stats.passes = it.passes;
   stats.last_step_norm = it.last_step_norm;

@@ -24,20 +24,30 @@ void ScaleInitializer::step(double dt, const Vec3& accel, const Vec3& gyro) {
   // force is accumulated in C_0 at the step's middle rotation.
   const Mat3 half = expSO3(-0.5 * dt * gyro);
   const Mat3 mid = half * R_;
-  delta_ += dt * (mid.transpose() * accel);
+  last_accel_C0_ = mid.transpose() * accel;
+  last_gyro_ = gyro;
+  delta_ += dt * last_accel_C0_;
   R_ = half * mid;
 }
 
-bool ScaleInitializer::addFrame(double t_s, const State& x, const ErrorCov& P) {
+bool ScaleInitializer::addFrame(double t_s, const State& x, const ErrorCov& P, const ImageVartheta* image) {
   if (phase_ == Phase::kDone || !(x.alpha > 0.0)) return false;
   const Mat3 P_vt = P.block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta);
-  auto record = [&](double t_rel_s) {
+  // The row's vartheta and the time it belongs to: the image's own measurement at its time (lag_s before t_s),
+  // or the filter's at t_s.
+  const Vec3& vartheta = image != nullptr ? image->vartheta : x.vartheta;
+  const double lag = image != nullptr ? std::max(0.0, image->lag_s) : 0.0;
+  const double t_meas_s = t_s - lag;
+  const double s_now = x.mu.vector().dot(vartheta);  // d ln rho / dt = -mu . vartheta
+  auto record = [&]() {
     Row r;
-    r.t_s = t_rel_s;
+    r.t_s = t_meas_s - t_first_s_;
+    // The rotation and the integrated specific force back to the measurement's time over the last IMU step.
+    const Mat3 R = lag > 0.0 ? Mat3(expSO3(lag * last_gyro_) * R_) : R_;
     const double rho = std::exp(log_rho_);
-    r.a = rho * (R_.transpose() * x.vartheta);
-    r.var_a = rho * rho * P_vt.trace() / 3.0;
-    r.delta = delta_;
+    r.a = rho * (R.transpose() * vartheta);
+    r.var_a = rho * rho * (image != nullptr ? image->cov.trace() : P_vt.trace()) / 3.0;
+    r.delta = delta_ - lag * last_accel_C0_;
     if (rows_.size() < rows_.capacity()) rows_.push_back(r);
   };
   if (phase_ == Phase::kWaiting) {
@@ -46,30 +56,33 @@ bool ScaleInitializer::addFrame(double t_s, const State& x, const ErrorCov& P) {
     const double chi2 = x.vartheta.dot(ldlt.solve(x.vartheta));
     if (!(chi2 > cfg_.motion_chi2)) return false;
     phase_ = Phase::kCollecting;
-    t_first_s_ = t_s;
+    t_first_s_ = t_s;  // the IMU is integrated from here (C_0: the camera at t_first_s_)
     R_.setIdentity();
     delta_.setZero();
+    last_accel_C0_.setZero();
+    last_gyro_.setZero();
     g_first_ = x.g.vector();
     const double g0 = cfg_.gravity_mps2;
     var_c_ = g0 * g0 * 0.5 * P.block<2, 2>(ErrIdx::kG, ErrIdx::kG).trace() +
              P.block<3, 3>(ErrIdx::kBa, ErrIdx::kBa).trace() / 3.0;
     rows_.clear();
-    log_rho_ = 0.0;
-    s_last_ = x.mu.vector().dot(x.vartheta);
-    t_last_s_ = t_s;
-    record(0.0);
+    log_rho_ = 0.0;  // d_0: the distance at this frame's measurement
+    s_last_ = s_now;
+    t_last_s_ = t_meas_s;
+    if (lag == 0.0) record();  // a measurement before t_first_s_ has no IMU to place it: from the next frame
     return false;
   }
-  const double s_now = x.mu.vector().dot(x.vartheta);
-  log_rho_ -= 0.5 * (s_last_ + s_now) * (t_s - t_last_s_);
+  log_rho_ -= 0.5 * (s_last_ + s_now) * (t_meas_s - t_last_s_);
   s_last_ = s_now;
-  t_last_s_ = t_s;
+  t_last_s_ = t_meas_s;
   const double t_rel = t_s - t_first_s_;
-  if (t_rel - rows_.back().t_s >= cfg_.row_spacing_s) record(t_rel);
+  if (rows_.empty() || t_meas_s - t_first_s_ - rows_.back().t_s >= cfg_.row_spacing_s) record();
   if (t_rel >= cfg_.window_s && solve() && sigma_d0_m_ < cfg_.max_relative_sigma * d0_m_) {
     phase_ = Phase::kDone;
-    distance_m_ = d0_m_ * std::exp(log_rho_);
-    sigma_distance_m_ = sigma_d0_m_ * std::exp(log_rho_);
+    // The distance at t_s: d_0 rho at the last measurement, then on over the lag.
+    const double rho = std::exp(log_rho_ - lag * s_now);
+    distance_m_ = d0_m_ * rho;
+    sigma_distance_m_ = sigma_d0_m_ * rho;
     return true;
   }
   if (t_rel >= cfg_.max_window_s) phase_ = Phase::kDone;  // not enough motion: the filter goes on without

@@ -38,6 +38,13 @@ class ScaleInitializer {
     double gravity_mps2 = 9.81;
   };
   enum class Phase { kWaiting, kCollecting, kDone };
+  /// The image pair's own measurement of vartheta (UpdateStats::vartheta_image) at lag_s before the frame's
+  /// time (the update's state time: the interval's midpoint).
+  struct ImageVartheta {
+    Vec3 vartheta = Vec3::Zero();  ///< 1/s
+    Mat3 cov = Mat3::Zero();
+    double lag_s = 0.0;
+  };
 
   void configure(const Config& c) { cfg_ = c; }
   /// A new run: hold alpha and wait for motion.
@@ -62,8 +69,9 @@ class ScaleInitializer {
 
   /// After the image update at t_s (the IMU integrated up to t_s). Waiting: starts collecting once vartheta is
   /// significant. Collecting: records the frame and, once the window is long enough, solves. Returns true when
-  /// a solve was just accepted (distance(), sigmaDistance()); the phase is then kDone.
-  bool addFrame(double t_s, const State& x, const ErrorCov& P);
+  /// a solve was just accepted (distance(), sigmaDistance()); the phase is then kDone. With `image` the rows
+  /// take the image's own vartheta (at its time) instead of the filter's, whose prediction smooths it.
+  bool addFrame(double t_s, const State& x, const ErrorCov& P, const ImageVartheta* image = nullptr);
 
   /// The solved distance at the last frame and its 1-sigma, m (valid after addFrame returned true).
   double distance() const { return distance_m_; }
@@ -84,12 +92,14 @@ class ScaleInitializer {
   double t_first_s_ = 0.0;
   Mat3 R_ = Mat3::Identity();  // C_0 -> C(t)
   Vec3 delta_ = Vec3::Zero();   // integral of R^T a
+  Vec3 last_accel_C0_ = Vec3::Zero();  // the last step's specific force in C_0, m/s^2
+  Vec3 last_gyro_ = Vec3::Zero();      // the last step's rate, rad/s
   Vec3 g_first_ = Vec3::Zero(); // gravity direction in C_0 at the first frame
   double var_c_ = 0.0;         // prior variance of each axis of c
   std::vector<Row> rows_;
-  double log_rho_ = 0.0;       // ln d(t) / d_0 = -integral of mu . vartheta
+  double log_rho_ = 0.0;       // ln d(t) / d_0 = -integral of mu . vartheta, at t_last_s_
   double s_last_ = 0.0;        // mu . vartheta at the last frame, 1/s
-  double t_last_s_ = 0.0;
+  double t_last_s_ = 0.0;      // time of the last measurement of vartheta
   double d0_m_ = 0.0, sigma_d0_m_ = 0.0;  // d_0 and its 1-sigma
   double distance_m_ = 0.0, sigma_distance_m_ = 0.0;
 };

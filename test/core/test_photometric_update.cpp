@@ -504,6 +504,32 @@ TEST_F(PhotometricScene, BrightnessModelRecoversAGainAndOffsetChange) {
   EXPECT_GT(st_plain.rms_residual, 3.0 * st_affine.rms_residual);
 }
 
+// The image's own measurement of vartheta (UpdateStats::vartheta_image, for the batch start-up of the distance):
+// with a prior that holds vartheta far from the truth the posterior stays near the prior, the image's measurement
+// does not; with the usual prior both agree.
+TEST_F(PhotometricScene, ImageOnlyVarthetaDoesNotLeanOnThePrior) {
+  const Vec3 truth = scene_->truth.vartheta_inv_s;
+  PhotometricParams params;
+  params.gate_nis = 0.0;  // the tight prior's innovation is far outside the gate on purpose
+  for (double sd : {0.5, 0.002}) {
+    PhotometricUpdate update(params, PreprocessParams{});
+    update.setReportImageVartheta(true);
+    State x = startState(0.5);
+    ErrorCov P = priorCov();
+    P.block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta) = sd * sd * Mat3::Identity();
+    const UpdateStats st = update.update(scene_->ref, scene_->cur, scene_->K, scene_->w_C, scene_->dt_s, &x, &P);
+    ASSERT_TRUE(st.applied);
+    ASSERT_TRUE(st.vartheta_image_valid);
+    const double e_image = (st.vartheta_image - truth).norm(), e_post = (x.vartheta - truth).norm();
+    EXPECT_LT(e_image, 0.03 * truth.norm()) << "prior sd " << sd;
+    if (sd < 0.01) EXPECT_GT(e_post, 0.3 * truth.norm()) << "the tight prior holds the posterior";
+    else EXPECT_LT((st.vartheta_image - x.vartheta).norm(), 0.03 * truth.norm());
+    const Eigen::SelfAdjointEigenSolver<Mat3> eig(st.vartheta_image_cov);
+    EXPECT_GT(eig.eigenvalues().minCoeff(), 0.0);
+    EXPECT_LT((st.vartheta_image_cov - st.vartheta_image_cov.transpose()).norm(), 1e-9 * st.vartheta_image_cov.norm());
+  }
+}
+
 TEST_F(PhotometricScene, ZeroMotionLeavesStateAlone) {
   PhotometricUpdate update(PhotometricParams{}, PreprocessParams{});
   State x;

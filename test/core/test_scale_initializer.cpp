@@ -144,6 +144,41 @@ TEST(ScaleInitializer, GravityTiltIsAbsorbedWithinItsSigma) {
   EXPECT_LT(std::abs(d - truth), 0.05 * truth);
 }
 
+TEST(ScaleInitializer, TheImagesOwnVarthetaAtTheIntervalMidpointGivesTheDistance) {
+  // The rows from the image's own measurement of vartheta, taken at the midpoint of the frame interval (half a
+  // frame before the frame's time, as the update measures it), while the filter's state at the frame's time is
+  // wrong (its vartheta smoothed toward zero): the rows are placed at the measurement's time.
+  Flight f;
+  const internal::ScaleInitializer::Config cfg = config();
+  internal::ScaleInitializer init;
+  init.configure(cfg);
+  init.reset();
+  const ErrorCov P = filterCovariance(0.01);
+  const double dt = 1.0 / 30.0;
+  double t_prev = 0.0, d = -1.0, sigma = 0.0, truth = 0.0;
+  for (int k = 1; k * dt <= 5.0 && d < 0.0; ++k) {
+    const double t = k * dt, t_mid = t - 0.5 * dt;
+    State x = f.state(t, 3.0, Vec3::Zero());
+    const Vec3 seen = x.vartheta;  // the motion test looks at the filter's vartheta
+    x.vartheta *= init.phase() == internal::ScaleInitializer::Phase::kWaiting ? 1.0 : 0.7;
+    init.integrate(t_prev, t, x, [&f](double tt) { return f.imu(tt); });
+    t_prev = t;
+    internal::ScaleInitializer::ImageVartheta image;
+    image.vartheta = f.state(t_mid, 3.0, Vec3::Zero()).vartheta;
+    image.cov = Mat3::Identity() * 1e-4;
+    image.lag_s = t - t_mid;
+    State x_test = x;
+    if (init.phase() == internal::ScaleInitializer::Phase::kWaiting) x_test.vartheta = seen;
+    if (init.addFrame(t, x_test, P, &image)) {
+      d = init.distance();
+      sigma = init.sigmaDistance();
+      truth = f.d(t);
+    }
+  }
+  ASSERT_GT(d, 0.0);
+  EXPECT_NEAR(d, truth, 0.01 * truth) << "sigma " << sigma;
+}
+
 TEST(ScaleInitializer, GivesUpWithoutAcceleration) {
   // Constant velocity (no acceleration to scale the images' velocity by): no solve is accepted; after the longest
   // window alpha is freed.
