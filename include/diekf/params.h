@@ -111,7 +111,7 @@ struct PhotometricParams {
   double parallax_tolerance = 0.05;
   double parallax_time_constant_s = 0.5;        ///< memory of that measurement over the images, s
   /// Brightness change of the pair (docs/noise_model.md section 12): kNormalised compares the images as they are
-  /// (each divided by its own mean); kGain compares the current image with g I_r and kAffine with g I_r + o, the
+  /// (each standardised to zero mean and unit variance on its own); kGain compares the current image with g I_r and kAffine with g I_r + o, the
   /// pair's gain g (and offset o) estimated in the update's Gauss-Newton passes and marginalised from the
   /// information.
   BrightnessModel brightness_model = BrightnessModel::kNormalised;

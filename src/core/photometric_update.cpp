@@ -791,7 +791,8 @@ SweepConfig makeConfig(const PhotometricParams& params, const PreprocessParams& 
   return cfg;
 }
 
-/// Bounds of the pair's brightness gain and offset (normalised units: each image divided by its own mean).
+/// Bounds of the pair's brightness gain and offset (normalised units: each image standardised
+/// to zero mean and unit variance).
 constexpr double kMinBrightnessGain = 0.25, kMaxBrightnessGain = 4.0, kMaxBrightnessOffset = 2.0;
 
 /// Marginalises the pair's brightness (gain, and offset with `columns` = 2) from a sweep's information
