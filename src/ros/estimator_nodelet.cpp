@@ -827,6 +827,8 @@ void EstimatorNodelet::publishResult(const diekf::FrameResult& r) {
     last_noise_correlation_ = r.noise_correlation;
     if (r.gate_inflation > 1.0) ++gated_updates_;
     last_outlier_fraction_ = r.outlier_fraction;
+    last_brightness_gain_ = r.brightness_gain;
+    last_brightness_offset_ = r.brightness_offset;
     last_fixed_pattern_fraction_ = r.fixed_pattern_fraction;
     last_fixed_pattern_contrast_share_ = r.fixed_pattern_contrast_share;
     fixed_pattern_active_ = r.fixed_pattern_active;
@@ -890,6 +892,11 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
   stat.add("photometric noise sigma (normalised intensity)", last_noise_sigma_);
   stat.add("pixels per independent measurement", last_noise_correlation_);
   stat.add("outlier weight removed (share of the image)", last_outlier_fraction_);
+  if (params_.photometric.brightness_model != diekf::BrightnessModel::kNormalised) {
+    stat.add("brightness model of the pair", diekf::toString(params_.photometric.brightness_model));
+    stat.add("last pair's brightness gain", last_brightness_gain_);
+    stat.add("last pair's brightness offset (normalised intensity)", last_brightness_offset_);
+  }
   stat.add("camera-fixed pattern learned", fixed_pattern_active_ ? "yes" : "not yet (start-up)");
   stat.add("strong camera-fixed pattern (share of the image; projector, shadow, dirt)", last_fixed_pattern_fraction_);
   stat.add("camera-fixed pattern's share of the image contrast", last_fixed_pattern_contrast_share_);
