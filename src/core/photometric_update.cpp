@@ -1170,17 +1170,18 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
 
   double info_scale = 0.0;  // 1 / (sigma^2 c gamma): fixed at the first pass, used by every pass
   int pass = 0;
-  // The last pass's information over the observed columns and where it was linearised (vartheta_image).
+  // vartheta_image, only when asked for: the prior state and its (mu, b_w) block, and the last pass's information
+  // over the observed columns with the point it was linearised at.
+  const bool image_only = report_image_vartheta_;
   ObservedInfo A_last = ObservedInfo::Zero();
   ObservedVec b_last = ObservedVec::Zero();
-  State x_last = *x;
-  const State x_prior = *x;
-  const Eigen::Matrix<double, 5, 5> P_other = [&] {  // prior of (mu, b_w)
-    Eigen::Matrix<double, 5, 5> m;
+  State x_last, x_prior;
+  Eigen::Matrix<double, 5, 5> P_other = Eigen::Matrix<double, 5, 5>::Zero();
+  if (image_only) {
+    x_prior = *x;
     for (int r = 0; r < 5; ++r)
-      for (int c = 0; c < 5; ++c) m(r, c) = (*P)(internal::kObsToErr[3 + r], internal::kObsToErr[3 + c]);
-    return m;
-  }();
+      for (int c = 0; c < 5; ++c) P_other(r, c) = (*P)(internal::kObsToErr[3 + r], internal::kObsToErr[3 + c]);
+  }
   // The pair's brightness (gain, offset), section 12: from (1, 0), stepped after every linearisation to its best
   // value with the state held there (the state's steps see it marginalised).
   Eigen::Vector2d brightness(1.0, 0.0);
@@ -1287,9 +1288,11 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
       *b = info_scale * sums.b;
       marginalizeRotationError(var_bw_equiv, A, b);
     }
-    A_last = *A;
-    b_last = *b;
-    x_last = x_j;
+    if (image_only) {
+      A_last = *A;
+      b_last = *b;
+      x_last = x_j;
+    }
     ++pass;
     return true;
   };
@@ -1298,7 +1301,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   use_weight_map_ = false;
   active_map_ = nullptr;
   stats.applied = it.ok;
-  if (report_image_vartheta_ && it.ok && !stats.gated) imageOnlyVartheta(A_last, b_last, x_last, x_prior, P_other, &stats);
+  if (image_only && it.ok && !stats.gated) imageOnlyVartheta(A_last, b_last, x_last, x_prior, P_other, &stats);
   stats.outlier_fraction = sums.valid > 0 ? std::clamp(1.0 - sums.weight_sum / sums.valid, 0.0, 1.0) : 0.0;
   stats.passes = it.passes;
   stats.last_step_norm = it.last_step_norm;
