@@ -214,6 +214,7 @@ class PhotometricUpdate {
   cv::Mat parallax_sums_;       ///< CV_32FC2 per cell: carried window sums of a r and a^2 (a = dr / d rho)
   cv::Mat parallax_sums_prev_;  ///< the same of the previous image (swapped)
   cv::Mat ref_coeff_;   ///< CV_32FC1 cubic B-spline coefficients of the reference's intensity, reused between calls
+  std::vector<float> spline_scratch_;  ///< the spline prefilter's row block (4 x width), reused between calls
   cv::Mat scratch_;     ///< CV_32FC1 13 x (width rounded up to 4): row buffers of the sweep
   double noise_variance_gain_ = 1.0;
   double noise_correlation_floor_ = 1.0;
@@ -225,6 +226,8 @@ class PhotometricUpdate {
   cv::Mat weight_window_;   ///< CV_32FC1, the same planes: their window sums
   cv::Mat weight_cell_w_;   ///< CV_32FC1 per cell: the shift statistic q, then the weight
   std::vector<float> weight_colsum_;  ///< running column sums of the vertical window
+  std::vector<double> weight_qx_;     ///< per cell column: the ray's x-coordinate (qx of q = K^-1 p)
+  std::vector<float> weight_lanes_;  ///< 4 rows of window sums transposed (rows as lanes), in and out
   cv::Mat weight_inv_pixels_;  ///< CV_32FC1 per cell: 1 / pixels in its window (depends only on the sizes)
   int weight_inv_pixels_hc_ = -1;  ///< the window half-side the table was made for
   std::vector<float> weight_median_buf_;  ///< per-cell values, for their medians; then the rows' flags (border minimum)

@@ -3,6 +3,9 @@
 #include <algorithm>
 #include <cmath>
 #include <cstddef>
+#include <vector>
+
+#include <opencv2/core/hal/intrin.hpp>
 
 namespace diekf {
 namespace internal {
@@ -53,13 +56,56 @@ void filterSamples(float* c, std::ptrdiff_t step, int n, int lanes) {
 
 }  // namespace
 
-void cubicBSplineCoefficients(const cv::Mat& image, cv::Mat* coeff) {
-  CV_Assert(image.type() == CV_32FC1 && coeff != nullptr);
+void cubicBSplineCoefficients(const cv::Mat& image, cv::Mat* coeff, std::vector<float>* scratch) {
+  CV_Assert(image.type() == CV_32FC1 && coeff != nullptr && coeff->data != image.data);
   coeff->create(image.size(), CV_32FC1);
-  image.copyTo(*coeff);
-  const int W = coeff->cols, H = coeff->rows;
-  if (W >= 2)
-    for (int y = 0; y < H; ++y) filterSamples<1>(coeff->ptr<float>(y), 1, W, 1);
+  const int W = image.cols, H = image.rows;
+  if (W < 2) {
+    image.copyTo(*coeff);
+  } else {
+    // Along the rows, four at a time: the block of four rows transposed into `block` (sample k of row l at
+    // 4 k + l), filtered there with the rows as the lanes (the same operations per row, vectorised), and
+    // transposed back into the coefficients. The rows left over are filtered one by one.
+    std::vector<float> local;
+    std::vector<float>& block = scratch != nullptr ? *scratch : local;
+    block.resize(static_cast<std::size_t>(4) * W);
+    const int W4 = W & ~3;
+    int y = 0;
+    for (; y + 4 <= H; y += 4) {
+      const float* in[4] = {image.ptr<float>(y), image.ptr<float>(y + 1), image.ptr<float>(y + 2),
+                            image.ptr<float>(y + 3)};
+      float* out[4] = {coeff->ptr<float>(y), coeff->ptr<float>(y + 1), coeff->ptr<float>(y + 2),
+                       coeff->ptr<float>(y + 3)};
+      float* b = block.data();
+      for (int x = 0; x < W4; x += 4) {
+        cv::v_float32x4 t0, t1, t2, t3;
+        cv::v_transpose4x4(cv::v_load(in[0] + x), cv::v_load(in[1] + x), cv::v_load(in[2] + x), cv::v_load(in[3] + x),
+                           t0, t1, t2, t3);
+        cv::v_store(b + 4 * x, t0);
+        cv::v_store(b + 4 * x + 4, t1);
+        cv::v_store(b + 4 * x + 8, t2);
+        cv::v_store(b + 4 * x + 12, t3);
+      }
+      for (int x = W4; x < W; ++x)
+        for (int l = 0; l < 4; ++l) b[4 * x + l] = in[l][x];
+      filterSamples<4>(b, 4, W, 4);
+      for (int x = 0; x < W4; x += 4) {
+        cv::v_float32x4 r0, r1, r2, r3;
+        cv::v_transpose4x4(cv::v_load(b + 4 * x), cv::v_load(b + 4 * x + 4), cv::v_load(b + 4 * x + 8),
+                           cv::v_load(b + 4 * x + 12), r0, r1, r2, r3);
+        cv::v_store(out[0] + x, r0);
+        cv::v_store(out[1] + x, r1);
+        cv::v_store(out[2] + x, r2);
+        cv::v_store(out[3] + x, r3);
+      }
+      for (int x = W4; x < W; ++x)
+        for (int l = 0; l < 4; ++l) out[l][x] = b[4 * x + l];
+    }
+    for (; y < H; ++y) {
+      std::copy(image.ptr<float>(y), image.ptr<float>(y) + W, coeff->ptr<float>(y));
+      filterSamples<1>(coeff->ptr<float>(y), 1, W, 1);
+    }
+  }
   if (H >= 2) filterSamples<0>(coeff->ptr<float>(0), static_cast<std::ptrdiff_t>(coeff->step1()), H, W);
 }
 

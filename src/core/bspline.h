@@ -8,6 +8,8 @@
 // reproduces the samples and moves the phase almost linearly (x1.02 at w = 1.36), at 16 taps instead of 4.
 #pragma once
 
+#include <vector>
+
 #include <opencv2/core.hpp>
 
 namespace diekf {
@@ -16,9 +18,10 @@ namespace internal {
 /// Cubic B-spline coefficients c of a CV_32FC1 image f, mirror boundaries: the spline sum_k c_k beta3(x - k)
 /// equals f at every pixel. Separable: a causal and an anti-causal first-order recursion with the pole
 /// z = sqrt(3) - 2 along the rows, then along the columns (Unser, Aldroubi, Eden 1991). `coeff` is (re)created
-/// as CV_32FC1 of f's size only when its size or type differs. An image narrower or lower than 2 px is copied
-/// unchanged along that axis.
-void cubicBSplineCoefficients(const cv::Mat& image, cv::Mat* coeff);
+/// as CV_32FC1 of f's size only when its size or type differs (it must not share f's data). An image narrower or
+/// lower than 2 px is copied unchanged along that axis. `scratch` (optional): a buffer of 4 x width floats for the
+/// row pass, kept by the caller so that no call allocates (null: a local one).
+void cubicBSplineCoefficients(const cv::Mat& image, cv::Mat* coeff, std::vector<float>* scratch = nullptr);
 
 /// The four cubic B-spline weights of the taps at floor(x) - 1 ... floor(x) + 2 for t = x - floor(x) in [0, 1),
 /// and their derivatives d w / d x (they sum to 1 and to 0). T is float or a SIMD vector of them (the sweep's

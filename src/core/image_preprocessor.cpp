@@ -599,7 +599,7 @@ void ImagePreprocessor::finish(ResampledImage* stage, double t_s, PreprocessedFr
     for (int y = 0; y < H; ++y) {
       std::copy(res + y * PW + pad_, res + y * PW + pad_ + W, I + y * W);
       if (y == 0) pivot = I[W / 2];
-      rowMoments(I + y * W, W, pivot, &sum, &sum_sq);
+      if (pattern == nullptr) rowMoments(I + y * W, W, pivot, &sum, &sum_sq);
     }
   } else {
     ensure(blur_tmp_, H, W, CV_32FC1);
@@ -630,7 +630,7 @@ void ImagePreprocessor::finish(ResampledImage* stage, double t_s, PreprocessedFr
         default: blurRowVGeneric(rows, kern, r, W, o); break;
       }
       if (y == 0) pivot = o[W / 2];
-      rowMoments(o, W, pivot, &sum, &sum_sq);
+      if (pattern == nullptr) rowMoments(o, W, pivot, &sum, &sum_sq);  // (else FixedPattern::apply takes them)
     }
   }
 

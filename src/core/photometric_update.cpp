@@ -479,6 +479,7 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
   const int sC = static_cast<int>(ref_coeff.step1());  // floats per coefficient row
   const float* RW = cfg.reference_weights != nullptr ? cfg.reference_weights->ptr<float>(0) : nullptr;
   const int sW = cfg.reference_weights != nullptr ? static_cast<int>(cfg.reference_weights->step1()) : 0;
+  const bool same_stride = sW == sC;
   // The reference sample's 4x4 spline taps x0 - 1 ... x0 + 2 stay inside the image, as did the 2x2
   // neighbourhood of bilinear sampling inside the 1-px border: x0 = floor(rx) in [1, W-3]  <=>  rx in [1, W-2).
   const v_float32x4 rx_lo = v_setall_f32(1.0f), rx_hi = v_setall_f32(static_cast<float>(W - 2));
@@ -492,6 +493,19 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
   const v_float32x4 huber = v_setall_f32(cfg.huber_abs);
   const bool brightness = cfg.brightness_columns > 0;
   const v_float32x4 gain = v_setall_f32(cfg.gain), offset = v_setall_f32(cfg.offset);
+  // The warp's per-pixel coefficients as vectors, made once: the loop stores through float pointers (the row
+  // buffers, the outputs), which the compiler must assume may alias wp's and cfg's floats, so read from there it
+  // would load and broadcast every coefficient again for every 4 pixels.
+  const v_float32x4 wp_b0 = v_setall_f32(wp.b[0]);
+  const v_float32x4 wp_a[3] = {v_setall_f32(wp.a[0]), v_setall_f32(wp.a[1]), v_setall_f32(wp.a[2])};
+  const v_float32x4 wp_E0[3] = {v_setall_f32(wp.E[0][0]), v_setall_f32(wp.E[1][0]), v_setall_f32(wp.E[2][0])};
+  const v_float32x4 wp_C30[3] = {v_setall_f32(wp.C3[0][0]), v_setall_f32(wp.C3[1][0]), v_setall_f32(wp.C3[2][0])};
+  v_float32x4 wp_C2[3][3];
+  for (int i = 0; i < 3; ++i)
+    for (int j = 0; j < 3; ++j) wp_C2[i][j] = v_setall_f32(wp.C2[i][j]);
+  const v_float32x4 wp_P00 = v_setall_f32(wp.P[0][0]), wp_P01 = v_setall_f32(wp.P[0][1]);
+  const v_float32x4 depth_dir[3] = {v_setall_f32(cfg.depth_dir[0]), v_setall_f32(cfg.depth_dir[1]),
+                                    v_setall_f32(cfg.depth_dir[2])};
   const int n = (W - 2 * cfg.border + cfg.stride - 1) / cfg.stride;  // candidates per row
   if (n <= 0) return;
   const int n_pad = (n + 3) & ~3;
@@ -641,9 +655,8 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
       const v_float32x4 gx = gxc + model_gx, gy = gyc + model_gy;
       const v_float32x4 ex = cx - rxs, ey = cy - rys;  // D_r(0, 2), D_r(1, 2)
       const v_float32x4 gD0 = gx * fx, gD1 = gy * fy, gD2 = v_muladd(gx, ex, gy * ey);
-      const v_float32x4 s_b = v_muladd(v_setall_f32(wp.b[0]), qx, s_row);
-      const v_float32x4 u = v_muladd(gD2, v_setall_f32(wp.a[2]),
-                                     v_muladd(gD1, v_setall_f32(wp.a[1]), gD0 * v_setall_f32(wp.a[0])));
+      const v_float32x4 s_b = v_muladd(wp_b0, qx, s_row);
+      const v_float32x4 u = v_muladd(gD2, wp_a[2], v_muladd(gD1, wp_a[1], gD0 * wp_a[0]));
       // Weight (0 for invalid pixels); the rows are scaled by sqrt(w).
       v_float32x4 w = v_select(valid, one, zero);
       v_float32x4 wm = one;  // outlier weight of the pixel (1 without a map)
@@ -651,20 +664,25 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
         // The reference pixel's outlier weight (1 without) times the current pixel's confidence.
         if (Wm != nullptr) wm = v_load(Wm + k);
         if (RW != nullptr) {
-          // The reference's outlier weights, bilinear at the same position.
-          v_store_aligned(widx, y0 * v_setall_s32(sW) + x0);
-          alignas(16) float q00[4], q01[4], q10[4], q11[4];
-          for (int l = 0; l < 4; ++l) {
-            const float* p = RW + widx[l];
-            q00[l] = p[0];
-            q01[l] = p[1];
-            q10[l] = p[sW];
-            q11[l] = p[sW + 1];
+          // The reference's outlier weights, bilinear at the same position: per lane the two pairs (x0, x0 + 1)
+          // of rows y0 and y0 + 1, two lanes per load, regrouped to one vector per corner by two zips.
+          if (same_stride) {
+            v_store_aligned(widx, v_load_aligned(idx) + v_setall_s32(sC + 1));  // y0 sC + x0
+          } else {
+            v_store_aligned(widx, y0 * v_setall_s32(sW) + x0);
           }
+          const float* p0 = RW + widx[0];
+          const float* p1 = RW + widx[1];
+          const float* p2 = RW + widx[2];
+          const float* p3 = RW + widx[3];
+          v_float32x4 z0, z1, q00, q01, q10, q11;
+          v_zip(v_load_halves(p0, p1), v_load_halves(p2, p3), z0, z1);
+          v_zip(z0, z1, q00, q01);
+          v_zip(v_load_halves(p0 + sW, p1 + sW), v_load_halves(p2 + sW, p3 + sW), z0, z1);
+          v_zip(z0, z1, q10, q11);
           const v_float32x4 bx = one - ax, by = one - ay;
-          const v_float32x4 ref_w = v_muladd(ax * ay, v_load(q11),
-                                             v_muladd(bx * ay, v_load(q10),
-                                                      v_muladd(ax * by, v_load(q01), (bx * by) * v_load(q00))));
+          const v_float32x4 ref_w =
+              v_muladd(ax * ay, q11, v_muladd(bx * ay, q10, v_muladd(ax * by, q01, (bx * by) * q00)));
           wm = wm * ref_w;
         }
         w = w * wm;
@@ -682,26 +700,24 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
       const v_float32x4 swj = sw * iz;  // the Jacobian rows carry dp_r/dQ = D_r / Q_z
       const v_float32x4 ssb = swj * s_b, su = swj * u;
       // S' = [vartheta (3), mu (2), b_w (3)] (see PixelWarp); b_w: gD x E q + s_b C2^T gD + u C3 q.
-      const v_float32x4 Ex = v_muladd(v_setall_f32(wp.E[0][0]), qx, e0);
-      const v_float32x4 Ey = v_muladd(v_setall_f32(wp.E[1][0]), qx, e1);
-      const v_float32x4 Ez = v_muladd(v_setall_f32(wp.E[2][0]), qx, e2);
+      const v_float32x4 Ex = v_muladd(wp_E0[0], qx, e0);
+      const v_float32x4 Ey = v_muladd(wp_E0[1], qx, e1);
+      const v_float32x4 Ez = v_muladd(wp_E0[2], qx, e2);
       v_float32x4 v_bw[3];
       v_bw[0] = gD1 * Ez - gD2 * Ey;
       v_bw[1] = gD2 * Ex - gD0 * Ez;
       v_bw[2] = gD0 * Ey - gD1 * Ex;
-      const v_float32x4 Kq[3] = {v_muladd(v_setall_f32(wp.C3[0][0]), qx, k0),
-                                 v_muladd(v_setall_f32(wp.C3[1][0]), qx, k1),
-                                 v_muladd(v_setall_f32(wp.C3[2][0]), qx, k2)};
+      const v_float32x4 Kq[3] = {v_muladd(wp_C30[0], qx, k0), v_muladd(wp_C30[1], qx, k1),
+                                 v_muladd(wp_C30[2], qx, k2)};
       for (int j = 0; j < 3; ++j) {
-        const v_float32x4 c2g = v_muladd(gD2, v_setall_f32(wp.C2[2][j]),
-                                         v_muladd(gD1, v_setall_f32(wp.C2[1][j]), gD0 * v_setall_f32(wp.C2[0][j])));
+        const v_float32x4 c2g = v_muladd(gD2, wp_C2[2][j], v_muladd(gD1, wp_C2[1][j], gD0 * wp_C2[0][j]));
         v_bw[j] = v_muladd(u, Kq[j], v_muladd(s_b, c2g, v_bw[j]));
       }
       v_store_aligned(buf.T[0] + k, ssb * gD0);
       v_store_aligned(buf.T[1] + k, ssb * gD1);
       v_store_aligned(buf.T[2] + k, ssb * gD2);
-      v_store_aligned(buf.T[3] + k, su * v_muladd(v_setall_f32(wp.P[0][0]), qx, qP0));
-      v_store_aligned(buf.T[4] + k, su * v_muladd(v_setall_f32(wp.P[0][1]), qx, qP1));
+      v_store_aligned(buf.T[3] + k, su * v_muladd(wp_P00, qx, qP0));
+      v_store_aligned(buf.T[4] + k, su * v_muladd(wp_P01, qx, qP1));
       v_store_aligned(buf.T[5] + k, swj * v_bw[0]);
       v_store_aligned(buf.T[6] + k, swj * v_bw[1]);
       v_store_aligned(buf.T[7] + k, swj * v_bw[2]);
@@ -722,10 +738,9 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
       v_store_aligned(buf.valid + k, valid01);
       vcount += valid01;
       // dr / d rho (section 10), and where the warp lands.
-      const v_float32x4 dj = v_select(valid, (s_b * iz) * v_muladd(gD2, v_setall_f32(cfg.depth_dir[2]),
-                                                                   v_muladd(gD1, v_setall_f32(cfg.depth_dir[1]),
-                                                                            gD0 * v_setall_f32(cfg.depth_dir[0]))),
-                                      zero);
+      const v_float32x4 dj =
+          v_select(valid, (s_b * iz) * v_muladd(gD2, depth_dir[2], v_muladd(gD1, depth_dir[1], gD0 * depth_dir[0])),
+                   zero);
       const v_float32x4 minus_one = v_setall_f32(-1.0f);
       const v_float32x4 rxo = v_select(valid, rx, minus_one), ryo = v_select(valid, ry, minus_one);
       if (cfg.stride == 1) {
@@ -853,7 +868,7 @@ void PhotometricUpdate::setPreprocessNoise(double variance_gain, double correlat
 int PhotometricUpdate::linearize(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PinholeK& K,
                                  const Vec3& gyro_mean_C, double dt_s, const State& x, ObservedInfo* A,
                                  ObservedVec* b, int* candidates, double state_lag_s) {
-  internal::cubicBSplineCoefficients(ref.intensity, &ref_coeff_);
+  internal::cubicBSplineCoefficients(ref.intensity, &ref_coeff_, &spline_scratch_);
   prepareBuffers(cur.intensity.size());
   PassSums sums;
   const int valid = accumulate(cur, K, gyro_mean_C, dt_s, state_lag_s, x, params_.intensity_noise_sigma, &sums);
@@ -1126,7 +1141,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   // with the objects. A map without any weight below 1 changes nothing: the plain sweep is used (bit for bit,
   // and cheaper).
   use_weight_map_ = params_.outlier_threshold_sigma > 0.0 && weight_map_has_outliers_ && weightsBelongTo(ref);
-  internal::cubicBSplineCoefficients(ref.intensity, &ref_coeff_);  // once per update, every pass
+  internal::cubicBSplineCoefficients(ref.intensity, &ref_coeff_, &spline_scratch_);  // once per update, every pass
   // The camera-fixed pattern's confidence, per pixel of the current image (docs/noise_model.md section 11).
   active_map_ = confidence_ != nullptr && confidence_->type() == CV_32FC1 && confidence_->size() == cur.intensity.size()
                     ? confidence_ : nullptr;
@@ -1416,13 +1431,49 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
       const int want_hi = std::min(Hc, j + hc + 1), want_lo = std::max(0, j - hc);
       for (; hi < want_hi; ++hi) {
         const float* row = cells(c, hi);
-        for (int i = 0; i < Wp; ++i) colsum[i] += row[i];
+        for (int i = 0; i < Wp; i += 4) cv::v_store(colsum + i, cv::v_load(colsum + i) + cv::v_load(row + i));
       }
       for (; lo < want_lo; ++lo) {
         const float* row = cells(c, lo);
-        for (int i = 0; i < Wp; ++i) colsum[i] -= row[i];
+        for (int i = 0; i < Wp; i += 4) cv::v_store(colsum + i, cv::v_load(colsum + i) - cv::v_load(row + i));
       }
-      // Horizontal running sum of this row's vertical sums: the window [i - hc, i + hc] truncated at the edges.
+      std::copy(colsum, colsum + Wp, window(c, j));  // the vertical sums; the horizontal ones below
+    }
+    // Horizontal running sums of the vertical sums, the window [i - hc, i + hc] truncated at the edges: four
+    // rows at a time with the rows as the lanes (transposed into the lane buffer and back), the rows left over
+    // one by one; the same additions per row either way.
+    using cv::v_float32x4;
+    weight_lanes_.resize(static_cast<size_t>(8) * Wp);  // allocates once per image width
+    float* lanes_in = weight_lanes_.data();  // column i of the 4 rows at 4 i
+    float* lanes_out = lanes_in + 4 * Wp;
+    int j = 0;
+    for (; j + 4 <= Hc; j += 4) {
+      float* r[4] = {window(c, j), window(c, j + 1), window(c, j + 2), window(c, j + 3)};
+      for (int i = 0; i < Wp; i += 4) {
+        v_float32x4 t0, t1, t2, t3;
+        cv::v_transpose4x4(cv::v_load(r[0] + i), cv::v_load(r[1] + i), cv::v_load(r[2] + i), cv::v_load(r[3] + i),
+                           t0, t1, t2, t3);
+        cv::v_store(lanes_in + 4 * i, t0);
+        cv::v_store(lanes_in + 4 * i + 4, t1);
+        cv::v_store(lanes_in + 4 * i + 8, t2);
+        cv::v_store(lanes_in + 4 * i + 12, t3);
+      }
+      internal::windowSum(
+          Wc, hc, [lanes_in](int k) { return cv::v_load(lanes_in + 4 * k); },
+          [lanes_out](int i, const v_float32x4& v) { cv::v_store(lanes_out + 4 * i, v); }, cv::v_setzero_f32());
+      std::fill(lanes_out + 4 * Wc, lanes_out + 4 * Wp, 0.0f);
+      for (int i = 0; i < Wp; i += 4) {
+        v_float32x4 o0, o1, o2, o3;
+        cv::v_transpose4x4(cv::v_load(lanes_out + 4 * i), cv::v_load(lanes_out + 4 * i + 4),
+                           cv::v_load(lanes_out + 4 * i + 8), cv::v_load(lanes_out + 4 * i + 12), o0, o1, o2, o3);
+        cv::v_store(r[0] + i, o0);
+        cv::v_store(r[1] + i, o1);
+        cv::v_store(r[2] + i, o2);
+        cv::v_store(r[3] + i, o3);
+      }
+    }
+    for (; j < Hc; ++j) {
+      std::copy(window(c, j), window(c, j) + Wp, colsum);  // (the column sums are not needed any more)
       internal::windowSumRow(colsum, Wc, hc, window(c, j));
     }
   }
@@ -1461,7 +1512,33 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
   for (int j = 0; j < Hc; ++j) {
     const float *gxx = window(1, j), *gxy = window(2, j), *gyy = window(3, j), *gxr = window(4, j), *gyr = window(5, j);
     float* q = weight_cell_w_.ptr<float>(j);
-    for (int i = 0; i < Wc; ++i) {
+    int i = 0;
+#if CV_SIMD128_64F
+    // Two cells per double vector, the same operations in the same order as the scalar loop below.
+    {
+      using namespace cv;
+      const v_float64x2 c12 = v_setall_f64(1e-12), c6 = v_setall_f64(1e-6), two = v_setall_f64(2.0);
+      const v_float64x2 zero_d = v_setzero_f64();
+      const float* ip = weight_inv_pixels_.ptr<float>(j);
+      auto shift2 = [&](const v_float64x2& xx, const v_float64x2& xy, const v_float64x2& yy, const v_float64x2& u,
+                        const v_float64x2& v) {
+        const v_float64x2 ridge = c12 + c6 * (xx + yy);
+        const v_float64x2 a = xx + ridge, c = yy + ridge;
+        const v_float64x2 det = a * c - xy * xy;
+        const v_float64x2 qs = v_select(det > zero_d, ((c * u) * u - ((two * xy) * u) * v + (a * v) * v) / det, zero_d);
+        return v_select(qs > zero_d, qs, zero_d);
+      };
+      for (; i + 4 <= Wc; i += 4) {
+        const v_float32x4 xx = v_load(gxx + i), xy = v_load(gxy + i), yy = v_load(gyy + i);
+        const v_float32x4 u = v_load(gxr + i), v = v_load(gyr + i);
+        const v_float64x2 lo = shift2(v_cvt_f64(xx), v_cvt_f64(xy), v_cvt_f64(yy), v_cvt_f64(u), v_cvt_f64(v));
+        const v_float64x2 hi = shift2(v_cvt_f64_high(xx), v_cvt_f64_high(xy), v_cvt_f64_high(yy),
+                                      v_cvt_f64_high(u), v_cvt_f64_high(v));
+        v_store(q + i, v_cvt_f32(lo, hi) * v_load(ip + i));
+      }
+    }
+#endif
+    for (; i < Wc; ++i) {
       const double ridge = 1e-12 + 1e-6 * (double(gxx[i]) + gyy[i]);
       const double a = gxx[i] + ridge, b = gxy[i], c = gyy[i] + ridge, u = gxr[i], v = gyr[i];
       const double det = a * c - b * b;
@@ -1530,20 +1607,71 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
   // z_e = (e - e_ref)^2 / max(tol^2 + k^2 (var_e + var_tilt), k^2 spread^2): each term is about 1 within the bulk
   // of the image, 1/2 where the window stands out by k "sigmas" (by the tolerance, for e), falling fast beyond.
   const double inv_m = 1.0 / (k2 * m_ref), inv_q = 1.0 / (k2 * q_ref);
+  // The cells' ray x-coordinates (the same for every row).
+  weight_qx_.resize(static_cast<size_t>(Wc));  // allocates once per image width
+  for (int i = 0; i < Wc; ++i) weight_qx_[i] = (2 * i + 0.5 - K.cx) / K.fx;
   for (int j = 0; j < Hc; ++j) {
     const float* win = window(0, j);
     const float* sj = parallax ? parallax_sums_.ptr<float>(j) : nullptr;
     float* w = weight_cell_w_.ptr<float>(j);
     const double qy = (2 * j + 0.5 - K.cy) / K.fy;
-    for (int i = 0; i < Wc; ++i) {
+    const double mu_qy = mu(1) * qy, qy2 = qy * qy;
+    int i = 0;
+#if CV_SIMD128_64F
+    // Two cells per double vector, the same operations in the same order as the scalar loop below (a cell
+    // without parallax sums, J = 0, computes ze too and selects 0).
+    {
+      using namespace cv;
+      const float* ip = weight_inv_pixels_.ptr<float>(j);
+      const v_float64x2 zero_d = v_setzero_f64(), one_d = v_setall_f64(1.0);
+      const v_float64x2 v_inv_m = v_setall_f64(inv_m), v_inv_q = v_setall_f64(inv_q);
+      const v_float64x2 v_mu0 = v_setall_f64(mu(0)), v_mu_qy = v_setall_f64(mu_qy), v_mu2 = v_setall_f64(mu(2));
+      const v_float64x2 v_qy2 = v_setall_f64(qy2), v_var_mu = v_setall_f64(var_mu), v_e_ref = v_setall_f64(e_ref);
+      const v_float64x2 v_min_mq = v_setall_f64(1e-3), v_flat = v_setall_f64(1e6);
+      const v_float64x2 v_tol2 = v_setall_f64(tol2), v_k2 = v_setall_f64(k2), v_var_corr = v_setall_f64(var_corr);
+      const v_float64x2 v_spread = v_setall_f64(k2 * e_spread2);
+      const v_float64x2 m_lim = v_setall_f64(0.1), q_lim = v_setall_f64(0.3);
+      v_float64x2 flagged = zero_d;
+      auto ze2 = [&](const v_float64x2& S, const v_float64x2& J, const v_float64x2& qx) {
+        const v_float64x2 mq = (v_mu0 * qx + v_mu_qy) + v_mu2;
+        const v_float64x2 q2 = (qx * qx + v_qy2) + one_d;
+        const v_float64x2 mq2 = mq * mq, spread = q2 - mq2;
+        const v_float64x2 var_tilt =
+            v_select(mq > v_min_mq, (v_var_mu * v_select(spread > zero_d, spread, zero_d)) / mq2, v_flat);
+        const v_float64x2 de = S / J - v_e_ref;
+        const v_float64x2 A = v_tol2 + v_k2 * (v_var_corr / J + var_tilt);
+        return v_select(J > zero_d, (de * de) / v_select(A < v_spread, v_spread, A), zero_d);
+      };
+      auto weight2 = [&](const v_float64x2& zm, const v_float64x2& zq, const v_float64x2& ze) {
+        const v_float64x2 zq2 = zq * zq;
+        flagged = flagged | (zm > m_lim) | (zq > q_lim) | (ze > q_lim);
+        return one_d / (((one_d + zm * zm) * (one_d + zq2 * zq2)) * (one_d + ze * ze));
+      };
+      for (; i + 4 <= Wc; i += 4) {
+        const v_float32x4 m = v_load(win + i) * v_load(ip + i), qf = v_load(w + i);
+        const v_float64x2 zm_lo = v_cvt_f64(m) * v_inv_m, zm_hi = v_cvt_f64_high(m) * v_inv_m;
+        const v_float64x2 zq_lo = v_cvt_f64(qf) * v_inv_q, zq_hi = v_cvt_f64_high(qf) * v_inv_q;
+        v_float64x2 ze_lo = zero_d, ze_hi = zero_d;
+        if (parallax) {
+          v_float32x4 S, J;
+          v_load_deinterleave(sj + 2 * i, S, J);
+          ze_lo = ze2(v_cvt_f64(S), v_cvt_f64(J), v_load(weight_qx_.data() + i));
+          ze_hi = ze2(v_cvt_f64_high(S), v_cvt_f64_high(J), v_load(weight_qx_.data() + i + 2));
+        }
+        v_store(w + i, v_cvt_f32(weight2(zm_lo, zq_lo, ze_lo), weight2(zm_hi, zq_hi, ze_hi)));
+      }
+      if (v_check_any(flagged)) weight_map_has_outliers_ = true;
+    }
+#endif
+    for (; i < Wc; ++i) {
       const double zm = win[i] * inv_pixels(j, i) * inv_m, zq = w[i] * inv_q;
       double ze = 0.0;
       if (parallax && sj[2 * i + 1] > 0.0f) {
         // The plane's own tilt uncertainty changes the inverse depth along the ray q by (dmu . q) / (mu . q).
         const double J = sj[2 * i + 1];
-        const double qx = (2 * i + 0.5 - K.cx) / K.fx;
-        const double mq = mu(0) * qx + mu(1) * qy + mu(2);
-        const double q2 = qx * qx + qy * qy + 1.0;
+        const double qx = weight_qx_[i];
+        const double mq = mu(0) * qx + mu_qy + mu(2);
+        const double q2 = qx * qx + qy2 + 1.0;
         const double var_tilt = mq > 1e-3 ? var_mu * std::max(0.0, q2 - mq * mq) / (mq * mq) : 1e6;
         const double de = sj[2 * i] / J - e_ref;
         ze = de * de / std::max(tol2 + k2 * (var_corr / J + var_tilt), k2 * e_spread2);
@@ -1570,14 +1698,27 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
     for (int j = 0; j < Hc; ++j) {
       const float* w = weight_cell_w_.ptr<float>(j);
       float* rowmin = window(0, j);
-      for (int i = 0; i < Wc; ++i) row_has[j] = w[i] < kHigh ? 1.0f : row_has[j];
-      if (row_has[j] == 0.0f) continue;
-      for (int i = 0; i < Wc; ++i) {
+      bool low = false;
+      for (int i = 0; i < Wc; ++i) low = low || w[i] < kHigh;
+      row_has[j] = low ? 1.0f : 0.0f;
+      if (!low) continue;
+      // What each cell spreads (1 from kHigh up), then the minimum over the window (4 cells at a time inside
+      // the row, truncated at its ends). Plane 1 of weight_window_ is free by now.
+      float* sp = window(1, j);
+      for (int i = 0; i < Wc; ++i) sp[i] = spread(w[i]);
+      auto min_at = [&](int i) {
         float m = 1.0f;
-        for (int d = std::max(0, i - hc); d <= std::min(Wc - 1, i + hc); ++d)
-          if (w[d] < kHigh) m = std::min(m, spread(w[d]));
-        rowmin[i] = m;
+        for (int d = std::max(0, i - hc); d <= std::min(Wc - 1, i + hc); ++d) m = std::min(m, sp[d]);
+        return m;
+      };
+      int i = 0;
+      for (; i < std::min(hc, Wc); ++i) rowmin[i] = min_at(i);
+      for (; i + 4 + hc <= Wc; i += 4) {
+        cv::v_float32x4 m = cv::v_setall_f32(1.0f);
+        for (int d = -hc; d <= hc; ++d) m = cv::v_min(m, cv::v_load(sp + i + d));
+        cv::v_store(rowmin + i, m);
       }
+      for (; i < Wc; ++i) rowmin[i] = min_at(i);
     }
     for (int j = 0; j < Hc; ++j) {
       float* w = weight_cell_w_.ptr<float>(j);
