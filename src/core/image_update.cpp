@@ -6,6 +6,7 @@
 #include <sstream>
 
 #include <opencv2/core.hpp>
+#include <opencv2/core/hal/intrin.hpp>
 
 namespace diekf {
 namespace internal {
@@ -33,18 +34,33 @@ bool ImageUpdate::usable(const cv::Mat& gray8, std::string* why) const {
   int clipped = 0;
   for (int y = 0; y < gray8.rows; ++y) {
     const uint8_t* row = gray8.ptr<uint8_t>(y);
-    for (int x = 0; x < gray8.cols; ++x) clipped += (row[x] == 0 || row[x] == 255) ? 1 : 0;
+    int x = 0;
+    {
+      // 16 pixels at a time: a clipped pixel's lane is 0xFF in the mask, -1 as a signed byte, widened and
+      // summed in 32-bit lanes.
+      using namespace cv;
+      const v_uint8x16 black = v_setzero_u8(), white = v_setall_u8(255);
+      v_int32x4 count = v_setzero_s32();
+      for (; x + 16 <= gray8.cols; x += 16) {
+        const v_uint8x16 p = v_load(row + x);
+        v_int16x8 lo, hi;
+        v_expand(v_reinterpret_as_s8((p == black) | (p == white)), lo, hi);
+        count -= v_dotprod(lo + hi, v_setall_s16(1));
+      }
+      clipped += v_reduce_sum(count);
+    }
+    for (; x < gray8.cols; ++x) clipped += (row[x] == 0 || row[x] == 255) ? 1 : 0;
   }
   const double unclipped = total > 0 ? 1.0 - static_cast<double>(clipped) / total : 0.0;
+  if (unclipped >= params_.input.min_unclipped_ratio && stddev[0] >= params_.input.min_image_contrast_grey)
+    return true;
   std::ostringstream os;
   if (unclipped < params_.input.min_unclipped_ratio) {
     os << "image unusable: " << static_cast<int>(std::lround(100.0 * (1.0 - unclipped)))
        << " % of the pixels black or saturated (mean grey " << std::lround(mean[0]) << ")";
-  } else if (!(stddev[0] >= params_.input.min_image_contrast_grey)) {
+  } else {
     os << "image unusable: no texture (grey-level std " << stddev[0] << " below "
        << params_.input.min_image_contrast_grey << ")";
-  } else {
-    return true;
   }
   *why = os.str();
   return false;
