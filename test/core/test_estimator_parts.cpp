@@ -1,16 +1,19 @@
 // The parts of the estimator one at a time (docs/algorithm.md section 9): the stamp rule shared with the ROS
 // layer, the uncertainty of the derived quantities, the health monitor's status state machine and divergence
-// checks, the restart policy's priors, and the IMU propagator's interval bookkeeping.
+// checks, the restart policy's priors, the IMU propagator's interval bookkeeping and the image check.
 #include <gtest/gtest.h>
 
 #include <cmath>
 #include <string>
 
 #include "../../src/core/health_monitor.h"
+#include "../../src/core/image_update.h"
 #include "../../src/core/imu_propagator.h"
 #include "../../src/core/restart_policy.h"
+#include "diekf/image_preprocessor.h"
 #include "diekf/stamp_check.h"
 #include "diekf/state.h"
+#include "synthetic_flight.h"
 
 namespace diekf {
 namespace {
@@ -250,6 +253,37 @@ TEST(ImuPropagator, IntervalMeanGyroAndInterpolation) {
   UnitVector g;
   ASSERT_TRUE(imu.gravityFromAccel(0.6, &g));
   EXPECT_LT((g.vector() - Vec3(0.0, 0.0, 1.0)).norm(), 1e-12);
+}
+
+// ImageUpdate::usable counts black and saturated pixels 16 at a time and the rest of each row one by one: the
+// count is exact on both sides of input/min_unclipped_ratio, with clipped pixels in the blocks and in the tails.
+TEST(ImageCheck, ClippedFractionIsCountedExactly) {
+  const CameraModel cam = test_util::syntheticCamera();
+  EstimatorParams params;
+  params.input.min_unclipped_ratio = 0.25;
+  params.input.min_image_contrast_grey = 1.5;
+  const ImagePreprocessor pre(cam, params.preprocess);
+  const internal::ImageUpdate update(cam, params, pre);
+  // 37 x 10 pixels (370): 2 blocks of 16 and a tail of 5 per row. Textured mid-grey, then clipped pixels
+  // (alternately 0 and 255) in row-major order, so that they fill blocks and tails alike.
+  cv::Mat img(10, 37, CV_8UC1);
+  for (int y = 0; y < img.rows; ++y)
+    for (int x = 0; x < img.cols; ++x) img.at<uint8_t>(y, x) = static_cast<uint8_t>(60 + (x * 7 + y * 13) % 120);
+  const int total = img.rows * img.cols;
+  const int allowed = total - static_cast<int>(std::ceil(0.25 * total));  // most clipped pixels still usable
+  auto clip = [&](int n) {
+    cv::Mat m = img.clone();
+    for (int i = 0; i < n; ++i) m.at<uint8_t>(i / m.cols, i % m.cols) = (i % 2 == 0) ? 0 : 255;
+    return m;
+  };
+  std::string why;
+  EXPECT_TRUE(update.usable(clip(allowed), &why)) << why;
+  EXPECT_FALSE(update.usable(clip(allowed + 1), &why));
+  EXPECT_NE(why.find("black or saturated"), std::string::npos) << why;
+  // Uniform grey: no texture, with the reason.
+  why.clear();
+  EXPECT_FALSE(update.usable(cv::Mat(10, 37, CV_8UC1, cv::Scalar(128)), &why));
+  EXPECT_NE(why.find("no texture"), std::string::npos) << why;
 }
 
 }  // namespace
