@@ -1571,7 +1571,41 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
       const float* rx = ref_x_.ptr<float>(2 * j + 1);
       const float* ry = ref_y_.ptr<float>(2 * j + 1);
       float* sj = parallax_sums_.ptr<float>(j);
-      for (int i = 0; i < Wc; ++i) {
+      int i = 0;
+      {
+        // Four cells at a time: the centre pixels' reference positions are the odd lanes of 8 pixels; the
+        // previous sums (S, J) of the four cells they land in are gathered two cells per 64-bit load and
+        // regrouped by two zips; cells that land nowhere keep their own window sums (as below).
+        using namespace cv;
+        const v_float32x4 zero = v_setzero_f32(), half_px = v_setall_f32(0.5f), vdecay = v_setall_f32(fdecay);
+        const v_int32x4 last_i = v_setall_s32(Wc - 1), last_j = v_setall_s32(Hc - 1), zero_i = v_setzero_s32();
+        const float* prev0 = carry ? parallax_sums_prev_.ptr<float>(0) : nullptr;
+        const int prev_step = carry ? static_cast<int>(parallax_sums_prev_.step1()) : 0;
+        alignas(16) int32_t pi[4], pj[4];
+        for (; i + 4 <= Wc; i += 4) {
+          v_float32x4 S = v_load(win_ar + i), J = v_load(win_aa + i);
+          if (carry) {
+            v_float32x4 x_even, x, y_even, y;
+            v_load_deinterleave(rx + 2 * i, x_even, x);
+            v_load_deinterleave(ry + 2 * i, y_even, y);
+            const v_float32x4 lands = (x >= zero) & (y >= zero);
+            const v_int32x4 ok = v_reinterpret_as_s32(lands);
+            v_store_aligned(pi, v_select(ok, v_min(last_i, v_trunc(half_px * x)), zero_i));
+            v_store_aligned(pj, v_select(ok, v_min(last_j, v_trunc(half_px * y)), zero_i));
+            const float* q0 = prev0 + pj[0] * prev_step + 2 * pi[0];
+            const float* q1 = prev0 + pj[1] * prev_step + 2 * pi[1];
+            const float* q2 = prev0 + pj[2] * prev_step + 2 * pi[2];
+            const float* q3 = prev0 + pj[3] * prev_step + 2 * pi[3];
+            v_float32x4 z0, z1, Sp, Jp;
+            v_zip(v_load_halves(q0, q1), v_load_halves(q2, q3), z0, z1);
+            v_zip(z0, z1, Sp, Jp);
+            S = v_select(lands, S + vdecay * Sp, S);
+            J = v_select(lands, J + vdecay * Jp, J);
+          }
+          v_store_interleave(sj + 2 * i, S, J);
+        }
+      }
+      for (; i < Wc; ++i) {
         float S = win_ar[i], J = win_aa[i];
         if (carry) {
           const float x = rx[2 * i + 1], y = ry[2 * i + 1];
