@@ -1381,34 +1381,44 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
       float* out[kCh];
       for (int c = 0; c < kCh; ++c) {
         out[c] = cells(c, j);
-        std::fill(out[c], out[c] + Wp, 0.0f);
+        std::fill(out[c] + Wv, out[c] + Wp, 0.0f);  // the blocks of 4 cells store their sums whole
       }
-      for (int y = 2 * j; y < 2 * j + 2; ++y) {
-        const float* r = residual_.ptr<float>(y);
-        const float* a = depth_jac_.ptr<float>(y);
-        const float* gx = cur.grad_x.ptr<float>(y);
-        const float* gy = cur.grad_y.ptr<float>(y);
-        for (int i = 0; i < Wv; i += 4) {
+      const float* r[2] = {residual_.ptr<float>(2 * j), residual_.ptr<float>(2 * j + 1)};
+      const float* a[2] = {depth_jac_.ptr<float>(2 * j), depth_jac_.ptr<float>(2 * j + 1)};
+      const float* gx[2] = {cur.grad_x.ptr<float>(2 * j), cur.grad_x.ptr<float>(2 * j + 1)};
+      const float* gy[2] = {cur.grad_y.ptr<float>(2 * j), cur.grad_y.ptr<float>(2 * j + 1)};
+      for (int i = 0; i < Wv; i += 4) {
+        // The sums of both pixel rows in registers, in the order of a sum over rows from zero.
+        v_float32x4 acc[kCh];
+        for (int c = 0; c < kCh; ++c) acc[c] = zero;
+        for (int row = 0; row < 2; ++row) {
           v_float32x4 r0, r1, a0, a1, x0, x1, y0, y1;
-          v_load_deinterleave(r + 2 * i, r0, r1);
-          v_load_deinterleave(a + 2 * i, a0, a1);
-          v_load_deinterleave(gx + 2 * i, x0, x1);
-          v_load_deinterleave(gy + 2 * i, y0, y1);
-          const v_float32x4 m0 = r0 != zero, m1 = r1 != zero;
-          x0 = v_select(m0, x0, zero);
-          y0 = v_select(m0, y0, zero);
-          x1 = v_select(m1, x1, zero);
-          y1 = v_select(m1, y1, zero);
-          const v_float32x4 p[kCh] = {v_muladd(r0, r0, r1 * r1), v_muladd(x0, x0, x1 * x1), v_muladd(x0, y0, x1 * y1),
-                                      v_muladd(y0, y0, y1 * y1), v_muladd(x0, r0, x1 * r1), v_muladd(y0, r0, y1 * r1),
-                                      v_muladd(a0, a0, a1 * a1), v_muladd(a0, r0, a1 * r1)};
-          for (int c = 0; c < kCh; ++c) v_store(out[c] + i, v_load(out[c] + i) + p[c]);
+          v_load_deinterleave(r[row] + 2 * i, r0, r1);
+          v_load_deinterleave(a[row] + 2 * i, a0, a1);
+          v_load_deinterleave(gx[row] + 2 * i, x0, x1);
+          v_load_deinterleave(gy[row] + 2 * i, y0, y1);
+          const v_float32x4 m0 = r0 != zero, m1 = r1 != zero;  // (a mask and x = x where set, +0 elsewhere)
+          x0 = m0 & x0;
+          y0 = m0 & y0;
+          x1 = m1 & x1;
+          y1 = m1 & y1;
+          acc[0] = acc[0] + v_muladd(r0, r0, r1 * r1);
+          acc[1] = acc[1] + v_muladd(x0, x0, x1 * x1);
+          acc[2] = acc[2] + v_muladd(x0, y0, x1 * y1);
+          acc[3] = acc[3] + v_muladd(y0, y0, y1 * y1);
+          acc[4] = acc[4] + v_muladd(x0, r0, x1 * r1);
+          acc[5] = acc[5] + v_muladd(y0, r0, y1 * r1);
+          acc[6] = acc[6] + v_muladd(a0, a0, a1 * a1);
+          acc[7] = acc[7] + v_muladd(a0, r0, a1 * r1);
         }
+        for (int c = 0; c < kCh; ++c) v_store(out[c] + i, acc[c]);
+      }
+      for (int row = 0; row < 2; ++row) {
         for (int x = 2 * Wv; x < 2 * Wc; ++x) {
           const int i = x >> 1;
-          const float rv = r[x], av = a[x];
+          const float rv = r[row][x], av = a[row][x];
           const float m = rv != 0.0f ? 1.0f : 0.0f;
-          const float gxv = m * gx[x], gyv = m * gy[x];
+          const float gxv = m * gx[row][x], gyv = m * gy[row][x];
           out[0][i] += rv * rv;
           out[1][i] += gxv * gxv;
           out[2][i] += gxv * gyv;
