@@ -963,7 +963,6 @@ TEST(PhotometricOutliers, ARaisedBoxIsFoundOverTheImagesAndDownWeighted) {
   const test_util::PlaneTexture ground_texture(7);
   const int frames = 24;
   const test_util::CameraPose last = test_util::lookDownPose(Vec3(0.25, 0.0, 1.0), 0.2, 0.0);
-  const test_util::PlaneTruth truth = test_util::planeTruth(ground, last, v_W);
   std::vector<PreprocessedFrame> with_box, without_box;
   for (int j = 0; j < frames; ++j) {
     const double t = (j - (frames - 1)) * dt;
