@@ -5,7 +5,7 @@
 #include <cstddef>
 #include <vector>
 
-#include <opencv2/core/hal/intrin.hpp>
+#include "lanes.h"
 
 namespace diekf {
 namespace internal {
@@ -77,27 +77,11 @@ void cubicBSplineCoefficients(const cv::Mat& image, cv::Mat* coeff, std::vector<
       float* out[4] = {coeff->ptr<float>(y), coeff->ptr<float>(y + 1), coeff->ptr<float>(y + 2),
                        coeff->ptr<float>(y + 3)};
       float* b = block.data();
-      for (int x = 0; x < W4; x += 4) {
-        cv::v_float32x4 t0, t1, t2, t3;
-        cv::v_transpose4x4(cv::v_load(in[0] + x), cv::v_load(in[1] + x), cv::v_load(in[2] + x), cv::v_load(in[3] + x),
-                           t0, t1, t2, t3);
-        cv::v_store(b + 4 * x, t0);
-        cv::v_store(b + 4 * x + 4, t1);
-        cv::v_store(b + 4 * x + 8, t2);
-        cv::v_store(b + 4 * x + 12, t3);
-      }
+      rowsToLanes(in, W4, b);
       for (int x = W4; x < W; ++x)
         for (int l = 0; l < 4; ++l) b[4 * x + l] = in[l][x];
       filterSamples<4>(b, 4, W, 4);
-      for (int x = 0; x < W4; x += 4) {
-        cv::v_float32x4 r0, r1, r2, r3;
-        cv::v_transpose4x4(cv::v_load(b + 4 * x), cv::v_load(b + 4 * x + 4), cv::v_load(b + 4 * x + 8),
-                           cv::v_load(b + 4 * x + 12), r0, r1, r2, r3);
-        cv::v_store(out[0] + x, r0);
-        cv::v_store(out[1] + x, r1);
-        cv::v_store(out[2] + x, r2);
-        cv::v_store(out[3] + x, r3);
-      }
+      lanesToRows(b, W4, out);
       for (int x = W4; x < W; ++x)
         for (int l = 0; l < 4; ++l) out[l][x] = b[4 * x + l];
     }

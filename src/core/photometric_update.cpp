@@ -9,6 +9,7 @@
 
 #include "bspline.h"
 #include "gauss_newton.h"
+#include "lanes.h"
 #include "window_sum.h"
 
 // The sweep and the preprocessing are written with OpenCV's universal intrinsics. On 32-bit ARM, NEON is optional
@@ -1459,28 +1460,12 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
     int j = 0;
     for (; j + 4 <= Hc; j += 4) {
       float* r[4] = {window(c, j), window(c, j + 1), window(c, j + 2), window(c, j + 3)};
-      for (int i = 0; i < Wp; i += 4) {
-        v_float32x4 t0, t1, t2, t3;
-        cv::v_transpose4x4(cv::v_load(r[0] + i), cv::v_load(r[1] + i), cv::v_load(r[2] + i), cv::v_load(r[3] + i),
-                           t0, t1, t2, t3);
-        cv::v_store(lanes_in + 4 * i, t0);
-        cv::v_store(lanes_in + 4 * i + 4, t1);
-        cv::v_store(lanes_in + 4 * i + 8, t2);
-        cv::v_store(lanes_in + 4 * i + 12, t3);
-      }
+      internal::rowsToLanes(r, Wp, lanes_in);
       internal::windowSum(
           Wc, hc, [lanes_in](int k) { return cv::v_load(lanes_in + 4 * k); },
           [lanes_out](int i, const v_float32x4& v) { cv::v_store(lanes_out + 4 * i, v); }, cv::v_setzero_f32());
       std::fill(lanes_out + 4 * Wc, lanes_out + 4 * Wp, 0.0f);
-      for (int i = 0; i < Wp; i += 4) {
-        v_float32x4 o0, o1, o2, o3;
-        cv::v_transpose4x4(cv::v_load(lanes_out + 4 * i), cv::v_load(lanes_out + 4 * i + 4),
-                           cv::v_load(lanes_out + 4 * i + 8), cv::v_load(lanes_out + 4 * i + 12), o0, o1, o2, o3);
-        cv::v_store(r[0] + i, o0);
-        cv::v_store(r[1] + i, o1);
-        cv::v_store(r[2] + i, o2);
-        cv::v_store(r[3] + i, o3);
-      }
+      internal::lanesToRows(lanes_out, Wp, r);
     }
     for (; j < Hc; ++j) {
       std::copy(window(c, j), window(c, j) + Wp, colsum);  // (the column sums are not needed any more)
