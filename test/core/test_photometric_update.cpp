@@ -12,6 +12,7 @@
 
 #include "diekf/photometric_update.h"
 #include "two_view_scene.h"
+#include "../../src/core/lanes.h"
 #include "../../src/core/window_sum.h"
 
 namespace diekf {
@@ -1054,6 +1055,33 @@ TEST(OutlierWindowSums, EqualTheTruncatedWindowsAtEveryWidth) {
         for (int k = std::max(0, i - half); k <= std::min(n - 1, i + half); ++k) direct += in[static_cast<size_t>(k)];
         EXPECT_NEAR(out[static_cast<size_t>(i)], direct, 1e-4 * (1.0 + std::abs(direct)))
             << "n " << n << " half " << half << " i " << i;
+      }
+    }
+  }
+}
+
+TEST(OutlierWindowSums, FourRowsAsLanesGiveEachRowsSumsBitForBit) {
+  // updateWeightMap runs the window sums on four rows at once (internal::rowsToLanes, windowSum over vectors,
+  // lanesToRows): every row must get exactly what windowSumRow gives it alone.
+  std::mt19937 rng(6);
+  std::uniform_real_distribution<float> value(-2.0f, 3.0f);
+  for (int n : {4, 8, 36, 92}) {
+    for (int half : {0, 1, 2, 5, 50}) {
+      std::vector<float> rows(static_cast<size_t>(4 * n)), lanes(static_cast<size_t>(4 * n)),
+          sums(static_cast<size_t>(4 * n)), back(static_cast<size_t>(4 * n));
+      for (float& v : rows) v = value(rng);
+      const float* in[4] = {&rows[0], &rows[n], &rows[2 * n], &rows[3 * n]};
+      float* out[4] = {&back[0], &back[n], &back[2 * n], &back[3 * n]};
+      internal::rowsToLanes(in, n, lanes.data());
+      internal::windowSum(
+          n, half, [&](int k) { return cv::v_load(lanes.data() + 4 * k); },
+          [&](int i, const cv::v_float32x4& v) { cv::v_store(sums.data() + 4 * i, v); }, cv::v_setzero_f32());
+      internal::lanesToRows(sums.data(), n, out);
+      for (int l = 0; l < 4; ++l) {
+        std::vector<float> alone(static_cast<size_t>(n));
+        internal::windowSumRow(in[l], n, half, alone.data());
+        for (int i = 0; i < n; ++i)
+          EXPECT_EQ(out[l][i], alone[static_cast<size_t>(i)]) << "n " << n << " half " << half << " row " << l;
       }
     }
   }
