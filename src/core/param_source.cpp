@@ -252,20 +252,19 @@ Entry vec3(const std::string& key, std::function<Vec3&(EstimatorParams&)> field,
           }};
 }
 
-ImageStamp stampFromName(const std::string& origin, const std::string& key, const std::string& name) {
-  try {
-    return parseImageStamp(name);
-  } catch (const std::invalid_argument& e) {
-    failKey(origin, key, e.what());
-  }
-}
-
-UpdateMode modeFromName(const std::string& origin, const std::string& key, const std::string& name) {
-  try {
-    return parseUpdateMode(name);
-  } catch (const std::invalid_argument& e) {
-    failKey(origin, key, e.what());
-  }
+// A value named by a string (an enum): `parse` throws std::invalid_argument naming the accepted names, reported
+// with the key.
+template <class Enum, class Field>
+Entry named(const std::string& key, Field field, Enum (*parse)(const std::string&)) {
+  return {key, [=](const ParamSource& s, EstimatorParams& p) {
+            std::string name;
+            if (!s.get(key, &name)) return;
+            try {
+              field(p) = parse(name);
+            } catch (const std::invalid_argument& e) {
+              failKey(s.origin(), key, e.what());
+            }
+          }};
 }
 
 #define DIEKF_FIELD(type, expr) [](EstimatorParams& p) -> type& { return p.expr; }
@@ -273,10 +272,7 @@ UpdateMode modeFromName(const std::string& origin, const std::string& key, const
 const std::vector<Entry>& table() {
   static const std::vector<Entry> entries = [] {
     std::vector<Entry> t;
-    t.push_back({"mode", [](const ParamSource& s, EstimatorParams& p) {
-                   std::string name;
-                   if (s.get("mode", &name)) p.mode = modeFromName(s.origin(), "mode", name);
-                 }});
+    t.push_back(named("mode", DIEKF_FIELD(UpdateMode, mode), &parseUpdateMode));
     // init
     t.push_back(real("init/alpha0_inv_m", DIEKF_FIELD(double, init.alpha0_inv_m), positive(1e4)));
     t.push_back(vec3("init/vartheta0_inv_s", DIEKF_FIELD(Vec3, init.vartheta0_inv_s), false));
@@ -377,15 +373,8 @@ const std::vector<Entry>& table() {
                      between(0.0, 10.0)));
     t.push_back(real("photometric/parallax_time_constant_s",
                      DIEKF_FIELD(double, photometric.parallax_time_constant_s), between(0.0, 100.0)));
-    t.push_back({"photometric/brightness_model", [](const ParamSource& s, EstimatorParams& p) {
-                   std::string name;
-                   if (!s.get("photometric/brightness_model", &name)) return;
-                   try {
-                     p.photometric.brightness_model = parseBrightnessModel(name);
-                   } catch (const std::invalid_argument& e) {
-                     failKey(s.origin(), "photometric/brightness_model", e.what());
-                   }
-                 }});
+    t.push_back(named("photometric/brightness_model", DIEKF_FIELD(BrightnessModel, photometric.brightness_model),
+                      &parseBrightnessModel));
     // camera-fixed pattern (FixedPattern)
     t.push_back(flag("fixed_pattern/enabled", DIEKF_FIELD(bool, fixed_pattern.enabled)));
     t.push_back(real("fixed_pattern/decorrelation_px", DIEKF_FIELD(double, fixed_pattern.decorrelation_px),
@@ -465,10 +454,7 @@ const std::vector<Entry>& table() {
     t.push_back(flag("estimate_focal_scale", DIEKF_FIELD(bool, estimate_focal_scale)));
     t.push_back(flag("focal_scale_consider", DIEKF_FIELD(bool, focal_scale_consider)));
     t.push_back(real("max_focal_scale", DIEKF_FIELD(double, max_focal_scale), between(0.0, 0.5)));
-    t.push_back({"image_stamp", [](const ParamSource& s, EstimatorParams& p) {
-                   std::string name;
-                   if (s.get("image_stamp", &name)) p.image_stamp = stampFromName(s.origin(), "image_stamp", name);
-                 }});
+    t.push_back(named("image_stamp", DIEKF_FIELD(ImageStamp, image_stamp), &parseImageStamp));
     t.push_back(real("exposure_time_s", DIEKF_FIELD(double, exposure_time_s), between(0.0, 1.0)));
     return t;
   }();
