@@ -392,6 +392,15 @@ struct RowBuffers {
   float* wmap;    // outlier weights at the row's candidates (strided rows only)
 };
 
+/// The pairs (p[0], p[1]) at four addresses as two vectors, (p0[0], p1[0], p2[0], p3[0]) and (p0[1], ... p3[1]):
+/// two lanes per 64-bit load, regrouped by two zips.
+inline void loadPairs(const float* p0, const float* p1, const float* p2, const float* p3, cv::v_float32x4* first,
+                      cv::v_float32x4* second) {
+  cv::v_float32x4 z0, z1;
+  cv::v_zip(cv::v_load_halves(p0, p1), cv::v_load_halves(p2, p3), z0, z1);
+  cv::v_zip(z0, z1, *first, *second);
+}
+
 /// Gram sums of one block of pairs over a row: G[i][j] += sum_k T_i[k] T_j[k] for i in [I0, I0 + NI), j in
 /// [J0, J0 + NJ) (j >= i when kUpper). Compile-time bounds: the accumulators stay in registers.
 template <int I0, int NI, int J0, int NJ, bool kUpper>
@@ -665,8 +674,8 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
         // The reference pixel's outlier weight (1 without) times the current pixel's confidence.
         if (Wm != nullptr) wm = v_load(Wm + k);
         if (RW != nullptr) {
-          // The reference's outlier weights, bilinear at the same position: per lane the two pairs (x0, x0 + 1)
-          // of rows y0 and y0 + 1, two lanes per load, regrouped to one vector per corner by two zips.
+          // The reference's outlier weights, bilinear at the same position: per lane the pairs (x0, x0 + 1) of
+          // rows y0 and y0 + 1.
           if (same_stride) {
             v_store_aligned(widx, v_load_aligned(idx) + v_setall_s32(sC + 1));  // y0 sC + x0
           } else {
@@ -676,11 +685,9 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
           const float* p1 = RW + widx[1];
           const float* p2 = RW + widx[2];
           const float* p3 = RW + widx[3];
-          v_float32x4 z0, z1, q00, q01, q10, q11;
-          v_zip(v_load_halves(p0, p1), v_load_halves(p2, p3), z0, z1);
-          v_zip(z0, z1, q00, q01);
-          v_zip(v_load_halves(p0 + sW, p1 + sW), v_load_halves(p2 + sW, p3 + sW), z0, z1);
-          v_zip(z0, z1, q10, q11);
+          v_float32x4 q00, q01, q10, q11;
+          loadPairs(p0, p1, p2, p3, &q00, &q01);
+          loadPairs(p0 + sW, p1 + sW, p2 + sW, p3 + sW, &q10, &q11);
           const v_float32x4 bx = one - ax, by = one - ay;
           const v_float32x4 ref_w =
               v_muladd(ax * ay, q11, v_muladd(bx * ay, q10, v_muladd(ax * by, q01, (bx * by) * q00)));
@@ -1569,8 +1576,8 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
       int i = 0;
       {
         // Four cells at a time: the centre pixels' reference positions are the odd lanes of 8 pixels; the
-        // previous sums (S, J) of the four cells they land in are gathered two cells per 64-bit load and
-        // regrouped by two zips; cells that land nowhere keep their own window sums (as below).
+        // previous sums (S, J) of the four cells they land in are gathered as pairs; cells that land nowhere
+        // keep their own window sums (as below).
         using namespace cv;
         const v_float32x4 zero = v_setzero_f32(), half_px = v_setall_f32(0.5f), vdecay = v_setall_f32(fdecay);
         const v_int32x4 last_i = v_setall_s32(Wc - 1), last_j = v_setall_s32(Hc - 1), zero_i = v_setzero_s32();
@@ -1591,9 +1598,8 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
             const float* q1 = prev0 + pj[1] * prev_step + 2 * pi[1];
             const float* q2 = prev0 + pj[2] * prev_step + 2 * pi[2];
             const float* q3 = prev0 + pj[3] * prev_step + 2 * pi[3];
-            v_float32x4 z0, z1, Sp, Jp;
-            v_zip(v_load_halves(q0, q1), v_load_halves(q2, q3), z0, z1);
-            v_zip(z0, z1, Sp, Jp);
+            v_float32x4 Sp, Jp;
+            loadPairs(q0, q1, q2, q3, &Sp, &Jp);
             S = v_select(lands, S + vdecay * Sp, S);
             J = v_select(lands, J + vdecay * Jp, J);
           }
