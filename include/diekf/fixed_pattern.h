@@ -112,7 +112,8 @@ class FixedPattern {
   /// The detail's noise is measured against a snapshot once the two means share at most this correlation and the
   /// ground under them has moved by at least kMinSnapshotShiftWidths image widths (the centroids of their samples'
   /// ground positions): hovering, or flying a path again, the mean is of the same ground as the snapshot's, and
-  /// their difference says nothing of the ground structure left in both (the image's spread is used then)...
+  /// their difference says nothing of the ground structure left in both (the last measured noise, or else the
+  /// image's spread, is used then)...
   static constexpr double kMaxSnapshotCorrelation = 0.8;
   static constexpr double kMinSnapshotShiftWidths = 0.1;
   /// ...and a new snapshot is taken when the newest shares less than this correlation with the mean.
@@ -145,6 +146,7 @@ class FixedPattern {
   Snapshot snapshots_[2];        // two, so that one is old enough to compare with when the other was just taken
   int newest_ = 0;               // index of the newest snapshot
   double var_factor_ = 0.0;      // variance of the mean m1 per unit sample variance (sum of squared weights)
+  double detail_noise_per_sample_ = 0.0;  // the detail's noise per unit sample variance, last measured (0: never)
   Vec2 position_ = Vec2::Zero(); // the ground's accumulated translation through the image (working px)
   Vec2 centroid_ = Vec2::Zero(); // the mean's ground position: position_ averaged with the mean's weights
   double samples_ = 0.0;

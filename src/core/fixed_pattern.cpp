@@ -140,6 +140,7 @@ void FixedPattern::reset() {
   clearVignetting();
   samples_ = 0.0;
   var_factor_ = 0.0;
+  detail_noise_per_sample_ = 0.0;
   for (Snapshot& s : snapshots_) s.valid = false;
   newest_ = 0;
   position_ = Vec2::Zero();
@@ -445,9 +446,14 @@ void FixedPattern::refresh() {
     const float* snap = s.detail.ptr<float>();
     const float med = sampleMedian([&](int i) { return dt[i] - snap[i]; });
     const float spread = 1.4826f * sampleMedian([&](int i) { return std::abs(dt[i] - snap[i] - med); });
-    bulk_dt = std::min(bulk_dt, static_cast<float>(spread * std::sqrt(var_factor_ / vd)));
+    detail_noise_per_sample_ = spread / std::sqrt(vd);
     break;
   }
+  // Between two such measurements (a new snapshot not yet far enough from the mean, or flying back over the same
+  // ground), the last measured noise of one sample, scaled to the mean's variance now: the ground's detail is
+  // still as noisy per sample, and the spatial spread would count the dots as noise again.
+  if (detail_noise_per_sample_ > 0.0)
+    bulk_dt = std::min(bulk_dt, static_cast<float>(detail_noise_per_sample_ * std::sqrt(var_factor_)));
   if (correlation(snapshots_[newest_]) < kSnapshotRenewCorrelation) takeSnapshot();
   const float bulk_s = 1.4826f * sampleMedian([&](int i) { return std::abs(a[i] * inv_S - 1.f); });
   const float k = static_cast<float>(params_.significance_sigma);
