@@ -26,6 +26,8 @@ struct FrameResult {
   double t_s = 0.0;                  ///< the image's time on the IMU clock (stamp + timeshift + stamp convention + estimated offset), s
   double stamp_s = 0.0;              ///< the image's stamp as given to addImage, s
   State state;                       ///< posterior state
+  /// Covariance of the posterior state: the filter's, plus the plane's ambiguity over a scene that is not one
+  /// plane along the scale direction of (alpha, vartheta) (relief_sigma; photometric/relief_in_covariance).
   ErrorCov covariance = ErrorCov::Zero();
   FilterStatus status = FilterStatus::kInitializing;
   bool update_applied = false;       ///< false for the first frame after (re)start or a skipped update
@@ -41,6 +43,10 @@ struct FrameResult {
   double gate_inflation = 1.0;       ///< noise inflation applied by the innovation gate (1: passed)
   double outlier_fraction = 0.0;     ///< share of the pixels' weight removed by the outlier weights and the
                                      ///< fixed pattern's confidence (0..1)
+  /// Relative 1-sigma of the plane's distance over a scene that is not one plane (boxes, plants, movers), from
+  /// the spread of the inverse depth about the plane beyond noise, smoothed (docs/noise_model.md section 13); in
+  /// `covariance` when photometric/relief_in_covariance. 0: a plane, or not measured.
+  double relief_sigma = 0.0;
   bool fixed_pattern_active = false; ///< the camera-fixed pattern model corrects the images (start-up done)
   double fixed_pattern_fraction = 0.0;  ///< share of the image under a strong camera-fixed pattern (0..1)
   double fixed_pattern_contrast_share = 0.0;  ///< the learned pattern's share of the image's gradient energy (0..1)

@@ -110,6 +110,11 @@ struct PhotometricParams {
   /// dominant plane's by this relative amount gets half weight (twice as much: 6 %); it is not the ground; 0 = off.
   double parallax_tolerance = 0.05;
   double parallax_time_constant_s = 0.5;        ///< memory of that measurement over the images, s
+  /// The scene's spread of inverse depth about the plane beyond noise (UpdateStats::relief_var, smoothed over
+  /// noise_time_constant_s) is added to the reported covariance along the scale direction of (alpha, vartheta):
+  /// over boxes, plants or movers the images define "the plane" only to that relative accuracy. The filter's own
+  /// covariance is not changed (docs/noise_model.md section 13).
+  bool relief_in_covariance = true;
   /// Brightness change of the pair (docs/noise_model.md section 12): kNormalised compares the images as they are
   /// (each standardised to zero mean and unit variance on its own); kGain compares the current image with g I_r and kAffine with g I_r + o, the
   /// pair's gain g (and offset o) estimated in the update's Gauss-Newton passes and marginalised from the

@@ -30,6 +30,10 @@ struct UpdateStats {
   double nis_scale = 1.0;        ///< innovation-based noise inflation used in this update (>= 1)
   double gate_inflation = 1.0;   ///< factor the measurement noise was inflated by at the gate (1: passed)
   double outlier_fraction = 0.0; ///< share of the valid pixels' weight removed by the outlier weights (0..1)
+  /// Variance of the scene's inverse depth relative to the plane (relative units, squared) over the image the
+  /// outlier weights were made for, beyond what noise and the normal's uncertainty explain: how far the scene is
+  /// from one plane (boxes, plants, movers; docs/noise_model.md section 13). 0 without parallax sums.
+  double relief_var = 0.0;
   bool gated = false;            ///< the innovation failed the gate: the update was down-weighted
   /// Brightness change of the pair (PhotometricParams::brightness_model): the current image is modelled as
   /// brightness_gain I_r + brightness_offset (normalised units); 1 and 0 when not estimated.
@@ -200,6 +204,9 @@ class PhotometricUpdate {
   /// the per-pixel noise variance (section 2).
   void updateWeightMap(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PinholeK& K, const State& x,
                        double var_mu, double dt_s, double variance);
+  /// UpdateStats::relief_var from the parallax sums and the weights of the map just made (mu: the normal after the
+  /// update, var_mu its variance per tangent axis; var_corr: the variance of e times J).
+  double reliefVariance(const PinholeK& K, const Vec3& mu, double var_mu, double var_corr) const;
   /// The outlier weights (and the parallax sums) of the last updateWeightMap belong to the pixels of `ref`.
   bool weightsBelongTo(const PreprocessedFrame& ref) const {
     return !weight_map_.empty() && weight_map_.size() == ref.intensity.size() && weight_map_t_s_ == ref.t_s;
@@ -236,6 +243,7 @@ class PhotometricUpdate {
   bool report_image_vartheta_ = false;
   const cv::Mat* active_map_ = nullptr;  ///< the weights the sweeps of the current update use (null: none)
   bool weight_map_has_outliers_ = false;  ///< some weight of weight_map_ is below 1
+  double relief_var_ = 0.0;               ///< reliefVariance() of the last map (0: none)
   double weight_map_t_s_ = 0.0;           ///< stamp of the image weight_map_'s pixels (and parallax_sums_) belong to
   Vec3 last_rate_C_ = Vec3::Zero();  ///< rotation rate of the previous update's interval, rad/s (camera frame)
   bool last_rate_valid_ = false;

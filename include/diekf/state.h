@@ -48,5 +48,9 @@ double relativeSigmaDistance(const State& x, const ErrorCov& P);
 Mat3 velocityCovariance(const State& x, const ErrorCov& P);
 /// 1-sigma of each velocity axis (C frame), m/s.
 Vec3 sigmaVelocity_mps(const State& x, const ErrorCov& P);
+/// Adds a relative uncertainty of the scale, variance `relative_var`, to P: alpha and vartheta off by the same
+/// relative amount (the distance to which layer of a scene that is not one plane; docs/noise_model.md section 13).
+/// The distance's relative variance grows by relative_var, the velocity v = vartheta / alpha is unchanged.
+void addScaleAmbiguity(const State& x, double relative_var, ErrorCov* P);
 
 }  // namespace diekf

@@ -123,6 +123,8 @@ struct Estimator::Impl {
     health.startRun();
     skip_reason.clear();
     update.resetNoiseModel();
+    relief_var = 0.0;
+    relief_t_s = -1.0;
     scale_init.reset();
     if (!params.init.scale_batch) scale_init.finish();
   }
@@ -291,6 +293,8 @@ struct Estimator::Impl {
     const auto t1 = std::chrono::steady_clock::now();
     r.update_ms = img.resample_ms + std::chrono::duration<double, std::milli>(t1 - t0).count();
     fillStats(stats, &r);
+    if (stats.applied) smoothReliefVariance(stats.relief_var, img.t_s);
+    r.relief_sigma = std::sqrt(relief_var);
     r.fixed_pattern_active = fixed_pattern.active();
     r.fixed_pattern_fraction = fixed_pattern.strongFraction();
     r.fixed_pattern_contrast_share = fixed_pattern.contrastShare();
@@ -340,12 +344,21 @@ struct Estimator::Impl {
                     "%sfixed pattern (projector, shadow, dirt?) on %.0f %% of the image, %.0f %% of its contrast",
                     used > 0 ? "; " : "", 100.0 * r.fixed_pattern_fraction, 100.0 * r.fixed_pattern_contrast_share);
     }
+    if (params.photometric.parallax_tolerance > 0.0 && r.relief_sigma >= params.photometric.parallax_tolerance) {
+      // The scene is not one plane (section 13): say by how much the distance is uncertain for it.
+      const size_t used = std::strlen(msg);
+      std::snprintf(msg + used, sizeof(msg) - used,
+                    "%sscene not one plane (boxes, plants, movers?): distance uncertain by %.0f %% for it",
+                    used > 0 ? "; " : "", 100.0 * r.relief_sigma);
+    }
     if (r.status == FilterStatus::kTracking && stats.applied && health.badFrames() == 0)
       restarts.rememberGood(img.t_s, x);
 
     // Result.
     r.state = x;
     r.covariance = P;
+    // The distance to which layer of a scene that is not one plane (section 13 of docs/noise_model.md).
+    if (params.photometric.relief_in_covariance) addScaleAmbiguity(x, relief_var, &r.covariance);
     r.resets = restarts.count();
     // Into a ring slot (the oldest unread result is dropped when full), reusing the slot's string buffers.
     FrameResult& slot = results.emplaceSlot();
@@ -354,6 +367,20 @@ struct Estimator::Impl {
     r.last_reset_reason.swap(slot.last_reset_reason);
     r.last_reset_reason.assign(restarts.lastReason());
     slot = std::move(r);
+  }
+
+  /// The scene's relief variance (UpdateStats::relief_var) smoothed like the noise estimates (time constant
+  /// photometric/noise_time_constant_s; the first after a start taken as it is).
+  void smoothReliefVariance(double frame_var, double t_s) {
+    if (!std::isfinite(frame_var)) return;
+    const double tau = params.photometric.noise_time_constant_s;
+    if (relief_t_s < 0.0 || !(tau > 0.0)) {
+      relief_var = frame_var;
+    } else {
+      const double a = 1.0 - std::exp(-std::max(0.0, t_s - relief_t_s) / tau);
+      relief_var += a * (frame_var - relief_var);
+    }
+    relief_t_s = t_s;
   }
 
   static void fillStats(const UpdateStats& stats, FrameResult* r) {
@@ -422,6 +449,8 @@ struct Estimator::Impl {
   cv::Mat grey_scratch;              // colour or 16-bit input converted to 8-bit grey (reused buffer)
   FixedPattern fixed_pattern;        // camera-fixed gain and offset fields (docs/noise_model.md section 11)
   double discounted_share = 0.0;     // the pattern's contrast share the covariance allows for (discountPattern...)
+  double relief_var = 0.0;           // smoothed relief variance of the scene (smoothReliefVariance), relative^2
+  double relief_t_s = -1.0;          // time of its last update (< 0: none since the start)
   bool pattern_named = false;        // the status has named the dominant pattern in view
   internal::ImuPropagator imu;       // filtered samples, state time, prediction
   internal::ImageUpdate update;      // update from an image pair

@@ -1346,6 +1346,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
                                                 : params_.intensity_noise_sigma * params_.intensity_noise_sigma;
     const double var_mu = 0.5 * (P->block<2, 2>(ErrIdx::kMu, ErrIdx::kMu).trace());
     updateWeightMap(ref, cur, K, *x, var_mu, dt_s, std::max(var, floor_var));
+    stats.relief_var = relief_var_;
   }
   return stats;
 }
@@ -1355,6 +1356,7 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
                                         double dt_s, double variance) {
   const double k = params_.outlier_threshold_sigma;
   weight_map_has_outliers_ = false;
+  relief_var_ = 0.0;
   // The previous call's parallax sums carry over when this pair's reference is the image they belong to (an
   // early return or a reset releases the map, and with it the sums' validity).
   const bool previous_sums = weightsBelongTo(ref);
@@ -1764,6 +1766,7 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
       }
     }
   }
+  if (parallax) relief_var_ = reliefVariance(K, mu, var_mu, var_corr);
   // The cells' weights to the pixels (the odd last row and column take their neighbours').
   for (int y = 0; y < H; ++y) {
     float* w = weight_map_.ptr<float>(y);
@@ -1776,6 +1779,38 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
     for (int i = 0; i < Wc; ++i) w[2 * i] = w[2 * i + 1] = wc[i];
     for (int x = 2 * Wc; x < W; ++x) w[x] = wc[Wc - 1];
   }
+}
+
+double PhotometricUpdate::reliefVariance(const PinholeK& K, const Vec3& mu, double var_mu, double var_corr) const {
+  // Over the cells with parallax sums, weighted by the weight each keeps times its information J about e (what
+  // the update's estimate of the plane leans on): the spread of e = S / J about its weighted mean, less what the
+  // noise of e (var_corr / J) and the normal's tilt uncertainty along the ray (var_tilt) explain
+  // (docs/noise_model.md section 13). Sums: u = w J, u e = w S, u e^2 = w S^2 / J.
+  const int Hc = weight_cell_w_.rows, Wc = weight_cell_w_.cols;
+  double su = 0.0, sue = 0.0, sue2 = 0.0, sw = 0.0, sut = 0.0;
+  for (int j = 0; j < Hc; ++j) {
+    const float* sj = parallax_sums_.ptr<float>(j);
+    const float* w = weight_cell_w_.ptr<float>(j);
+    const double qy = (2 * j + 0.5 - K.cy) / K.fy;
+    const double mu_qy = mu(1) * qy + mu(2), qy2 = qy * qy + 1.0;
+    for (int i = 0; i < Wc; ++i) {
+      const double J = sj[2 * i + 1];
+      if (!(J > 0.0)) continue;
+      const double S = sj[2 * i], wi = w[i];
+      const double qx = weight_qx_[static_cast<size_t>(i)];
+      const double mq = mu(0) * qx + mu_qy;
+      const double var_tilt = mq > 1e-3 ? var_mu * std::max(0.0, qx * qx + qy2 - mq * mq) / (mq * mq) : 0.0;
+      su += wi * J;
+      sue += wi * S;
+      sue2 += wi * S * S / J;
+      sw += wi;
+      sut += wi * J * var_tilt;
+    }
+  }
+  if (!(su > 0.0)) return 0.0;
+  const double mean = sue / su;
+  const double excess = sue2 / su - mean * mean - (var_corr * sw + sut) / su;
+  return std::isfinite(excess) ? std::max(0.0, excess) : 0.0;
 }
 
 }  // namespace diekf

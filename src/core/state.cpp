@@ -69,4 +69,12 @@ Vec3 sigmaVelocity_mps(const State& x, const ErrorCov& P) {
   return velocityCovariance(x, P).diagonal().cwiseMax(0.0).cwiseSqrt();
 }
 
+void addScaleAmbiguity(const State& x, double relative_var, ErrorCov* P) {
+  if (!(relative_var > 0.0)) return;
+  ErrorVec g = ErrorVec::Zero();
+  g(ErrIdx::kAlpha) = x.alpha;
+  g.segment<3>(ErrIdx::kVartheta) = x.vartheta;
+  P->noalias() += relative_var * g * g.transpose();
+}
+
 }  // namespace diekf

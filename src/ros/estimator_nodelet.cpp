@@ -827,6 +827,7 @@ void EstimatorNodelet::publishResult(const diekf::FrameResult& r) {
     last_noise_correlation_ = r.noise_correlation;
     if (r.gate_inflation > 1.0) ++gated_updates_;
     last_outlier_fraction_ = r.outlier_fraction;
+    last_relief_pct_ = 1e2 * r.relief_sigma;
     last_brightness_gain_ = r.brightness_gain;
     last_brightness_offset_ = r.brightness_offset;
     last_fixed_pattern_fraction_ = r.fixed_pattern_fraction;
@@ -892,6 +893,7 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
   stat.add("photometric noise sigma (normalised intensity)", last_noise_sigma_);
   stat.add("pixels per independent measurement", last_noise_correlation_);
   stat.add("outlier weight removed (share of the image)", last_outlier_fraction_);
+  stat.add("scene relief about the plane (distance 1-sigma added, %)", last_relief_pct_);
   if (params_.photometric.brightness_model != diekf::BrightnessModel::kNormalised) {
     stat.add("brightness model of the pair", diekf::toString(params_.photometric.brightness_model));
     stat.add("last pair's brightness gain", last_brightness_gain_);

@@ -336,7 +336,7 @@ int run(const RunnerOptions& o) {
     frames.open(out_dir / "frames.csv");
     if (!frames) throw RunError("cannot write " + (out_dir / "frames.csv").string());
     frames << "t,applied,passes,photometric_rms,valid_ratio,nis,noise_sigma,noise_correlation,nis_scale,gate_inflation,outlier_fraction,time_offset_ms,sigma_time_offset_ms,readout_ms,sigma_readout_ms,focal_scale_pct,sigma_focal_scale_pct,"
-              "fixed_pattern_active,fixed_pattern_fraction,fixed_pattern_contrast_share,brightness_gain,brightness_offset,status,message\n";
+              "fixed_pattern_active,fixed_pattern_fraction,fixed_pattern_contrast_share,brightness_gain,brightness_offset,relief_pct,status,message\n";
     frames.precision(12);
   }
   std::vector<diekf::eval::EstimateRow> rows;
@@ -360,7 +360,7 @@ int run(const RunnerOptions& o) {
                << 1e2 * std::sqrt(std::max(0.0, result.covariance(diekf::ErrIdx::kFs, diekf::ErrIdx::kFs))) << ','
                << (result.fixed_pattern_active ? 1 : 0) << ',' << result.fixed_pattern_fraction << ','
                << result.fixed_pattern_contrast_share << ',' << result.brightness_gain << ','
-               << result.brightness_offset << ','
+               << result.brightness_offset << ',' << 1e2 * result.relief_sigma << ','
                << diekf::toString(result.status) << ',' << msg << '\n';
       }
       if (keep_rows) {

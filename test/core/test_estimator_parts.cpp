@@ -73,6 +73,28 @@ TEST(DerivedUncertainty, MatchesFiniteDifferences) {
   EXPECT_LT((sigmaVelocity_mps(x, P) - C_fd.diagonal().cwiseSqrt()).cwiseAbs().maxCoeff(), 1e-8);
 }
 
+// The plane's ambiguity over a scene that is not one plane: the distance's relative variance grows by the given
+// amount, the velocity's covariance and the other states' are unchanged.
+TEST(DerivedUncertainty, ScaleAmbiguityWidensTheDistanceNotTheVelocity) {
+  const State x = sampleState();
+  const ErrorCov P = sampleCovariance();
+  ErrorCov Q = P;
+  const double relative_var = 0.05 * 0.05;
+  addScaleAmbiguity(x, relative_var, &Q);
+  EXPECT_NEAR(relativeSigmaDistance(x, Q) * relativeSigmaDistance(x, Q),
+              relativeSigmaDistance(x, P) * relativeSigmaDistance(x, P) + relative_var, 1e-12);
+  EXPECT_LT((velocityCovariance(x, Q) - velocityCovariance(x, P)).cwiseAbs().maxCoeff(), 1e-15);
+  const ErrorCov D = Q - P;
+  constexpr int kRest = kErrorDim - 4;  // the states after alpha and vartheta
+  const double changed = D.topLeftCorner<4, 4>().cwiseAbs().maxCoeff();
+  const double rest = D.bottomRightCorner<kRest, kRest>().cwiseAbs().maxCoeff();
+  EXPECT_GT(changed, 1e-6);
+  EXPECT_EQ(rest, 0.0);
+  ErrorCov R = P;
+  addScaleAmbiguity(x, 0.0, &R);
+  EXPECT_EQ((R - P).cwiseAbs().maxCoeff(), 0.0);
+}
+
 FilterStatus frame(HealthMonitor* m, double t_s, const State& x, const ErrorCov& P, std::string* msg,
                    const std::string& reset_here = "") {
   static const std::string empty;

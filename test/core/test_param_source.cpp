@@ -92,6 +92,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          ha.rotation_scale_sigma == hb.rotation_scale_sigma && ha.time_offset_sigma_s == hb.time_offset_sigma_s &&
          ha.outlier_threshold_sigma == hb.outlier_threshold_sigma && ha.outlier_window_fraction == hb.outlier_window_fraction &&
          ha.parallax_tolerance == hb.parallax_tolerance && ha.parallax_time_constant_s == hb.parallax_time_constant_s &&
+         ha.relief_in_covariance == hb.relief_in_covariance &&
          ha.brightness_model == hb.brightness_model &&
          da.max_step_sigma == db.max_step_sigma && da.degraded_hold_s == db.degraded_hold_s &&
          da.max_nis_ratio == db.max_nis_ratio && a.input.gap_accel_sigma_mps2 == b.input.gap_accel_sigma_mps2 &&
