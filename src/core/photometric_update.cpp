@@ -1786,25 +1786,60 @@ double PhotometricUpdate::reliefVariance(const PinholeK& K, const Vec3& mu, doub
   // the update's estimate of the plane leans on): the spread of e = S / J about its weighted mean, less what the
   // noise of e (var_corr / J) and the normal's tilt uncertainty along the ray (var_tilt) explain
   // (docs/noise_model.md section 13). Sums: u = w J, u e = w S, u e^2 = w S^2 / J.
+  // Four cells at a time in float (each row's sums, then into double), the rest one at a time.
   const int Hc = weight_cell_w_.rows, Wc = weight_cell_w_.cols;
+  const float mu0 = static_cast<float>(mu(0)), vmu = static_cast<float>(var_mu);
+  const float qx_step = static_cast<float>(2.0 / K.fx), qx0 = static_cast<float>((0.5 - K.cx) / K.fx);
   double su = 0.0, sue = 0.0, sue2 = 0.0, sw = 0.0, sut = 0.0;
   for (int j = 0; j < Hc; ++j) {
     const float* sj = parallax_sums_.ptr<float>(j);
     const float* w = weight_cell_w_.ptr<float>(j);
-    const double qy = (2 * j + 0.5 - K.cy) / K.fy;
-    const double mu_qy = mu(1) * qy + mu(2), qy2 = qy * qy + 1.0;
-    for (int i = 0; i < Wc; ++i) {
-      const double J = sj[2 * i + 1];
-      if (!(J > 0.0)) continue;
-      const double S = sj[2 * i], wi = w[i];
-      const double qx = weight_qx_[static_cast<size_t>(i)];
-      const double mq = mu(0) * qx + mu_qy;
-      const double var_tilt = mq > 1e-3 ? var_mu * std::max(0.0, qx * qx + qy2 - mq * mq) / (mq * mq) : 0.0;
+    const float qy = static_cast<float>((2 * j + 0.5 - K.cy) / K.fy);
+    const float mu_qy = static_cast<float>(mu(1)) * qy + static_cast<float>(mu(2)), qy2 = qy * qy + 1.0f;
+    // The normal's tilt uncertainty along the ray q = (qx, qy, 1): var_mu (|q|^2 - (mu . q)^2) / (mu . q)^2.
+    const auto tilt = [&](float qx) {
+      const float mq = mu0 * qx + mu_qy;
+      return mq > 1e-3f ? vmu * std::max(0.0f, qx * qx + qy2 - mq * mq) / (mq * mq) : 0.0f;
+    };
+    int i = 0;
+    {
+      using namespace cv;
+      const v_float32x4 zero = v_setzero_f32(), one = v_setall_f32(1.0f), v_min_mq = v_setall_f32(1e-3f);
+      const v_float32x4 v_mu0 = v_setall_f32(mu0), v_mu_qy = v_setall_f32(mu_qy), v_qy2 = v_setall_f32(qy2);
+      const v_float32x4 v_vmu = v_setall_f32(vmu), v_step4 = v_setall_f32(4.0f * qx_step);
+      v_float32x4 qx(qx0, qx0 + qx_step, qx0 + 2.0f * qx_step, qx0 + 3.0f * qx_step);
+      v_float32x4 a_u = zero, a_ue = zero, a_ue2 = zero, a_w = zero, a_ut = zero;
+      for (; i + 4 <= Wc; i += 4, qx += v_step4) {
+        v_float32x4 S, J;
+        v_load_deinterleave(sj + 2 * i, S, J);
+        const v_float32x4 valid = J > zero;
+        const v_float32x4 wv = v_select(valid, v_load(w + i), zero), Js = v_select(valid, J, one);
+        const v_float32x4 u = wv * J, mq = v_mu0 * qx + v_mu_qy, mq2 = mq * mq;
+        const v_float32x4 spread = qx * qx + v_qy2 - mq2;
+        const v_float32x4 var_t =
+            v_select(mq > v_min_mq, v_vmu * v_select(spread > zero, spread, zero) / v_select(mq > v_min_mq, mq2, one),
+                     zero);
+        a_u += u;
+        a_ue += wv * S;
+        a_ue2 += wv * S * S / Js;
+        a_w += wv;
+        a_ut += u * var_t;
+      }
+      su += v_reduce_sum(a_u);
+      sue += v_reduce_sum(a_ue);
+      sue2 += v_reduce_sum(a_ue2);
+      sw += v_reduce_sum(a_w);
+      sut += v_reduce_sum(a_ut);
+    }
+    for (; i < Wc; ++i) {
+      const float J = sj[2 * i + 1];
+      if (!(J > 0.0f)) continue;
+      const float S = sj[2 * i], wi = w[i];
       su += wi * J;
       sue += wi * S;
       sue2 += wi * S * S / J;
       sw += wi;
-      sut += wi * J * var_tilt;
+      sut += wi * J * tilt(qx0 + qx_step * static_cast<float>(i));
     }
   }
   if (!(su > 0.0)) return 0.0;
