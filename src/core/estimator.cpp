@@ -345,10 +345,12 @@ struct Estimator::Impl {
                     used > 0 ? "; " : "", 100.0 * r.fixed_pattern_fraction, 100.0 * r.fixed_pattern_contrast_share);
     }
     if (params.photometric.parallax_tolerance > 0.0 && r.relief_sigma >= params.photometric.parallax_tolerance) {
-      // The scene is not one plane (section 13): say by how much the distance is uncertain for it.
+      // The image's motion is not one plane's (section 13): relief, movers, or a state still settling after a
+      // start (its error varies the inverse depth over the image too). Say by how much the distance is uncertain.
       const size_t used = std::strlen(msg);
       std::snprintf(msg + used, sizeof(msg) - used,
-                    "%sscene not one plane (boxes, plants, movers?): distance uncertain by %.0f %% for it",
+                    "%simage motion not one plane's (relief, movers, or settling): distance uncertain by %.0f %% "
+                    "for it",
                     used > 0 ? "; " : "", 100.0 * r.relief_sigma);
     }
     if (r.status == FilterStatus::kTracking && stats.applied && health.badFrames() == 0)
