@@ -32,7 +32,9 @@ struct UpdateStats {
   double outlier_fraction = 0.0; ///< share of the valid pixels' weight removed by the outlier weights (0..1)
   /// Variance of the scene's inverse depth relative to the plane (relative units, squared) over the image the
   /// outlier weights were made for, beyond what noise and the normal's uncertainty explain: how far the scene is
-  /// from one plane (boxes, plants, movers; docs/noise_model.md section 13). 0 without parallax sums.
+  /// from one plane (boxes, plants, movers; docs/noise_model.md section 13). Smoothed over the updates like the
+  /// noise estimates (photometric/noise_time_constant_s; the first after a reset as it is); 0 without parallax
+  /// sums.
   double relief_var = 0.0;
   bool gated = false;            ///< the innovation failed the gate: the update was down-weighted
   /// Brightness change of the pair (PhotometricParams::brightness_model): the current image is modelled as
@@ -190,6 +192,8 @@ class PhotometricUpdate {
     double variance = 0.0;     ///< per-pixel residual variance, normalised units^2
     double correlation = 1.0;  ///< pixels per independent measurement
     double nis_scale = 1.0;    ///< innovation-based inflation (>= 1): E[NIS] = 8 when consistent
+    bool relief_valid = false;
+    double relief_var = 0.0;   ///< the scene's relief variance (reliefVariance), smoothed like the variance
   };
   /// `m_rows` (stateRateMap), `timing` and the readout time `readout_s` only for a rolling shutter;
   /// `brightness` = (gain, offset) of the pair's brightness model (used unless brightness_model is kNormalised).
@@ -243,7 +247,7 @@ class PhotometricUpdate {
   bool report_image_vartheta_ = false;
   const cv::Mat* active_map_ = nullptr;  ///< the weights the sweeps of the current update use (null: none)
   bool weight_map_has_outliers_ = false;  ///< some weight of weight_map_ is below 1
-  double relief_var_ = 0.0;               ///< reliefVariance() of the last map (0: none)
+  double relief_var_ = 0.0;               ///< reliefVariance() of the last map (0: none), not smoothed
   double weight_map_t_s_ = 0.0;           ///< stamp of the image weight_map_'s pixels (and parallax_sums_) belong to
   Vec3 last_rate_C_ = Vec3::Zero();  ///< rotation rate of the previous update's interval, rad/s (camera frame)
   bool last_rate_valid_ = false;

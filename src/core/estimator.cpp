@@ -124,7 +124,6 @@ struct Estimator::Impl {
     skip_reason.clear();
     update.resetNoiseModel();
     relief_var = 0.0;
-    relief_t_s = -1.0;
     scale_init.reset();
     if (!params.init.scale_batch) scale_init.finish();
   }
@@ -293,7 +292,7 @@ struct Estimator::Impl {
     const auto t1 = std::chrono::steady_clock::now();
     r.update_ms = img.resample_ms + std::chrono::duration<double, std::milli>(t1 - t0).count();
     fillStats(stats, &r);
-    if (stats.applied) smoothReliefVariance(stats.relief_var, img.t_s);
+    if (stats.applied && std::isfinite(stats.relief_var)) relief_var = stats.relief_var;  // (kept when not)
     r.relief_sigma = std::sqrt(relief_var);
     r.fixed_pattern_active = fixed_pattern.active();
     r.fixed_pattern_fraction = fixed_pattern.strongFraction();
@@ -371,20 +370,6 @@ struct Estimator::Impl {
     slot = std::move(r);
   }
 
-  /// The scene's relief variance (UpdateStats::relief_var) smoothed like the noise estimates (time constant
-  /// photometric/noise_time_constant_s; the first after a start taken as it is).
-  void smoothReliefVariance(double frame_var, double t_s) {
-    if (!std::isfinite(frame_var)) return;
-    const double tau = params.photometric.noise_time_constant_s;
-    if (relief_t_s < 0.0 || !(tau > 0.0)) {
-      relief_var = frame_var;
-    } else {
-      const double a = 1.0 - std::exp(-std::max(0.0, t_s - relief_t_s) / tau);
-      relief_var += a * (frame_var - relief_var);
-    }
-    relief_t_s = t_s;
-  }
-
   static void fillStats(const UpdateStats& stats, FrameResult* r) {
     r->update_applied = stats.applied;
     r->passes = stats.passes;
@@ -451,8 +436,7 @@ struct Estimator::Impl {
   cv::Mat grey_scratch;              // colour or 16-bit input converted to 8-bit grey (reused buffer)
   FixedPattern fixed_pattern;        // camera-fixed gain and offset fields (docs/noise_model.md section 11)
   double discounted_share = 0.0;     // the pattern's contrast share the covariance allows for (discountPattern...)
-  double relief_var = 0.0;           // smoothed relief variance of the scene (smoothReliefVariance), relative^2
-  double relief_t_s = -1.0;          // time of its last update (< 0: none since the start)
+  double relief_var = 0.0;           // the scene's smoothed relief variance of the last update, relative^2
   bool pattern_named = false;        // the status has named the dominant pattern in view
   internal::ImuPropagator imu;       // filtered samples, state time, prediction
   internal::ImageUpdate update;      // update from an image pair

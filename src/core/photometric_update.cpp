@@ -1346,7 +1346,10 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
                                                 : params_.intensity_noise_sigma * params_.intensity_noise_sigma;
     const double var_mu = 0.5 * (P->block<2, 2>(ErrIdx::kMu, ErrIdx::kMu).trace());
     updateWeightMap(ref, cur, K, *x, var_mu, dt_s, std::max(var, floor_var));
-    stats.relief_var = relief_var_;
+    noise_.relief_var = noise_.relief_valid ? noise_.relief_var + alpha_ema * (relief_var_ - noise_.relief_var)
+                                            : relief_var_;
+    noise_.relief_valid = true;
+    stats.relief_var = noise_.relief_var;
   }
   return stats;
 }
@@ -1789,7 +1792,7 @@ double PhotometricUpdate::reliefVariance(const PinholeK& K, const Vec3& mu, doub
   // Four cells at a time in float (each row's sums, then into double), the rest one at a time.
   const int Hc = weight_cell_w_.rows, Wc = weight_cell_w_.cols;
   const float mu0 = static_cast<float>(mu(0)), vmu = static_cast<float>(var_mu);
-  const float qx_step = static_cast<float>(2.0 / K.fx), qx0 = static_cast<float>((0.5 - K.cx) / K.fx);
+  const double* qxs = weight_qx_.data();  // the cells' ray x-coordinates (updateWeightMap)
   double su = 0.0, sue = 0.0, sue2 = 0.0, sw = 0.0, sut = 0.0;
   for (int j = 0; j < Hc; ++j) {
     const float* sj = parallax_sums_.ptr<float>(j);
@@ -1806,10 +1809,10 @@ double PhotometricUpdate::reliefVariance(const PinholeK& K, const Vec3& mu, doub
       using namespace cv;
       const v_float32x4 zero = v_setzero_f32(), one = v_setall_f32(1.0f), v_min_mq = v_setall_f32(1e-3f);
       const v_float32x4 v_mu0 = v_setall_f32(mu0), v_mu_qy = v_setall_f32(mu_qy), v_qy2 = v_setall_f32(qy2);
-      const v_float32x4 v_vmu = v_setall_f32(vmu), v_step4 = v_setall_f32(4.0f * qx_step);
-      v_float32x4 qx(qx0, qx0 + qx_step, qx0 + 2.0f * qx_step, qx0 + 3.0f * qx_step);
+      const v_float32x4 v_vmu = v_setall_f32(vmu);
       v_float32x4 a_u = zero, a_ue = zero, a_ue2 = zero, a_w = zero, a_ut = zero;
-      for (; i + 4 <= Wc; i += 4, qx += v_step4) {
+      for (; i + 4 <= Wc; i += 4) {
+        const v_float32x4 qx = v_cvt_f32(v_load(qxs + i), v_load(qxs + i + 2));
         v_float32x4 S, J;
         v_load_deinterleave(sj + 2 * i, S, J);
         const v_float32x4 valid = J > zero;
@@ -1839,7 +1842,7 @@ double PhotometricUpdate::reliefVariance(const PinholeK& K, const Vec3& mu, doub
       sue += wi * S;
       sue2 += wi * S * S / J;
       sw += wi;
-      sut += wi * J * tilt(qx0 + qx_step * static_cast<float>(i));
+      sut += wi * J * tilt(static_cast<float>(qxs[i]));
     }
   }
   if (!(su > 0.0)) return 0.0;
