@@ -38,6 +38,9 @@ class ImuPreprocessor {
   int numSections() const { return static_cast<int>(sections_.size()); }
   /// Magnitude of the designed filter's frequency response at f_hz (input-rate design), for diagnostics.
   double magnitudeResponse(double f_hz) const;
+  /// Autocovariance of the filter's output `lag` input samples apart for white input of unit variance per input
+  /// sample: sum_n h[n] h[n + lag] over the designed filter's impulse response h (1 at lag 0 without a filter).
+  double noiseAutocovariance(int lag) const;
 
  private:
   using Vec6 = Eigen::Matrix<double, 6, 1>;

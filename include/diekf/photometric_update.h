@@ -63,6 +63,9 @@ struct ImageTiming {
   bool rates_valid = false;           ///< accel_C and rate_change_C are filled (stateRateMap is not zero)
   Vec3 accel_C = Vec3::Zero();        ///< filtered specific force at the state's time (bias not removed), m/s^2
   Vec3 rate_change_C = Vec3::Zero();  ///< filtered rate at the current image minus at the reference image, rad/s
+  /// The gyro's white-noise density, (rad/s)^2/Hz: its angle over the interval is uncertain by this times dt
+  /// (part of the rotation model error, docs/noise_model.md section 6).
+  double gyro_noise_density_sq = 0.0;
   double gravity_mps2 = 9.81;         ///< magnitude of gravity, m/s^2
   /// Rolling shutter: working row y is captured readout row_weight[y] after the image's time, with the readout
   /// time (first to last raw row) of the state (State::readout_s; 0: global shutter); row_weight[y] is the

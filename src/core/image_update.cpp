@@ -91,6 +91,8 @@ ImageTiming ImageUpdate::timingFor(double t_img_s, const ImuPropagator& imu, con
   // The focal-length scale (section 3.8) from the same time on: it is seen through the dynamics of the states it
   // is taken for (the gyro bias and vartheta), which must have converged first.
   timing.estimate_focal_scale = params_.estimate_focal_scale && settled;
+  // The gyro's noise in the interval's rotation (docs/noise_model.md section 6), measured from its samples.
+  timing.gyro_noise_density_sq = imu.gyroNoiseDensitySq();
   if (timing.rates_valid) {
     timing.accel_C = imu.imuAt(imu.stateTime()).accel_mps2;
     timing.rate_change_C = imu.rateChangeSinceReference(t_img_s);

@@ -85,6 +85,29 @@ double ImuPreprocessor::magnitudeResponse(double f_hz) const {
   return std::abs(h);
 }
 
+double ImuPreprocessor::noiseAutocovariance(int lag) const {
+  if (lag < 0) lag = -lag;
+  // The impulse response through the cascaded sections (transposed direct form II, as filter()), until it has
+  // decayed: long enough for any cutoff the constructor accepts (the slowest pole's time constant is below
+  // fs / (2 pi fc) samples).
+  const int n = 64 + lag + static_cast<int>(std::ceil(40.0 * params_.input_rate_hz /
+                                                      (2.0 * M_PI * std::max(1e-9, params_.lowpass_cutoff_hz))));
+  std::vector<double> h(static_cast<size_t>(sections_.empty() ? 1 : n), 0.0);
+  h[0] = 1.0;
+  for (const Biquad& s : sections_) {
+    double z1 = 0.0, z2 = 0.0;
+    for (double& v : h) {
+      const double in = v;
+      v = s.b0 * in + z1;
+      z1 = s.b1 * in - s.a1 * v + z2;
+      z2 = s.b2 * in - s.a2 * v;
+    }
+  }
+  double sum = 0.0;
+  for (size_t i = 0; i + static_cast<size_t>(lag) < h.size(); ++i) sum += h[i] * h[i + static_cast<size_t>(lag)];
+  return sum;
+}
+
 void ImuPreprocessor::reset() {
   primed_ = false;
   prime_sum_.setZero();

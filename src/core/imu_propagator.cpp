@@ -13,12 +13,46 @@ namespace {
 constexpr size_t kImuBufferCapacity = 1024;  // filtered samples (about 10 s at 100 Hz)
 }  // namespace
 
-ImuPropagator::ImuPropagator(const EstimatorParams& params) : params_(params), buffer_(kImuBufferCapacity) {}
+ImuPropagator::ImuPropagator(const EstimatorParams& params) : params_(params), buffer_(kImuBufferCapacity) {
+  setFilterNoise(1.0, 0.0, 0.0);  // no low-pass until told
+}
+
+void ImuPropagator::setFilterNoise(double autocov0, double autocov1, double autocov2) {
+  if (!(autocov0 > 0.0)) return;
+  // White input of density s has the variance s^2 f_in per input sample; through the filter one output sample
+  // has s^2 f_in autocov0, and (w_(k-1) + w_(k+1)) / 2 - w_k, with the samples' correlations rho1, rho2 one and two
+  // filtered periods apart, (3/2 - 2 rho1 + rho2 / 2) of that.
+  const double rho1 = autocov1 / autocov0, rho2 = autocov2 / autocov0;
+  second_diff_var_per_density_sq_ =
+      std::max(1e-12, params_.imu.input_rate_hz * autocov0 * (1.5 - 2.0 * rho1 + 0.5 * rho2));
+}
 
 bool ImuPropagator::push(const ImuSample& filtered) {
   if (!buffer_.empty() && filtered.t_s <= buffer_.back().t_s) return false;
+  // The second difference of three consecutive samples at the nominal spacing: over two periods (20 ms) the
+  // motion's own curvature is small against the noise.
+  if (buffer_.size() >= 2) {
+    const ImuSample& a = buffer_[buffer_.size() - 2];
+    const ImuSample& b = buffer_.back();
+    const double period = filteredPeriod();
+    const Vec3 e = 0.5 * (a.gyro_radps + filtered.gyro_radps) - b.gyro_radps;
+    if (std::abs(b.t_s - a.t_s - period) < 0.1 * period && std::abs(filtered.t_s - b.t_s - period) < 0.1 * period &&
+        e.allFinite()) {
+      // Smoothed over 2 s; the plain mean of the first ones (no start from zero).
+      constexpr double kTimeConstantS = 2.0;
+      second_diffs_ = std::min(second_diffs_ + 1, 1 << 20);
+      const double beta = std::max(1.0 - std::exp(-period / kTimeConstantS), 1.0 / second_diffs_);
+      second_diff_var_ += beta * (e.cwiseAbs2() - second_diff_var_);
+    }
+  }
   buffer_.push(filtered);
   return true;
+}
+
+double ImuPropagator::gyroNoiseDensitySq() const {
+  const double calibrated = params_.imu.gyro_noise_density * params_.imu.gyro_noise_density;
+  if (second_diffs_ < 1.0 / filteredPeriod()) return calibrated;  // until 1 s of second differences
+  return std::min(calibrated, second_diff_var_.maxCoeff() / second_diff_var_per_density_sq_);
 }
 
 void ImuPropagator::startAt(double t_s) {

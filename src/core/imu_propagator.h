@@ -47,6 +47,18 @@ class ImuPropagator {
   /// The filtered sample at t_s: linear interpolation between the buffered samples around it (the nearest one
   /// outside the buffer's span).
   ImuSample imuAt(double t_s) const;
+  // --- The gyro's noise (docs/noise_model.md section 6) ---
+  /// The low-pass's response to white noise (ImuPreprocessor::noiseAutocovariance at lags 0, one and two
+  /// filtered periods, in input samples), which relates the filtered samples' spread to a noise density.
+  void setFilterNoise(double autocov0, double autocov1, double autocov2);
+  /// The gyro's white-noise density, (rad/s)^2/Hz: its angle over an interval dt is uncertain by this times dt.
+  /// The calibration's gyro_noise_density^2, or less where the filtered samples show less (the second
+  /// differences of three consecutive samples, smoothed over 2 s, their noisiest axis; from 1 s of samples on):
+  /// Kalibr densities are often inflated several times on purpose. Not more: what the samples show above the
+  /// calibration at rest is propeller vibration, a narrow band far above the frame rate that the interval's
+  /// angle averages out.
+  double gyroNoiseDensitySq() const;
+
   /// Gravity direction from the mean specific force of the filtered samples of the 0.5 s up to up_to_t_s, if
   /// the vehicle is near rest (|mean| within 10 % of g): g = -f/|f|. False otherwise.
   bool gravityFromAccel(double up_to_t_s, UnitVector* g) const;
@@ -65,6 +77,9 @@ class ImuPropagator {
   Vec3 gyro_integral_ = Vec3::Zero();  // integral of the filtered gyro (C) since the reference image, rad
   double gyro_time_s_ = 0.0;           // time covered by gyro_integral_, s
   Vec3 ref_rate_C_ = Vec3::Zero();     // filtered rate at the reference image, rad/s
+  double second_diff_var_per_density_sq_ = 1.0;  // variance of (w_(k-1) + w_(k+1)) / 2 - w_k per unit density^2
+  Vec3 second_diff_var_ = Vec3::Zero();          // its smoothed square per axis, (rad/s)^2
+  int second_diffs_ = 0;                         // second differences seen (capped)
 };
 
 }  // namespace internal

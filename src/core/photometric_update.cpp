@@ -1186,7 +1186,8 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   const Vec3 rate_change = last_rate_valid_ ? Vec3(rate_C - last_rate_C_) : Vec3::Zero();
   const double var_theta =
       std::pow(params_.rotation_scale_sigma * dt_s, 2) * rate_C.squaredNorm() +
-      std::pow(params_.time_offset_sigma_s, 2) * rate_change.squaredNorm();  // rad^2
+      std::pow(params_.time_offset_sigma_s, 2) * rate_change.squaredNorm() +
+      timing.gyro_noise_density_sq * dt_s;  // rad^2
   const double var_bw_equiv = var_theta / (dt_s * dt_s);                        // (rad/s)^2
   last_rate_C_ = rate_C;
   last_rate_valid_ = true;

@@ -4,6 +4,7 @@
 #include <gtest/gtest.h>
 
 #include <cmath>
+#include <random>
 #include <string>
 
 #include "../../src/core/health_monitor.h"
@@ -11,6 +12,7 @@
 #include "../../src/core/imu_propagator.h"
 #include "../../src/core/restart_policy.h"
 #include "diekf/image_preprocessor.h"
+#include "diekf/imu_filter.h"
 #include "diekf/stamp_check.h"
 #include "diekf/state.h"
 #include "synthetic_flight.h"
@@ -275,6 +277,48 @@ TEST(ImuPropagator, IntervalMeanGyroAndInterpolation) {
   UnitVector g;
   ASSERT_TRUE(imu.gravityFromAccel(0.6, &g));
   EXPECT_LT((g.vector() - Vec3(0.0, 0.0, 1.0)).norm(), 1e-12);
+
+}
+
+// The gyro's noise density from its filtered samples (docs/noise_model.md section 6): white noise of a known
+// density, with and without a slow turn and propeller vibration, through the IMU preprocessing (500 Hz, 20 Hz
+// low-pass, 100 Hz out) into the propagator. An inflated calibration is replaced by what the samples show;
+// vibration does not raise it above the calibration. Until 1 s of samples: the calibration's density.
+TEST(ImuPropagator, GyroNoiseDensityIsMeasuredFromTheSamples) {
+  const double density = 2e-3;  // rad/s/sqrt(Hz)
+  auto measure = [&](double vibration_radps, double turn_radps, double seconds, double calibrated) {
+    EstimatorParams params;
+    params.imu.gyro_noise_density = calibrated;
+    ImuPreprocessor pre(Eigen::Isometry3d::Identity(), params.imu);
+    ImuPropagator imu(params);
+    const int D = params.imu.decimation_factor;
+    imu.setFilterNoise(pre.noiseAutocovariance(0), pre.noiseAutocovariance(D), pre.noiseAutocovariance(2 * D));
+    std::mt19937 rng(11);
+    std::normal_distribution<double> n01(0.0, 1.0);
+    const double rate = params.imu.input_rate_hz, sd = density * std::sqrt(rate);
+    for (int k = 0; k < static_cast<int>(seconds * rate); ++k) {
+      const double t = k / rate;
+      ImuSample s, o;
+      s.t_s = t;
+      s.accel_mps2 = Vec3(0.0, 0.0, 9.81);
+      s.gyro_radps = Vec3(sd * n01(rng), sd * n01(rng), sd * n01(rng)) +
+                     turn_radps * Vec3(std::sin(2.0 * M_PI * 0.3 * t), 0.0, std::cos(2.0 * M_PI * 0.2 * t)) +
+                     vibration_radps * Vec3(std::sin(2.0 * M_PI * 137.0 * t), 0.0, 0.0);
+      if (pre.push(s, &o)) imu.push(o);
+    }
+    return std::sqrt(imu.gyroNoiseDensitySq());
+  };
+  EXPECT_EQ(measure(0.0, 0.0, 0.5, 7e-3), 7e-3) << "before 1 s of samples: the calibration's";
+  const double quiet = measure(0.0, 0.0, 30.0, 7e-3), turning = measure(0.0, 0.5, 30.0, 7e-3);
+  // 1.5 rad/s at 137 Hz: 0.03 rad/s left after the low-pass, more than the white noise's 0.013.
+  const double vibrating = measure(1.5, 0.0, 30.0, 7e-3), vibrating_calibrated = measure(1.5, 0.0, 30.0, density);
+  std::printf("density (white %.3g, calibration 7e-3): measured %.3g, turning %.3g, with vibration %.3g; "
+              "calibration right, with vibration %.3g rad/s/sqrt(Hz)\n",
+              density, quiet, turning, vibrating, vibrating_calibrated);
+  EXPECT_NEAR(quiet, density, 0.15 * density) << "the samples, not the inflated calibration";
+  EXPECT_NEAR(turning, density, 0.15 * density) << "a turn of 0.5 rad/s at 0.2-0.3 Hz is not noise";
+  EXPECT_GT(vibrating, 1.5 * density) << "the samples' spread includes the vibration...";
+  EXPECT_EQ(vibrating_calibrated, density) << "...which does not raise the density above the calibration";
 }
 
 // ImageUpdate::usable counts black and saturated pixels 16 at a time and the rest of each row one by one: the

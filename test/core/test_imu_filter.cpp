@@ -3,6 +3,7 @@
 
 #include <cmath>
 #include <cstdio>
+#include <random>
 #include <stdexcept>
 #include <vector>
 
@@ -273,6 +274,45 @@ TEST(ImuFilter, PrimeFromMeanAvoidsTheStartBurst) {
   EXPECT_GT(o1[1].accel_mps2.x(), 0.5);  // 10 ms after the start, still a third of the way down from 1.5
   EXPECT_LT(std::abs(om[0].accel_mps2.x()), 1.5 / 25.0 + 1e-9);
   EXPECT_LT(std::abs(om[1].accel_mps2.x()), 1.5 / 25.0 + 1e-9);
+}
+
+// The filter's response to white noise, which the gyro's noise measurement (ImuPropagator::gyroNoiseDensitySq)
+// relies on: the covariances of its output at lags 0, one and two decimated periods against those of white
+// noise pushed through the preprocessor itself (200 s at 500 Hz, no decimation), and none without a filter.
+TEST(ImuFilter, NoiseAutocovarianceOfTheDesign) {
+  for (const int order : {2, 4}) {
+    ImuParams p = defaultParams();
+    p.lowpass_order = order;
+    p.decimation_factor = 1;
+    p.compensate_filter_delay = false;
+    ImuPreprocessor f(Eigen::Isometry3d::Identity(), p);
+    std::mt19937 rng(7);
+    std::normal_distribution<double> n01(0.0, 1.0);
+    std::vector<double> y;
+    for (int k = 0; k < 100000; ++k) {
+      ImuSample s, o;
+      s.t_s = k / kRateHz;
+      s.gyro_radps = Vec3(k == 0 ? 0.0 : n01(rng), 0.0, 0.0);  // (primed from zero)
+      ASSERT_TRUE(f.push(s, &o));
+      y.push_back(o.gyro_radps.x());
+    }
+    for (const int lag : {0, 5, 10}) {
+      double sum = 0.0;
+      for (size_t i = 1000; i + lag < y.size(); ++i) sum += y[i] * y[i + lag];
+      const double measured = sum / static_cast<double>(y.size() - 1000 - lag);
+      const double designed = f.noiseAutocovariance(lag);
+      std::printf("order %d, lag %2d: designed %.5f, measured %.5f\n", order, lag, designed, measured);
+      EXPECT_NEAR(measured, designed, 0.03 * f.noiseAutocovariance(0)) << "order " << order << ", lag " << lag;
+    }
+    // About the Butterworth's noise bandwidth pi fc / (2 n sin(pi / (2 n))), two-sided over the input rate.
+    const double enbw_hz = M_PI * p.lowpass_cutoff_hz / (2.0 * order * std::sin(M_PI / (2.0 * order)));
+    EXPECT_NEAR(f.noiseAutocovariance(0), 2.0 * enbw_hz / kRateHz, 0.05 * 2.0 * enbw_hz / kRateHz);
+  }
+  ImuParams none = defaultParams();
+  none.lowpass_order = 0;
+  const ImuPreprocessor raw(Eigen::Isometry3d::Identity(), none);
+  EXPECT_EQ(raw.noiseAutocovariance(0), 1.0);
+  EXPECT_EQ(raw.noiseAutocovariance(5), 0.0);
 }
 
 }  // namespace

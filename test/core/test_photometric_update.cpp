@@ -851,6 +851,37 @@ TEST_F(PhotometricScene, RotationModelErrorDiscountsTheGyroRotation) {
   EXPECT_EQ(Pa, Pb);
 }
 
+TEST_F(PhotometricScene, GyroNoiseBoundsWhatOneImageSaysOfTheGyroBias) {
+  // The interval's rotation comes from the gyro, whose white noise of density s makes its angle uncertain by
+  // s^2 dt (docs/noise_model.md section 6). However sharp the image, one pair can then not pin the gyro bias
+  // better than a measurement of it with the variance s^2 / dt: the posterior variance of each b_w axis is at
+  // least 1 / (1 / P0 + dt / s^2). Here s^2 / dt equals the prior P0, so at least half of P0 is left; without the
+  // noise term the image takes most of it.
+  PhotometricParams params;
+  params.rotation_scale_sigma = 0.0;
+  params.time_offset_sigma_s = 0.0;
+  auto posterior_bw = [&](double density_sq) {
+    PhotometricUpdate update(params, PreprocessParams{});
+    State x = startState(1.0);
+    ErrorCov P = priorCov();
+    ImageTiming timing;
+    timing.gyro_noise_density_sq = density_sq;
+    const UpdateStats st =
+        update.update(scene_->ref, scene_->cur, scene_->K, scene_->w_C, scene_->dt_s, &x, &P, 0.0, timing);
+    EXPECT_TRUE(st.applied);
+    return Vec3(P.block<3, 3>(ErrIdx::kBw, ErrIdx::kBw).diagonal());
+  };
+  const double P0 = priorCov()(ErrIdx::kBw, ErrIdx::kBw);
+  const Vec3 with_noise = posterior_bw(P0 * scene_->dt_s), without = posterior_bw(0.0);
+  std::printf("posterior b_w variance / prior: with the gyro noise %.3f %.3f %.3f, without %.3f %.3f %.3f\n",
+              with_noise.x() / P0, with_noise.y() / P0, with_noise.z() / P0, without.x() / P0, without.y() / P0,
+              without.z() / P0);
+  for (int i = 0; i < 3; ++i) {
+    EXPECT_GE(with_noise(i), 0.5 * P0 * (1.0 - 1e-9)) << "axis " << i;
+    EXPECT_LT(without(i), 0.5 * P0) << "axis " << i;
+  }
+}
+
 TEST(PhotometricOutliers, AnObjectMovingOnItsOwnIsDownWeighted) {
   // The two-view scene of PhotometricScene, three images, with an object of another texture (a rectangle covering
   // 12 % of the image) moving on its own: 6 cm sideways between two images, against the camera's 1 cm. Its pixels
