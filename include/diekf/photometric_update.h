@@ -135,6 +135,10 @@ class PhotometricUpdate {
   UpdateStats update(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PinholeK& K,
                      const Vec3& gyro_mean_C, double dt_s, State* x, ErrorCov* P, double state_lag_s = 0.0,
                      const ImageTiming& timing = ImageTiming());
+  /// The image the outlier weights belong to was re-timed from from_s to to_s (Estimator: a changed time offset).
+  void retimeWeights(double from_s, double to_s) {
+    if (weight_map_t_s_ == from_s) weight_map_t_s_ = to_s;
+  }
   /// Residual I_c(p) - I_r(p_r) of the last linearisation (the point rms_residual refers to; CV_32FC1, 0
   /// outside the mask and on pixels skipped by pixel_stride).
   const cv::Mat& residualImage() const { return residual_; }

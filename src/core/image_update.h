@@ -45,6 +45,9 @@ class ImageUpdate {
   /// Per-pixel confidence for the next photometric updates (PhotometricUpdate::setPixelConfidence; the camera-fixed
   /// pattern's, docs/noise_model.md section 11); null: none.
   void setPixelConfidence(const cv::Mat* confidence) { photometric_.setPixelConfidence(confidence); }
+  /// The reference image was re-timed from from_s to to_s (a changed time offset estimate): what the photometric
+  /// update keeps of it (its outlier weights) follows.
+  void retimeReference(double from_s, double to_s) { photometric_.retimeWeights(from_s, to_s); }
   /// Whether the photometric updates also report the image's own vartheta (PhotometricUpdate::setReportImageVartheta).
   void setReportImageVartheta(bool on) { photometric_.setReportImageVartheta(on); }
   /// Whether the last apply() ran the photometric update on its pair (not skipped, not the feature mode), and that

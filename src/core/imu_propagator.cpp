@@ -61,8 +61,25 @@ void ImuPropagator::startAt(double t_s) {
 }
 
 void ImuPropagator::dropUsed() {
-  // Keep the last sample at or before the state's time: the next piece interpolates from it.
-  while (buffer_.size() > 1 && buffer_[1].t_s <= t_state_s_) buffer_.pop();
+  // Keep the last sample at or before the state's time (the next piece interpolates from it), and those of
+  // the history before it that moveReference may reach back into (a reference moved earlier by a changed
+  // camera-IMU time offset: at most twice its bound).
+  const double keep_from_s = t_state_s_ - 2.0 * std::max(0.0, params_.max_time_offset_s);
+  while (buffer_.size() > 1 && buffer_[1].t_s <= keep_from_s) buffer_.pop();
+}
+
+void ImuPropagator::moveReference(double from_s, double to_s) {
+  if (!(to_s != from_s) || !std::isfinite(to_s)) return;
+  // The interval's gyro integral starts at to_s instead of from_s: the part in between added (earlier) or
+  // taken off (later; it may lie beyond the state's time, which meanGyroOverInterval's sum allows for).
+  if (to_s < from_s) {
+    gyro_integral_ += gyroIntegral(to_s, from_s);
+    gyro_time_s_ += from_s - to_s;
+  } else {
+    gyro_integral_ -= gyroIntegral(from_s, to_s);
+    gyro_time_s_ -= to_s - from_s;
+  }
+  ref_rate_C_ = imuAt(to_s).gyro_radps;
 }
 
 double ImuPropagator::filteredPeriod() const {

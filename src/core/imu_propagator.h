@@ -36,6 +36,9 @@ class ImuPropagator {
   // --- The image interval (reference image -> current image) ---
   /// A new reference image at t_s: the interval's gyro integral restarts, the rate at t_s is remembered.
   void setReference(double t_s);
+  /// The reference image's time moved from from_s to to_s (the camera-IMU time offset estimate changed since
+  /// it was placed): the interval's gyro integral and the rate at the reference follow.
+  void moveReference(double from_s, double to_s);
   /// Forgets the gyro integrated so far (a filter restart).
   void clearInterval();
   /// Mean filtered gyro (C) over the interval from the reference image to t_img_s: what was integrated so far

@@ -278,6 +278,29 @@ TEST(ImuPropagator, IntervalMeanGyroAndInterpolation) {
   ASSERT_TRUE(imu.gravityFromAccel(0.6, &g));
   EXPECT_LT((g.vector() - Vec3(0.0, 0.0, 1.0)).norm(), 1e-12);
 
+  // A reference re-timed by a changed time offset estimate (docs/algorithm.md section 3.6), later and earlier
+  // than the state's time: the interval's mean rate and the rate change are those of the moved window, exactly
+  // (the rate at t is w (1 + t)).
+  for (const double to_s : {0.23, 0.17}) {
+    ImuPropagator moved(params);
+    for (int i = 0; i <= 100; ++i) {
+      ImuSample s;
+      s.t_s = 0.01 * i;
+      s.gyro_radps = w * (1.0 + 0.01 * i);
+      s.accel_mps2 = Vec3(0.0, 0.0, -9.81);
+      ASSERT_TRUE(moved.push(s));
+    }
+    State y;
+    ErrorCov Q = ErrorCov::Identity() * 1e-4;
+    moved.startAt(0.1);
+    moved.propagateTo(0.2, &y, &Q);  // the state at the reference, the samples before it used
+    moved.setReference(0.2);
+    moved.moveReference(0.2, to_s);
+    EXPECT_LT((moved.rateChangeSinceReference(0.6) - w * (0.6 - to_s)).norm(), 1e-12) << to_s;
+    EXPECT_LT((moved.meanGyroOverInterval(0.6) - w * (1.0 + 0.5 * (to_s + 0.6))).norm(), 1e-12) << to_s;
+    moved.propagateTo(0.4, &y, &Q);
+    EXPECT_LT((moved.meanGyroOverInterval(0.6) - w * (1.0 + 0.5 * (to_s + 0.6))).norm(), 1e-12) << to_s;
+  }
 }
 
 // The gyro's noise density from its filtered samples (docs/noise_model.md section 6): white noise of a known
