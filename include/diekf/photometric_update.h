@@ -66,6 +66,11 @@ struct ImageTiming {
   /// The gyro's white-noise density, (rad/s)^2/Hz: its angle over the interval is uncertain by this times dt
   /// (part of the rotation model error, docs/noise_model.md section 6).
   double gyro_noise_density_sq = 0.0;
+  /// Noise variances (per axis of C) of the acceleration accel_C + g0 g the rates are computed from, (m/s^2)^2,
+  /// and of rate_change_C, (rad/s)^2: the rows of a rolling shutter take the expected rates given these noisy
+  /// readings (stateRateMap with `expected`; zero: the readings as they are).
+  Vec3 accel_noise_var = Vec3::Zero();
+  Vec3 rate_change_noise_var = Vec3::Zero();
   double gravity_mps2 = 9.81;         ///< magnitude of gravity, m/s^2
   /// Rolling shutter: working row y is captured readout row_weight[y] after the image's time, with the readout
   /// time (first to last raw row) of the state (State::readout_s; 0: global shutter); row_weight[y] is the
@@ -81,7 +86,13 @@ struct ImageTiming {
 /// by delta (mean rate + delta (w_cur - w_ref) / dt, i.e. b_w - delta (w_cur - w_ref) / dt):
 ///   m = (alpha (a + g0 g) - w x vartheta + (mu . vartheta) vartheta,  -N(mu)^T w,  -(w_cur - w_ref) / dt)
 /// with a = accel - b_a and w = gyro_mean - b_w; over [d_vartheta, d_mu, d_b_w]. Zero unless in.rates_valid.
-ObservedVec stateRateMap(const State& x, const Vec3& gyro_mean_C, const ImageTiming& in, double dt_s);
+/// `expected`: the acceleration a + g0 g and the rate change, each a reading of one or two filtered samples, are
+/// replaced by their expected values given the readings, r max(0, 1 - var / r^2) per component (var:
+/// in.accel_noise_var, in.rate_change_noise_var): in slow flight the readings are mostly noise (and the tilt's and
+/// the bias's errors), a motion the images do not show; a state fitted against them (the readout, from the rows'
+/// times) is pulled toward zero (errors in the variables; docs/algorithm.md section 3.7).
+ObservedVec stateRateMap(const State& x, const Vec3& gyro_mean_C, const ImageTiming& in, double dt_s,
+                         bool expected = false);
 /// The time offset's Jacobian column as a combination of the observed ones, J_t_d = J_obs m: stateRateMap
 /// when in.estimate_offset, else zero.
 ObservedVec timeOffsetMap(const State& x, const Vec3& gyro_mean_C, const ImageTiming& in, double dt_s);

@@ -96,6 +96,13 @@ ImageTiming ImageUpdate::timingFor(double t_img_s, const ImuPropagator& imu, con
   if (timing.rates_valid) {
     timing.accel_C = imu.imuAt(imu.stateTime()).accel_mps2;
     timing.rate_change_C = imu.rateChangeSinceReference(t_img_s);
+    // Their noise: one sample's (the acceleration's, with the gravity direction's and the bias's uncertainty),
+    // two samples' (the rate change: the samples a frame apart are uncorrelated after the low-pass).
+    const Mat3 N_g = x.g.N() * P.block<2, 2>(ErrIdx::kG, ErrIdx::kG) * x.g.N().transpose();
+    timing.accel_noise_var = imu.accelSampleVariance() +
+                             params_.imu.gravity_mps2 * params_.imu.gravity_mps2 * N_g.diagonal() +
+                             P.block<3, 3>(ErrIdx::kBa, ErrIdx::kBa).diagonal();
+    timing.rate_change_noise_var = 2.0 * imu.gyroSampleVariance();
     timing.gravity_mps2 = params_.imu.gravity_mps2;
   }
   return timing;

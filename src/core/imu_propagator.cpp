@@ -23,8 +23,8 @@ void ImuPropagator::setFilterNoise(double autocov0, double autocov1, double auto
   // has s^2 f_in autocov0, and (w_(k-1) + w_(k+1)) / 2 - w_k, with the samples' correlations rho1, rho2 one and two
   // filtered periods apart, (3/2 - 2 rho1 + rho2 / 2) of that.
   const double rho1 = autocov1 / autocov0, rho2 = autocov2 / autocov0;
-  second_diff_var_per_density_sq_ =
-      std::max(1e-12, params_.imu.input_rate_hz * autocov0 * (1.5 - 2.0 * rho1 + 0.5 * rho2));
+  sample_var_per_density_sq_ = std::max(1e-12, params_.imu.input_rate_hz * autocov0);
+  second_diff_var_per_density_sq_ = std::max(1e-12, sample_var_per_density_sq_ * (1.5 - 2.0 * rho1 + 0.5 * rho2));
 }
 
 bool ImuPropagator::push(const ImuSample& filtered) {
@@ -36,17 +36,31 @@ bool ImuPropagator::push(const ImuSample& filtered) {
     const ImuSample& b = buffer_.back();
     const double period = filteredPeriod();
     const Vec3 e = 0.5 * (a.gyro_radps + filtered.gyro_radps) - b.gyro_radps;
+    const Vec3 ea = 0.5 * (a.accel_mps2 + filtered.accel_mps2) - b.accel_mps2;
     if (std::abs(b.t_s - a.t_s - period) < 0.1 * period && std::abs(filtered.t_s - b.t_s - period) < 0.1 * period &&
-        e.allFinite()) {
+        e.allFinite() && ea.allFinite()) {
       // Smoothed over 2 s; the plain mean of the first ones (no start from zero).
       constexpr double kTimeConstantS = 2.0;
       second_diffs_ = std::min(second_diffs_ + 1, 1 << 20);
       const double beta = std::max(1.0 - std::exp(-period / kTimeConstantS), 1.0 / second_diffs_);
       second_diff_var_ += beta * (e.cwiseAbs2() - second_diff_var_);
+      accel_second_diff_var_ += beta * (ea.cwiseAbs2() - accel_second_diff_var_);
     }
   }
   buffer_.push(filtered);
   return true;
+}
+
+Vec3 ImuPropagator::gyroSampleVariance() const {
+  const double d = params_.imu.gyro_noise_density;
+  if (second_diffs_ < 1.0 / filteredPeriod()) return Vec3::Constant(d * d * sample_var_per_density_sq_);
+  return second_diff_var_ * (sample_var_per_density_sq_ / second_diff_var_per_density_sq_);
+}
+
+Vec3 ImuPropagator::accelSampleVariance() const {
+  const double d = params_.imu.accel_noise_density;
+  if (second_diffs_ < 1.0 / filteredPeriod()) return Vec3::Constant(d * d * sample_var_per_density_sq_);
+  return accel_second_diff_var_ * (sample_var_per_density_sq_ / second_diff_var_per_density_sq_);
 }
 
 double ImuPropagator::gyroNoiseDensitySq() const {

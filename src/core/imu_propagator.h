@@ -61,6 +61,11 @@ class ImuPropagator {
   /// calibration at rest is propeller vibration, a narrow band far above the frame rate that the interval's
   /// angle averages out.
   double gyroNoiseDensitySq() const;
+  /// Variance of the noise of one filtered sample per axis of C, from the same second differences (the gyro's in
+  /// (rad/s)^2, the specific force's in (m/s^2)^2; until 1 s of samples, the calibration's densities through the
+  /// low-pass): what a rate read from one or two samples is uncertain by, vibration included.
+  Vec3 gyroSampleVariance() const;
+  Vec3 accelSampleVariance() const;
 
   /// Gravity direction from the mean specific force of the filtered samples of the 0.5 s up to up_to_t_s, if
   /// the vehicle is near rest (|mean| within 10 % of g): g = -f/|f|. False otherwise.
@@ -81,7 +86,9 @@ class ImuPropagator {
   double gyro_time_s_ = 0.0;           // time covered by gyro_integral_, s
   Vec3 ref_rate_C_ = Vec3::Zero();     // filtered rate at the reference image, rad/s
   double second_diff_var_per_density_sq_ = 1.0;  // variance of (w_(k-1) + w_(k+1)) / 2 - w_k per unit density^2
+  double sample_var_per_density_sq_ = 1.0;       // one filtered sample's variance per unit density^2
   Vec3 second_diff_var_ = Vec3::Zero();          // its smoothed square per axis, (rad/s)^2
+  Vec3 accel_second_diff_var_ = Vec3::Zero();    // the same of the specific force, (m/s^2)^2
   int second_diffs_ = 0;                         // second differences seen (capped)
 };
 

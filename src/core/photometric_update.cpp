@@ -100,15 +100,34 @@ struct IntervalWarp {
 };
 }  // namespace
 
-ObservedVec stateRateMap(const State& x, const Vec3& gyro_mean_C, const ImageTiming& in, double dt_s) {
+namespace {
+/// The expected value of a reading r with the noise variance v (per component): r max(0, 1 - v / r^2).
+Vec3 expectedGivenReading(const Vec3& r, const Vec3& v) {
+  Vec3 out;
+  for (int i = 0; i < 3; ++i) {
+    const double r2 = r(i) * r(i);
+    out(i) = r2 > v(i) ? r(i) * (1.0 - v(i) / r2) : 0.0;
+  }
+  return out;
+}
+}  // namespace
+
+ObservedVec stateRateMap(const State& x, const Vec3& gyro_mean_C, const ImageTiming& in, double dt_s,
+                         bool expected) {
   ObservedVec m = ObservedVec::Zero();
   if (!in.rates_valid || !(dt_s > 0.0)) return m;
   const Vec3 a = in.accel_C - x.b_a;    // m/s^2
   const Vec3 w = gyro_mean_C - x.b_w;   // rad/s
   const Vec3& th = x.vartheta;
-  m.segment<3>(0) = x.alpha * (a + in.gravity_mps2 * x.g.vector()) - w.cross(th) + x.mu.vector().dot(th) * th;
+  Vec3 accel = a + in.gravity_mps2 * x.g.vector();  // m/s^2
+  Vec3 rate_change = in.rate_change_C;              // rad/s
+  if (expected) {
+    accel = expectedGivenReading(accel, in.accel_noise_var);
+    rate_change = expectedGivenReading(rate_change, in.rate_change_noise_var);
+  }
+  m.segment<3>(0) = x.alpha * accel - w.cross(th) + x.mu.vector().dot(th) * th;
   m.segment<2>(3) = -x.mu.N().transpose() * w;
-  m.segment<3>(5) = -in.rate_change_C / dt_s;
+  m.segment<3>(5) = -rate_change / dt_s;
   return m;
 }
 
@@ -1223,7 +1242,8 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     // Rolling shutter: every row with the motion at its own time (the readout of the iterate).
     const bool rolling = timing.rates_valid && timing.row_weight != nullptr &&
                          (x_j.readout_s != 0.0 || timing.estimate_readout);
-    const ObservedVec m_rows = rolling ? stateRateMap(x_seen, gyro_mean_C, timing, dt_s) : ObservedVec::Zero();
+    const ObservedVec m_rows =
+        rolling ? stateRateMap(x_seen, gyro_mean_C, timing, dt_s, true) : ObservedVec::Zero();
     const int valid = accumulate(cur, K_j, gyro_mean_C, dt_s, state_lag_s, x_seen, huber_sigma, &sums,
                                  rolling ? &m_rows : nullptr, rolling ? &timing : nullptr, x_j.readout_s,
                                  brightness);

@@ -329,6 +329,14 @@ TEST(ImuPropagator, GyroNoiseDensityIsMeasuredFromTheSamples) {
                      vibration_radps * Vec3(std::sin(2.0 * M_PI * 137.0 * t), 0.0, 0.0);
       if (pre.push(s, &o)) imu.push(o);
     }
+    if (seconds > 10.0 && vibration_radps == 0.0 && turn_radps == 0.0) {
+      // One sample's variance (white noise through the low-pass: density^2 f_in autocov0), the same measured
+      // from the specific force (no noise on it here: zero).
+      const double expect = density * density * rate * pre.noiseAutocovariance(0);
+      EXPECT_NEAR(imu.gyroSampleVariance().maxCoeff(), expect, 0.3 * expect);
+      EXPECT_NEAR(imu.gyroSampleVariance().minCoeff(), expect, 0.3 * expect);
+      EXPECT_LT(imu.accelSampleVariance().maxCoeff(), 1e-12);
+    }
     return std::sqrt(imu.gyroNoiseDensitySq());
   };
   EXPECT_EQ(measure(0.0, 0.0, 0.5, 7e-3), 7e-3) << "before 1 s of samples: the calibration's";

@@ -102,6 +102,38 @@ TEST(TimeOffsetMap, ZeroWhenDisabled) {
   EXPECT_TRUE(timeOffsetMap(randomState(rng), Vec3(0.5, 0.1, 0.2), in, 0.03).isZero(0.0));
 }
 
+// The rows of a rolling shutter take the expected rates given their noisy readings (docs/algorithm.md section 3.7):
+// each component of the acceleration a + g0 g and of the rate change shrunk by (1 - var / r^2), zero within the
+// noise; the vartheta part carries it as alpha times the acceleration, the b_w part as minus the rate change over
+// dt. Without noise variances, and for the time offset's column, the readings as they are.
+TEST(TimeOffsetMap, RowsTakeTheExpectedRatesGivenTheirNoise) {
+  std::mt19937 rng(9);
+  const State x = randomState(rng);
+  const double dt = 1.0 / 30.0;
+  ImageTiming in;
+  in.estimate_offset = true;
+  in.rates_valid = true;
+  in.gravity_mps2 = kG0;
+  const Vec3 accel(0.4, -0.02, 0.1);  // m/s^2: x well above the noise, y within it, z at twice its sigma
+  in.accel_C = accel - kG0 * x.g.vector() + x.b_a;
+  in.rate_change_C = Vec3(-0.01, 0.3, 0.0005);  // rad/s
+  in.accel_noise_var = Vec3::Constant(0.05 * 0.05);
+  in.rate_change_noise_var = Vec3::Constant(0.001 * 0.001);
+  const Vec3 w(0.2, -0.1, 0.3);
+  const ObservedVec raw = stateRateMap(x, w, in, dt), expected = stateRateMap(x, w, in, dt, true);
+  EXPECT_EQ(raw, timeOffsetMap(x, w, in, dt)) << "the offset's column: the readings as they are";
+  ImageTiming quiet = in;
+  quiet.accel_noise_var.setZero();
+  quiet.rate_change_noise_var.setZero();
+  EXPECT_LT((stateRateMap(x, w, quiet, dt, true) - raw).cwiseAbs().maxCoeff(), 1e-12) << "no noise: no change";
+  const Vec3 shrink_a(1.0 - 0.0025 / 0.16, 0.0, 1.0 - 0.0025 / 0.01);
+  const Vec3 shrink_w(1.0 - 1e-6 / 1e-4, 1.0 - 1e-6 / 0.09, 0.0);
+  const Vec3 expected_vartheta = raw.segment<3>(0) - x.alpha * (accel - accel.cwiseProduct(shrink_a));
+  EXPECT_LT((expected.segment<3>(0) - expected_vartheta).cwiseAbs().maxCoeff(), 1e-9);
+  EXPECT_LT((expected.segment<3>(5) + in.rate_change_C.cwiseProduct(shrink_w) / dt).cwiseAbs().maxCoeff(), 1e-9);
+  EXPECT_EQ(expected.segment<2>(3), raw.segment<2>(3)) << "the normal's rate is the interval's mean rate";
+}
+
 struct OffsetRun {
   double rmse_d_m = 0.0, rmse_v_mps = 0.0;  // from 5 s on
   double t_d_end_s = 0.0, sigma_t_d_end_s = 0.0;
