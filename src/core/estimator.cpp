@@ -409,7 +409,8 @@ struct Estimator::Impl {
       PendingImage& img = images[0];
       // The image's time on the IMU clock with the estimated offset on top of the calibration's
       // (docs/algorithm.md section 3.6); never before the state's time.
-      double t_img_s = params.estimate_time_offset ? img.t_s + x.t_d_s : img.t_s;
+      const double t_d_s = params.estimate_time_offset ? x.t_d_s : 0.0;
+      double t_img_s = img.t_s + t_d_s;
       if (state_initialized) t_img_s = std::max(t_img_s, imu.stateTime() + 1e-6);
       if (imu.empty() || imu.newest().t_s < t_img_s) return;
       if (!state_initialized && img.t_s < imu.oldest().t_s) {
@@ -419,7 +420,7 @@ struct Estimator::Impl {
         images.pop();
         continue;
       }
-      img_t_d_s = t_img_s - img.t_s;
+      img_t_d_s = t_d_s;  // (the offset's part only: not the step to after the state's time)
       img.t_s = t_img_s;
       processImage(img);
       images.pop();
