@@ -67,8 +67,8 @@ struct ImageTiming {
   /// (part of the rotation model error, docs/noise_model.md section 6).
   double gyro_noise_density_sq = 0.0;
   /// Noise variances (per axis of C) of the acceleration accel_C + g0 g the rates are computed from, (m/s^2)^2,
-  /// and of rate_change_C, (rad/s)^2: the rows of a rolling shutter take the expected rates given these noisy
-  /// readings (stateRateMap with `expected`; zero: the readings as they are).
+  /// and of rate_change_C, (rad/s)^2: while the readout is estimated, the rows of a rolling shutter take the
+  /// expected rates given these noisy readings (stateRateMap with `expected`; zero: the readings as they are).
   Vec3 accel_noise_var = Vec3::Zero();
   Vec3 rate_change_noise_var = Vec3::Zero();
   double gravity_mps2 = 9.81;         ///< magnitude of gravity, m/s^2

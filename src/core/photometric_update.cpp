@@ -1239,11 +1239,12 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     const PinholeK K_j = scaledFocal(K, x_j.focal_scale);
     calib->m[0] = timing.estimate_focal_scale ? focalScaleMap(x_seen, K_j, gyro_mean_C, dt_s, state_lag_s)
                                               : ObservedVec::Zero();
-    // Rolling shutter: every row with the motion at its own time (the readout of the iterate).
+    // Rolling shutter: every row with the motion at its own time (the readout of the iterate); while the readout is
+    // estimated, from the expected rates given their readings (docs/algorithm.md section 3.7).
     const bool rolling = timing.rates_valid && timing.row_weight != nullptr &&
                          (x_j.readout_s != 0.0 || timing.estimate_readout);
     const ObservedVec m_rows =
-        rolling ? stateRateMap(x_seen, gyro_mean_C, timing, dt_s, true) : ObservedVec::Zero();
+        rolling ? stateRateMap(x_seen, gyro_mean_C, timing, dt_s, timing.estimate_readout) : ObservedVec::Zero();
     const int valid = accumulate(cur, K_j, gyro_mean_C, dt_s, state_lag_s, x_seen, huber_sigma, &sums,
                                  rolling ? &m_rows : nullptr, rolling ? &timing : nullptr, x_j.readout_s,
                                  brightness);

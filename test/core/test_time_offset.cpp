@@ -102,10 +102,11 @@ TEST(TimeOffsetMap, ZeroWhenDisabled) {
   EXPECT_TRUE(timeOffsetMap(randomState(rng), Vec3(0.5, 0.1, 0.2), in, 0.03).isZero(0.0));
 }
 
-// The rows of a rolling shutter take the expected rates given their noisy readings (docs/algorithm.md section 3.7):
-// each component of the acceleration a + g0 g and of the rate change shrunk by (1 - var / r^2), zero within the
-// noise; the vartheta part carries it as alpha times the acceleration, the b_w part as minus the rate change over
-// dt. Without noise variances, and for the time offset's column, the readings as they are.
+// While the readout is estimated, the rows of a rolling shutter take the expected rates given their noisy readings
+// (docs/algorithm.md section 3.7): each component of the acceleration a + g0 g and of the rate change shrunk by
+// (1 - var / r^2), zero within the noise; the vartheta part carries it as alpha times the acceleration, the b_w part
+// as minus the rate change over dt. Without noise variances, and for the time offset's column, the readings as they
+// are.
 TEST(TimeOffsetMap, RowsTakeTheExpectedRatesGivenTheirNoise) {
   std::mt19937 rng(9);
   const State x = randomState(rng);
