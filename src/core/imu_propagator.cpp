@@ -43,7 +43,7 @@ bool ImuPropagator::push(const ImuSample& filtered) {
       constexpr double kTimeConstantS = 2.0;
       second_diffs_ = std::min(second_diffs_ + 1, 1 << 20);
       const double beta = std::max(1.0 - std::exp(-period / kTimeConstantS), 1.0 / second_diffs_);
-      second_diff_var_ += beta * (e.cwiseAbs2() - second_diff_var_);
+      gyro_second_diff_var_ += beta * (e.cwiseAbs2() - gyro_second_diff_var_);
       accel_second_diff_var_ += beta * (ea.cwiseAbs2() - accel_second_diff_var_);
     }
   }
@@ -51,22 +51,25 @@ bool ImuPropagator::push(const ImuSample& filtered) {
   return true;
 }
 
+bool ImuPropagator::noiseMeasured() const { return second_diffs_ >= 1.0 / filteredPeriod(); }  // 1 s of them
+
+Vec3 ImuPropagator::sampleVariance(const Vec3& second_diff_var, double calibrated_density) const {
+  if (!noiseMeasured()) return Vec3::Constant(calibrated_density * calibrated_density * sample_var_per_density_sq_);
+  return second_diff_var * (sample_var_per_density_sq_ / second_diff_var_per_density_sq_);
+}
+
 Vec3 ImuPropagator::gyroSampleVariance() const {
-  const double d = params_.imu.gyro_noise_density;
-  if (second_diffs_ < 1.0 / filteredPeriod()) return Vec3::Constant(d * d * sample_var_per_density_sq_);
-  return second_diff_var_ * (sample_var_per_density_sq_ / second_diff_var_per_density_sq_);
+  return sampleVariance(gyro_second_diff_var_, params_.imu.gyro_noise_density);
 }
 
 Vec3 ImuPropagator::accelSampleVariance() const {
-  const double d = params_.imu.accel_noise_density;
-  if (second_diffs_ < 1.0 / filteredPeriod()) return Vec3::Constant(d * d * sample_var_per_density_sq_);
-  return accel_second_diff_var_ * (sample_var_per_density_sq_ / second_diff_var_per_density_sq_);
+  return sampleVariance(accel_second_diff_var_, params_.imu.accel_noise_density);
 }
 
 double ImuPropagator::gyroNoiseDensitySq() const {
   const double calibrated = params_.imu.gyro_noise_density * params_.imu.gyro_noise_density;
-  if (second_diffs_ < 1.0 / filteredPeriod()) return calibrated;  // until 1 s of second differences
-  return std::min(calibrated, second_diff_var_.maxCoeff() / second_diff_var_per_density_sq_);
+  if (!noiseMeasured()) return calibrated;
+  return std::min(calibrated, gyro_second_diff_var_.maxCoeff() / second_diff_var_per_density_sq_);
 }
 
 void ImuPropagator::startAt(double t_s) {

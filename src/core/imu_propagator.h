@@ -76,6 +76,10 @@ class ImuPropagator {
   double filteredPeriod() const;
   /// Integral of the filtered gyro over (t0, t1] with the interpolation of propagateTo, rad.
   Vec3 gyroIntegral(double t0_s, double t1_s) const;
+  /// Whether 1 s of second differences has been seen (until then the calibration's densities are used).
+  bool noiseMeasured() const;
+  /// One filtered sample's variance from the smoothed second differences, or from the calibration's density.
+  Vec3 sampleVariance(const Vec3& second_diff_var, double calibrated_density) const;
   /// Drops the samples before the last one at or before the state's time.
   void dropUsed();
 
@@ -87,7 +91,7 @@ class ImuPropagator {
   Vec3 ref_rate_C_ = Vec3::Zero();     // filtered rate at the reference image, rad/s
   double second_diff_var_per_density_sq_ = 1.0;  // variance of (w_(k-1) + w_(k+1)) / 2 - w_k per unit density^2
   double sample_var_per_density_sq_ = 1.0;       // one filtered sample's variance per unit density^2
-  Vec3 second_diff_var_ = Vec3::Zero();          // its smoothed square per axis, (rad/s)^2
+  Vec3 gyro_second_diff_var_ = Vec3::Zero();     // its smoothed square per axis, (rad/s)^2
   Vec3 accel_second_diff_var_ = Vec3::Zero();    // the same of the specific force, (m/s^2)^2
   int second_diffs_ = 0;                         // second differences seen (capped)
 };

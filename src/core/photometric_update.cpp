@@ -101,6 +101,15 @@ struct IntervalWarp {
 }  // namespace
 
 namespace {
+/// The normal's tilt uncertainty (variance var_mu per tangent axis) as a relative inverse-depth variance along the
+/// ray q: var_mu (|q|^2 - (mu . q)^2) / (mu . q)^2, with mq = mu . q and q2 = |q|^2; `grazing` where mu . q is at
+/// most 1e-3 (the ray nearly parallel to the plane). The scalar form of the vector code in updateWeightMap and
+/// reliefVariance.
+template <class T>
+T tiltVarianceAlongRay(T mq, T q2, T var_mu, T grazing) {
+  return mq > T(1e-3) ? var_mu * std::max(T(0), q2 - mq * mq) / (mq * mq) : grazing;
+}
+
 /// The expected value of a reading r with the noise variance v (per component): r max(0, 1 - v / r^2).
 Vec3 expectedGivenReading(const Vec3& r, const Vec3& v) {
   Vec3 out;
@@ -1734,7 +1743,7 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
         const double qx = weight_qx_[i];
         const double mq = mu(0) * qx + mu_qy + mu(2);
         const double q2 = qx * qx + qy2 + 1.0;
-        const double var_tilt = mq > 1e-3 ? var_mu * std::max(0.0, q2 - mq * mq) / (mq * mq) : 1e6;
+        const double var_tilt = tiltVarianceAlongRay(mq, q2, var_mu, 1e6);
         const double de = sj[2 * i] / J - e_ref;
         ze = de * de / std::max(tol2 + k2 * (var_corr / J + var_tilt), k2 * e_spread2);
       }
@@ -1821,11 +1830,8 @@ double PhotometricUpdate::reliefVariance(const PinholeK& K, const Vec3& mu, doub
     const float* w = weight_cell_w_.ptr<float>(j);
     const float qy = static_cast<float>((2 * j + 0.5 - K.cy) / K.fy);
     const float mu_qy = static_cast<float>(mu(1)) * qy + static_cast<float>(mu(2)), qy2 = qy * qy + 1.0f;
-    // The normal's tilt uncertainty along the ray q = (qx, qy, 1): var_mu (|q|^2 - (mu . q)^2) / (mu . q)^2.
-    const auto tilt = [&](float qx) {
-      const float mq = mu0 * qx + mu_qy;
-      return mq > 1e-3f ? vmu * std::max(0.0f, qx * qx + qy2 - mq * mq) / (mq * mq) : 0.0f;
-    };
+    // The normal's tilt uncertainty along the ray q = (qx, qy, 1).
+    const auto tilt = [&](float qx) { return tiltVarianceAlongRay(mu0 * qx + mu_qy, qx * qx + qy2, vmu, 0.0f); };
     int i = 0;
     {
       using namespace cv;
