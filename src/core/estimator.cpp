@@ -264,6 +264,7 @@ struct Estimator::Impl {
       const double alpha0 = x.alpha, var_alpha0 = P(ErrIdx::kAlpha, ErrIdx::kAlpha);
       update.setReportImageVartheta(scale_init.phase() != internal::ScaleInitializer::Phase::kDone);
       stats = update.apply(frames[ref_index], cur, img.t_s, imu, last_imu_gap_end_s, &health, &x, &P, &skip_reason);
+      imu.holdColumnAccel();  // the next predictions' distance column: none of the next innovation's noise
       if (stats.applied && scale_init.holdsAlpha()) holdAlpha(alpha0, var_alpha0);
       if (update.lastPairPhotometric()) {
         // The camera-fixed pattern learns by how far the ground moved: the rotation (gyro) always, the translation

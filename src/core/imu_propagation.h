@@ -38,9 +38,10 @@ double forEachImuPiece(const Buffer& buf, double t_from_s, double t_to_s, double
 /// bridged gap (dt longer than two nominal periods) steps of at most one period with the IMU white-noise
 /// densities raised to sqrt(density^2 + sigma_gap^2 dt) (input.gap_*: an unknown acceleration and rate change,
 /// constant over the gap, add variance (sigma dt)^2). The one step rule of the estimator (ImuPropagator) and of
-/// the predictions between images (StatePredictor).
+/// the predictions between images (StatePredictor). `column_accel_C`: predict's (the held acceleration of the
+/// distance's column, ImuPropagator::holdColumnAccel), or null.
 inline void predictImuPiece(const ImuSample& input, double dt, double nominal_dt_s, const EstimatorParams& params,
-                            State* x, ErrorCov* P) {
+                            State* x, ErrorCov* P, const Vec3* column_accel_C = nullptr) {
   const bool gap = dt > 2.0 * nominal_dt_s;
   const int steps = gap ? static_cast<int>(std::ceil(dt / nominal_dt_s)) : 1;
   const double h = dt / steps;
@@ -52,7 +53,8 @@ inline void predictImuPiece(const ImuSample& input, double dt, double nominal_dt
     imu.gyro_noise_density = std::sqrt(imu.gyro_noise_density * imu.gyro_noise_density +
                                        in.gap_gyro_sigma_radps * in.gap_gyro_sigma_radps * dt);
   }
-  for (int k = 0; k < steps; ++k) predict(input.accel_mps2, input.gyro_radps, h, imu, params.process, x, P);
+  for (int k = 0; k < steps; ++k)
+    predict(input.accel_mps2, input.gyro_radps, h, imu, params.process, x, P, column_accel_C);
 }
 
 }  // namespace internal

@@ -74,6 +74,7 @@ double ImuPropagator::gyroNoiseDensitySq() const {
 
 void ImuPropagator::startAt(double t_s) {
   t_state_s_ = t_s;
+  accel_smooth_valid_ = column_valid_ = false;  // a new run: nothing propagated yet
   dropUsed();
 }
 
@@ -115,15 +116,56 @@ Vec3 ImuPropagator::gyroIntegral(double t0_s, double t1_s) const {
 // one nominal period, its noise inflated (predictImuPiece).
 void ImuPropagator::propagateTo(double t_target_s, State* x, ErrorCov* P) {
   const double nominal_dt_s = filteredPeriod();
+  const double tau_s = params_.imu.jacobian_accel_smoothing_s;
+  const bool held = tau_s >= 0.0;
+  const double g0 = params_.imu.gravity_mps2;
+  // Without an image update for a while the held value would be extrapolated ever further: renewed then.
+  if (held && accel_smooth_valid_ && (!column_valid_ || t_state_s_ - column_t_s_ > kMaxColumnAccelAgeS))
+    holdColumnAccel();
   forEachImuPiece(buffer_, t_state_s_, t_target_s, 2.0 * nominal_dt_s,
                   [&](double t0_s, double t1_s, const ImuSample& s) {
     const double dt = t1_s - t0_s;
-    predictImuPiece(s, dt, nominal_dt_s, params_, x, P);
+    if (!held) {
+      predictImuPiece(s, dt, nominal_dt_s, params_, x, P);
+    } else {
+      // The held acceleration extrapolated to the step and turned with the camera since it was held; then the
+      // smoothed ones turned with the camera and updated with this step's acceleration.
+      const Vec3 column = column_turn_ * (column_accel_C_ + (t0_s - column_t_s_) * column_trend_C_);
+      const Mat3 turn = expSO3(-dt * (s.gyro_radps - x->b_w));
+      predictImuPiece(s, dt, nominal_dt_s, params_, x, P, column_valid_ ? &column : nullptr);
+      column_turn_ = turn * column_turn_;
+      const Vec3 accel = s.accel_mps2 - x->b_a + g0 * x->g.vector();  // m/s^2
+      if (!accel_smooth_valid_) {
+        smooth1_C_ = smooth2_C_ = accel;
+        accel_smooth_valid_ = true;
+      } else {
+        const double w = tau_s > 0.0 ? -std::expm1(-dt / tau_s) : 1.0;
+        smooth1_C_ = turn * smooth1_C_;
+        smooth1_C_ += w * (accel - smooth1_C_);
+        smooth2_C_ = turn * smooth2_C_;
+        smooth2_C_ += w * (smooth1_C_ - smooth2_C_);
+      }
+    }
     gyro_integral_ += s.gyro_radps * dt;
     gyro_time_s_ += dt;
   });
   t_state_s_ = t_target_s;
   dropUsed();
+}
+
+void ImuPropagator::holdColumnAccel() {
+  const double tau_s = params_.imu.jacobian_accel_smoothing_s;
+  if (!accel_smooth_valid_ || tau_s < 0.0) return;
+  // Brown's double exponential smoothing: with w the weight per nominal period h, the level 2 s1 - s2 is the
+  // acceleration now and w / (1 - w) (s1 - s2) / h its rate of change, both without the lag of s1 for a linear
+  // trend (w = 1, no smoothing: the last step's acceleration, no trend).
+  const double h = filteredPeriod();
+  const double w = tau_s > 0.0 ? -std::expm1(-h / tau_s) : 1.0;
+  column_accel_C_ = 2.0 * smooth1_C_ - smooth2_C_;
+  column_trend_C_ = w < 1.0 ? Vec3((w / ((1.0 - w) * h)) * (smooth1_C_ - smooth2_C_)) : Vec3::Zero();
+  column_turn_.setIdentity();
+  column_t_s_ = t_state_s_;
+  column_valid_ = true;
 }
 
 void ImuPropagator::setReference(double t_s) {

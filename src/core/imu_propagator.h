@@ -33,6 +33,15 @@ class ImuPropagator {
   /// their stamps; a bridged gap held and its noise inflated) and accumulates the gyro over the interval.
   void propagateTo(double t_target_s, State* x, ErrorCov* P);
 
+  /// Holds the acceleration that the distance's column of the prediction Jacobian uses until the next call: the
+  /// propagated acceleration (specific force plus gravity, biases removed) of the steps so far, smoothed over
+  /// imu/jacobian_accel_smoothing_s without lag (level and trend), extrapolated from then on along the trend and
+  /// turned with the camera. The estimator calls it after each image update (propagateTo renews it when older
+  /// than kMaxColumnAccelAgeS): the column then carries none of the reading noise that the next innovation
+  /// measures (docs/algorithm.md section 2.1, "The distance's column"). No-op before anything was propagated, or
+  /// with the smoothing negative (each step's own reading, the textbook EKF).
+  void holdColumnAccel();
+
   // --- The image interval (reference image -> current image) ---
   /// A new reference image at t_s: the interval's gyro integral restarts, the rate at t_s is remembered.
   void setReference(double t_s);
@@ -94,6 +103,15 @@ class ImuPropagator {
   Vec3 gyro_second_diff_var_ = Vec3::Zero();     // its smoothed square per axis, (rad/s)^2
   Vec3 accel_second_diff_var_ = Vec3::Zero();    // the same of the specific force, (m/s^2)^2
   int second_diffs_ = 0;                         // second differences seen (capped)
+  static constexpr double kMaxColumnAccelAgeS = 0.1;  // s, the held value is renewed when older
+  Vec3 smooth1_C_ = Vec3::Zero();         // propagated acceleration (a - b_a + g0 g), smoothed once, in C now
+  Vec3 smooth2_C_ = Vec3::Zero();         // ... and twice (Brown), m/s^2
+  bool accel_smooth_valid_ = false;
+  Vec3 column_accel_C_ = Vec3::Zero();   // the held acceleration of the distance's column, in C then, m/s^2
+  Vec3 column_trend_C_ = Vec3::Zero();   // its rate of change, m/s^3
+  Mat3 column_turn_ = Mat3::Identity();  // how directions fixed in the world turned from then to now
+  bool column_valid_ = false;
+  double column_t_s_ = 0.0;              // state time when it was held, s
 };
 
 }  // namespace internal

@@ -312,6 +312,8 @@ const std::vector<Entry>& table() {
     t.push_back(flag("imu/compensate_filter_delay", DIEKF_FIELD(bool, imu.compensate_filter_delay)));
     t.push_back(flag("imu/lever_arm_compensation", DIEKF_FIELD(bool, imu.lever_arm_compensation)));
     t.push_back(flag("imu/prime_from_mean", DIEKF_FIELD(bool, imu.prime_from_mean)));
+    t.push_back(real("imu/jacobian_accel_smoothing_s", DIEKF_FIELD(double, imu.jacobian_accel_smoothing_s),
+                     between(-1.0, 1.0)));
     t.push_back(real("imu/gravity_mps2", DIEKF_FIELD(double, imu.gravity_mps2), between(1.0, 30.0)));
     // process noise
     t.push_back(real("process/alpha_inv_m_per_sqrt_s", DIEKF_FIELD(double, process.alpha_inv_m_per_sqrt_s),

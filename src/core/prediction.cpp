@@ -18,7 +18,7 @@ namespace {
 ///   alpha' = kappa alpha, vartheta' = kappa u, mu' = R mu, g' = R g (quaternions turned by R, so the tangent
 ///   bases are transported: d mu'/d mu = d g'/d g = I).
 void propagate(const State& x, const Vec3& accel_C, const Vec3& gyro_C, double dt, double g0, State* out,
-               ErrorCov* F, NoiseJacobian* G) {
+               ErrorCov* F, NoiseJacobian* G, const Vec3* column_accel_C) {
   const Vec3 a = accel_C - x.b_a;  // m/s^2
   const Vec3 w = gyro_C - x.b_w;   // rad/s
   const Vec3 mu = x.mu.vector();
@@ -59,7 +59,10 @@ void propagate(const State& x, const Vec3& accel_C, const Vec3& gyro_C, double d
   const Mat3 Jl = leftJacobianSO3(phi);
   // d(R v)/d w = dt [R v]x Jl(phi).
   Block du;
-  du.col(cA) = dt * (g0 * (R * gv) + a_mean);
+  // The distance's column: the acceleration over the step, g0 g + a turned to its end, or column_accel_C so
+  // turned (the reading's own noise here would correlate the column with the next innovation: docs/algorithm.md
+  // section 2.1, "The distance's column").
+  du.col(cA) = column_accel_C != nullptr ? Vec3(dt * (R * *column_accel_C)) : Vec3(dt * (g0 * (R * gv) + a_mean));
   du.block<3, 3>(0, cT) = R;
   du.block<3, 2>(0, cMu).setZero();
   du.block<3, 2>(0, cG) = (dt * x.alpha * g0) * (R * M_g);
@@ -140,14 +143,14 @@ ImuSample meanImuOver(const ImuSample& prev, const ImuSample& next, double t0_s,
 
 State predictState(const State& x, const Vec3& accel_C, const Vec3& gyro_C, double dt_s, double gravity_mps2) {
   State out;
-  propagate(x, accel_C, gyro_C, dt_s, gravity_mps2, &out, nullptr, nullptr);
+  propagate(x, accel_C, gyro_C, dt_s, gravity_mps2, &out, nullptr, nullptr, nullptr);
   return out;
 }
 
 void predictionJacobians(const State& x, const Vec3& accel_C, const Vec3& gyro_C, double dt_s,
                          double gravity_mps2, ErrorCov* F, NoiseJacobian* G) {
   State out;
-  propagate(x, accel_C, gyro_C, dt_s, gravity_mps2, &out, F, G);
+  propagate(x, accel_C, gyro_C, dt_s, gravity_mps2, &out, F, G, nullptr);
 }
 
 NoiseVec discreteNoiseSigmas(const ImuParams& imu, const ProcessNoiseParams& process, double dt_s) {
@@ -167,12 +170,12 @@ NoiseVec discreteNoiseSigmas(const ImuParams& imu, const ProcessNoiseParams& pro
 }
 
 void predict(const Vec3& accel_C, const Vec3& gyro_C, double dt_s, const ImuParams& imu,
-             const ProcessNoiseParams& process, State* x, ErrorCov* P) {
+             const ProcessNoiseParams& process, State* x, ErrorCov* P, const Vec3* column_accel_C) {
   if (!(dt_s > 0.0)) return;
   ErrorCov F;
   NoiseJacobian G;
   State out;
-  propagate(*x, accel_C, gyro_C, dt_s, imu.gravity_mps2, &out, &F, &G);
+  propagate(*x, accel_C, gyro_C, dt_s, imu.gravity_mps2, &out, &F, &G, column_accel_C);
 
   NoiseVec sigma = discreteNoiseSigmas(imu, process, dt_s);
   // Model error of the distance dynamics d ln(alpha)/dt = s = mu . vartheta: a relative random walk that grows

@@ -16,6 +16,9 @@ constexpr double kRateHz = 500.0;
 
 ImuParams defaultParams() {
   ImuParams p;  // 500 Hz in, 2nd order at 20 Hz, decimation 5, delay compensation on
+  // Primed from the first sample, so that the design is seen from the first input on (the default primes from
+  // the mean of one cutoff period and emits nothing before: PrimeFromMeanAvoidsTheStartBurst).
+  p.prime_from_mean = false;
   return p;
 }
 

@@ -68,6 +68,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          ia.scale_batch == ib.scale_batch && ia.scale_window_s == ib.scale_window_s &&
          ia.scale_max_window_s == ib.scale_max_window_s &&
          ia.scale_max_relative_sigma == ib.scale_max_relative_sigma && ma.prime_from_mean == mb.prime_from_mean &&
+         ma.jacobian_accel_smoothing_s == mb.jacobian_accel_smoothing_s &&
          ma.accel_noise_density == mb.accel_noise_density && ma.gyro_noise_density == mb.gyro_noise_density &&
          ma.accel_random_walk == mb.accel_random_walk && ma.gyro_random_walk == mb.gyro_random_walk &&
          ma.input_rate_hz == mb.input_rate_hz && ma.lowpass_cutoff_hz == mb.lowpass_cutoff_hz &&

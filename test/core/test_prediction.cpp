@@ -124,6 +124,41 @@ TEST(Prediction, JacobiansAtMuEqualGAndUntiltedCamera) {
   EXPECT_TRUE((G.block<6, 3>(ErrIdx::kBa, NoiseIdx::kGyro).isZero()));
 }
 
+// predict()'s column_accel_C (docs/algorithm.md section 2.1, "The distance's column"): the acceleration the
+// distance's column of F uses. Given the step's own (a - b_a + g0 g, no rotation over the step so that both forms
+// agree exactly) it is predict() without it; given another, only the covariance of the distance and vartheta
+// rows changes (the rows F's distance column reaches), and the mean not at all.
+TEST(Prediction, ColumnAccelerationOnlyChangesTheDistanceColumn) {
+  std::mt19937 rng(17);
+  std::normal_distribution<double> n(0.0, 1.0);
+  ImuParams imu;
+  imu.gravity_mps2 = kG0;
+  ProcessNoiseParams proc;
+  for (int trial = 0; trial < 5; ++trial) {
+    const Case c = randomCase(rng, 0.01, 0.0);  // no rotation
+    Eigen::Matrix<double, kErrorDim, kErrorDim> A;
+    for (int i = 0; i < kErrorDim; ++i)
+      for (int j = 0; j < kErrorDim; ++j) A(i, j) = n(rng);
+    const ErrorCov P0 = A * A.transpose() * 0.01 + ErrorCov::Identity() * 1e-3;
+    State x_plain = c.x, x_own = c.x, x_other = c.x;
+    ErrorCov P_plain = P0, P_own = P0, P_other = P0;
+    predict(c.accel_C, c.gyro_C, c.dt_s, imu, proc, &x_plain, &P_plain);
+    const Vec3 own = c.accel_C - c.x.b_a + kG0 * c.x.g.vector();
+    predict(c.accel_C, c.gyro_C, c.dt_s, imu, proc, &x_own, &P_own, &own);
+    EXPECT_LT((P_own - P_plain).cwiseAbs().maxCoeff(), 1e-13 * P_plain.cwiseAbs().maxCoeff());
+    const Vec3 other = own + Vec3(n(rng), n(rng), n(rng));
+    predict(c.accel_C, c.gyro_C, c.dt_s, imu, proc, &x_other, &P_other, &other);
+    EXPECT_EQ(x_other.boxminus(x_plain).norm(), 0.0) << "the mean is the readings'";
+    // Only F's distance column differs, and it is nonzero in the distance and vartheta rows only: the other
+    // entries of P' are those of the own column.
+    const ErrorCov D = P_other - P_own;
+    for (int i = 0; i < kErrorDim; ++i)
+      for (int j = 0; j < kErrorDim; ++j)
+        if (i > ErrIdx::kVartheta + 2 && j > ErrIdx::kVartheta + 2) EXPECT_EQ(D(i, j), 0.0) << i << "," << j;
+    EXPECT_GT(D.block<4, 4>(0, 0).cwiseAbs().maxCoeff(), 1e-9) << "the distance and vartheta rows did change";
+  }
+}
+
 TEST(Prediction, HoverKeepsVarthetaZero) {
   // At rest the accelerometer reads -g0 g (1 g "up"); vartheta and alpha must stay constant, for a level and
   // a tilted camera.
