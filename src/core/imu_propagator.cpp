@@ -4,6 +4,7 @@
 #include <cmath>
 
 #include "diekf/prediction.h"
+#include "expected_value.h"
 #include "imu_propagation.h"
 
 namespace diekf {
@@ -23,6 +24,8 @@ void ImuPropagator::setFilterNoise(double autocov0, double autocov1, double auto
   // has s^2 f_in autocov0, and (w_(k-1) + w_(k+1)) / 2 - w_k, with the samples' correlations rho1, rho2 one and two
   // filtered periods apart, (3/2 - 2 rho1 + rho2 / 2) of that.
   const double rho1 = autocov1 / autocov0, rho2 = autocov2 / autocov0;
+  sample_rho1_ = rho1;
+  sample_rho2_ = rho2;
   sample_var_per_density_sq_ = std::max(1e-12, params_.imu.input_rate_hz * autocov0);
   second_diff_var_per_density_sq_ = std::max(1e-12, sample_var_per_density_sq_ * (1.5 - 2.0 * rho1 + 0.5 * rho2));
 }
@@ -161,8 +164,21 @@ void ImuPropagator::holdColumnAccel() {
   // trend (w = 1, no smoothing: the last step's acceleration, no trend).
   const double h = filteredPeriod();
   const double w = tau_s > 0.0 ? -std::expm1(-h / tau_s) : 1.0;
-  column_accel_C_ = 2.0 * smooth1_C_ - smooth2_C_;
-  column_trend_C_ = w < 1.0 ? Vec3((w / ((1.0 - w) * h)) * (smooth1_C_ - smooth2_C_)) : Vec3::Zero();
+  const Vec3 level = 2.0 * smooth1_C_ - smooth2_C_;
+  const Vec3 trend = w < 1.0 ? Vec3((w / ((1.0 - w) * h)) * (smooth1_C_ - smooth2_C_)) : Vec3::Zero();
+  // Held as its expected value given the samples' noise through the smoothing: one sample's variance times
+  // w (1 + 4b + 5b^2) / (1 + b)^3, b = 1 - w (Brown's level), and 1 + 2 (rho1 + rho2) for the filtered samples'
+  // correlation one and two periods apart. Where the noise explains the level (at rest), the column shows no
+  // acceleration, and the images' "vartheta did not change" is no information about the distance. (The gravity
+  // direction's and the bias's uncertainty are not counted: they are states whose first-order effect F models,
+  // and counted here they hold the distance back until the tilt is known: docs/algorithm.md 2.1.)
+  const double b = 1.0 - w;
+  const double noise_factor = w * (1.0 + 4.0 * b + 5.0 * b * b) / ((1.0 + b) * (1.0 + b) * (1.0 + b)) *
+                              std::max(1.0, 1.0 + 2.0 * (sample_rho1_ + sample_rho2_));
+  const Vec3 var = noise_factor * accelSampleVariance();
+  column_accel_C_ = expectedGivenReading(level, var);
+  for (int i = 0; i < 3; ++i)  // the trend shrunk alike
+    column_trend_C_(i) = level(i) != 0.0 ? trend(i) * (column_accel_C_(i) / level(i)) : 0.0;
   column_turn_.setIdentity();
   column_t_s_ = t_state_s_;
   column_valid_ = true;

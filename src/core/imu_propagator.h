@@ -35,11 +35,12 @@ class ImuPropagator {
 
   /// Holds the acceleration that the distance's column of the prediction Jacobian uses until the next call: the
   /// propagated acceleration (specific force plus gravity, biases removed) of the steps so far, smoothed over
-  /// imu/jacobian_accel_smoothing_s without lag (level and trend), extrapolated from then on along the trend and
-  /// turned with the camera. The estimator calls it after each image update (propagateTo renews it when older
-  /// than kMaxColumnAccelAgeS): the column then carries none of the reading noise that the next innovation
-  /// measures (docs/algorithm.md section 2.1, "The distance's column"). No-op before anything was propagated, or
-  /// with the smoothing negative (each step's own reading, the textbook EKF).
+  /// imu/jacobian_accel_smoothing_s without lag (level and trend), shrunk to its expected value given the
+  /// samples' noise, then extrapolated along the trend and turned with the camera. The estimator calls it after
+  /// each image update (propagateTo renews it when older than kMaxColumnAccelAgeS): the column then carries none
+  /// of the reading noise that the next innovation measures, nor noise taken for acceleration (docs/algorithm.md
+  /// section 2.1, "The distance's column"). No-op before anything was propagated, or with the smoothing negative
+  /// (each step's own reading, the textbook EKF).
   void holdColumnAccel();
 
   // --- The image interval (reference image -> current image) ---
@@ -104,6 +105,8 @@ class ImuPropagator {
   Vec3 accel_second_diff_var_ = Vec3::Zero();    // the same of the specific force, (m/s^2)^2
   int second_diffs_ = 0;                         // second differences seen (capped)
   static constexpr double kMaxColumnAccelAgeS = 0.1;  // s, the held value is renewed when older
+  double sample_rho1_ = 0.0, sample_rho2_ = 0.0;
+  // correlation of the filtered samples one and two periods apart
   Vec3 smooth1_C_ = Vec3::Zero();         // propagated acceleration (a - b_a + g0 g), smoothed once, in C now
   Vec3 smooth2_C_ = Vec3::Zero();         // ... and twice (Brown), m/s^2
   bool accel_smooth_valid_ = false;

@@ -8,6 +8,7 @@
 #include <opencv2/core/hal/intrin.hpp>
 
 #include "bspline.h"
+#include "expected_value.h"
 #include "gauss_newton.h"
 #include "lanes.h"
 #include "window_sum.h"
@@ -110,15 +111,6 @@ T tiltVarianceAlongRay(T mq, T q2, T var_mu, T grazing) {
   return mq > T(1e-3) ? var_mu * std::max(T(0), q2 - mq * mq) / (mq * mq) : grazing;
 }
 
-/// The expected value of a reading r with the noise variance v (per component): r max(0, 1 - v / r^2).
-Vec3 expectedGivenReading(const Vec3& r, const Vec3& v) {
-  Vec3 out;
-  for (int i = 0; i < 3; ++i) {
-    const double r2 = r(i) * r(i);
-    out(i) = r2 > v(i) ? r(i) * (1.0 - v(i) / r2) : 0.0;
-  }
-  return out;
-}
 }  // namespace
 
 ObservedVec stateRateMap(const State& x, const Vec3& gyro_mean_C, const ImageTiming& in, double dt_s,
@@ -131,8 +123,8 @@ ObservedVec stateRateMap(const State& x, const Vec3& gyro_mean_C, const ImageTim
   Vec3 accel = a + in.gravity_mps2 * x.g.vector();  // m/s^2
   Vec3 rate_change = in.rate_change_C;              // rad/s
   if (expected) {
-    accel = expectedGivenReading(accel, in.accel_noise_var);
-    rate_change = expectedGivenReading(rate_change, in.rate_change_noise_var);
+    accel = internal::expectedGivenReading(accel, in.accel_noise_var);
+    rate_change = internal::expectedGivenReading(rate_change, in.rate_change_noise_var);
   }
   m.segment<3>(0) = x.alpha * accel - w.cross(th) + x.mu.vector().dot(th) * th;
   m.segment<2>(3) = -x.mu.N().transpose() * w;

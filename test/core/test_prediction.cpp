@@ -135,7 +135,8 @@ TEST(Prediction, ColumnAccelerationOnlyChangesTheDistanceColumn) {
   imu.gravity_mps2 = kG0;
   ProcessNoiseParams proc;
   for (int trial = 0; trial < 5; ++trial) {
-    const Case c = randomCase(rng, 0.01, 0.0);  // no rotation
+    Case c = randomCase(rng, 0.01, 0.0);
+    c.x.b_w.setZero();  // no rotation
     Eigen::Matrix<double, kErrorDim, kErrorDim> A;
     for (int i = 0; i < kErrorDim; ++i)
       for (int j = 0; j < kErrorDim; ++j) A(i, j) = n(rng);
@@ -155,7 +156,7 @@ TEST(Prediction, ColumnAccelerationOnlyChangesTheDistanceColumn) {
     for (int i = 0; i < kErrorDim; ++i)
       for (int j = 0; j < kErrorDim; ++j)
         if (i > ErrIdx::kVartheta + 2 && j > ErrIdx::kVartheta + 2) EXPECT_EQ(D(i, j), 0.0) << i << "," << j;
-    EXPECT_GT(D.block<4, 4>(0, 0).cwiseAbs().maxCoeff(), 1e-9) << "the distance and vartheta rows did change";
+    EXPECT_GT((D.block<4, 4>(0, 0).cwiseAbs().maxCoeff()), 1e-9) << "the distance and vartheta rows did change";
   }
 }
 
