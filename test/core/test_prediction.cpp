@@ -36,6 +36,15 @@ Case randomCase(std::mt19937& rng, double dt_s, double rate_scale) {
   return c;
 }
 
+/// A random symmetric positive-definite error covariance.
+ErrorCov randomCovariance(std::mt19937& rng) {
+  std::normal_distribution<double> n(0.0, 1.0);
+  Eigen::Matrix<double, kErrorDim, kErrorDim> A;
+  for (int i = 0; i < kErrorDim; ++i)
+    for (int j = 0; j < kErrorDim; ++j) A(i, j) = n(rng);
+  return A * A.transpose() * 0.01 + ErrorCov::Identity() * 1e-3;
+}
+
 /// f(x, n) exactly as documented in prediction.h (NoiseIdx).
 State predictWithNoise(const Case& c, const NoiseVec& n) {
   State y = predictState(c.x, c.accel_C + n.segment<3>(NoiseIdx::kAccel), c.gyro_C + n.segment<3>(NoiseIdx::kGyro),
@@ -137,10 +146,7 @@ TEST(Prediction, ColumnAccelerationOnlyChangesTheDistanceColumn) {
   for (int trial = 0; trial < 5; ++trial) {
     Case c = randomCase(rng, 0.01, 0.0);
     c.x.b_w.setZero();  // no rotation
-    Eigen::Matrix<double, kErrorDim, kErrorDim> A;
-    for (int i = 0; i < kErrorDim; ++i)
-      for (int j = 0; j < kErrorDim; ++j) A(i, j) = n(rng);
-    const ErrorCov P0 = A * A.transpose() * 0.01 + ErrorCov::Identity() * 1e-3;
+    const ErrorCov P0 = randomCovariance(rng);
     State x_plain = c.x, x_own = c.x, x_other = c.x;
     ErrorCov P_plain = P0, P_own = P0, P_other = P0;
     predict(c.accel_C, c.gyro_C, c.dt_s, imu, proc, &x_plain, &P_plain);
@@ -254,16 +260,12 @@ TEST(Prediction, NoiseGrowthIndependentOfStepSize) {
 TEST(Prediction, CovarianceStepEqualsDenseFormula) {
   // predict() exploits the structure of F and G; it must equal F P F^T + G Q G^T computed densely.
   std::mt19937 rng(13);
-  std::normal_distribution<double> n(0.0, 1.0);
   ImuParams imu;
   imu.gravity_mps2 = kG0;
   ProcessNoiseParams proc;
   for (int trial = 0; trial < 5; ++trial) {
     const Case c = randomCase(rng, 0.01, 1.0);
-    Eigen::Matrix<double, kErrorDim, kErrorDim> A;
-    for (int i = 0; i < kErrorDim; ++i)
-      for (int j = 0; j < kErrorDim; ++j) A(i, j) = n(rng);
-    const ErrorCov P0 = A * A.transpose() * 0.01 + ErrorCov::Identity() * 1e-3;
+    const ErrorCov P0 = randomCovariance(rng);
     ErrorCov F;
     NoiseJacobian G;
     predictionJacobians(c.x, c.accel_C, c.gyro_C, c.dt_s, kG0, &F, &G);
