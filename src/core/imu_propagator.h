@@ -105,8 +105,7 @@ class ImuPropagator {
   Vec3 accel_second_diff_var_ = Vec3::Zero();    // the same of the specific force, (m/s^2)^2
   int second_diffs_ = 0;                         // second differences seen (capped)
   static constexpr double kMaxColumnAccelAgeS = 0.1;  // s, the held value is renewed when older
-  double sample_rho1_ = 0.0, sample_rho2_ = 0.0;
-  // correlation of the filtered samples one and two periods apart
+  double sample_rho1_ = 0.0, sample_rho2_ = 0.0;  // correlation of the filtered samples 1 and 2 periods apart
   Vec3 smooth1_C_ = Vec3::Zero();         // propagated acceleration (a - b_a + g0 g), smoothed once, in C now
   Vec3 smooth2_C_ = Vec3::Zero();         // ... and twice (Brown), m/s^2
   bool accel_smooth_valid_ = false;
