@@ -133,20 +133,27 @@ void ImuPropagator::propagateTo(double t_target_s, State* x, ErrorCov* P) {
     } else {
       // The held acceleration extrapolated to the step and turned with the camera since it was held; then the
       // smoothed ones turned with the camera and updated with this step's acceleration.
-      const Vec3 column = column_turn_ * (column_accel_C_ + (t0_s - column_t_s_) * column_trend_C_);
+      // (Before the first hold: no acceleration measured apart from this step's reading yet, none in the column.)
+      const Vec3 column = column_valid_ ? Vec3(column_turn_ * (column_accel_C_ + (t0_s - column_t_s_) * column_trend_C_))
+                                        : Vec3::Zero();
       const Mat3 turn = expSO3(-dt * (s.gyro_radps - x->b_w));
-      predictImuPiece(s, dt, nominal_dt_s, params_, x, P, column_valid_ ? &column : nullptr);
+      predictImuPiece(s, dt, nominal_dt_s, params_, x, P, &column);
       column_turn_ = turn * column_turn_;
       const Vec3 accel = s.accel_mps2 - x->b_a + g0 * x->g.vector();  // m/s^2
       if (!accel_smooth_valid_) {
         smooth1_C_ = smooth2_C_ = accel;
+        var11_ = var12_ = var22_ = 1.0;
         accel_smooth_valid_ = true;
       } else {
-        const double w = tau_s > 0.0 ? -std::expm1(-dt / tau_s) : 1.0;
+        const double w = tau_s > 0.0 ? -std::expm1(-dt / tau_s) : 1.0, k = 1.0 - w;
         smooth1_C_ = turn * smooth1_C_;
         smooth1_C_ += w * (accel - smooth1_C_);
         smooth2_C_ = turn * smooth2_C_;
         smooth2_C_ += w * (smooth1_C_ - smooth2_C_);
+        // Their variances and covariance per unit sample variance (white samples), exactly from the first one.
+        var11_ = k * k * var11_ + w * w;
+        var22_ = k * k * var22_ + 2.0 * k * k * w * var12_ + w * w * var11_;
+        var12_ = k * k * var12_ + w * var11_;
       }
     }
     gyro_integral_ += s.gyro_radps * dt;
@@ -166,14 +173,14 @@ void ImuPropagator::holdColumnAccel() {
   const double w = tau_s > 0.0 ? -std::expm1(-h / tau_s) : 1.0;
   const Vec3 level = 2.0 * smooth1_C_ - smooth2_C_;
   const Vec3 trend = w < 1.0 ? Vec3((w / ((1.0 - w) * h)) * (smooth1_C_ - smooth2_C_)) : Vec3::Zero();
-  // Held as its expected value given the samples' noise through the smoothing: one sample's variance times
-  // w (1 + 4b + 5b^2) / (1 + b)^3, b = 1 - w (Brown's level), and 1 + 2 (rho1 + rho2) for the filtered samples'
-  // correlation one and two periods apart. Where the noise explains the level (at rest), the column shows no
-  // acceleration, and the images' "vartheta did not change" is no information about the distance. (The gravity
-  // direction's and the bias's uncertainty are not counted: they are states whose first-order effect F models,
-  // and counted here they hold the distance back until the tilt is known: docs/algorithm.md 2.1.)
-  const double b = 1.0 - w;
-  const double noise_factor = w * (1.0 + 4.0 * b + 5.0 * b * b) / ((1.0 + b) * (1.0 + b) * (1.0 + b)) *
+  // Held as its expected value given the samples' noise through the smoothing: one sample's variance times the
+  // level's variance factor 4 v11 - 4 v12 + v22 (tracked from the first sample: 1 then, w (1 + 4b + 5b^2) /
+  // (1 + b)^3 with b = 1 - w in the steady state), times 1 + 2 (rho1 + rho2) for the filtered samples' correlation
+  // one and two periods apart. Where the noise explains the level (at rest), the column shows no acceleration, and
+  // the images' "vartheta did not change" is no information about the distance. (The gravity direction's and the
+  // bias's uncertainty are not counted: they are states whose first-order effect F models, and counted here they
+  // hold the distance back until the tilt is known: docs/algorithm.md 2.1.)
+  const double noise_factor = std::max(0.0, 4.0 * var11_ - 4.0 * var12_ + var22_) *
                               std::max(1.0, 1.0 + 2.0 * (sample_rho1_ + sample_rho2_));
   const Vec3 var = noise_factor * accelSampleVariance();
   column_accel_C_ = expectedGivenReading(level, var);

@@ -108,6 +108,7 @@ class ImuPropagator {
   double sample_rho1_ = 0.0, sample_rho2_ = 0.0;  // correlation of the filtered samples 1 and 2 periods apart
   Vec3 smooth1_C_ = Vec3::Zero();         // propagated acceleration (a - b_a + g0 g), smoothed once, in C now
   Vec3 smooth2_C_ = Vec3::Zero();         // ... and twice (Brown), m/s^2
+  double var11_ = 1.0, var12_ = 1.0, var22_ = 1.0;  // their variances, covariance per unit sample variance
   bool accel_smooth_valid_ = false;
   Vec3 column_accel_C_ = Vec3::Zero();   // the held acceleration of the distance's column, in C then, m/s^2
   Vec3 column_trend_C_ = Vec3::Zero();   // its rate of change, m/s^3
