@@ -134,8 +134,8 @@ void ImuPropagator::propagateTo(double t_target_s, State* x, ErrorCov* P) {
       // The held acceleration extrapolated to the step and turned with the camera since it was held; then the
       // smoothed ones turned with the camera and updated with this step's acceleration.
       // (Before the first hold: no acceleration measured apart from this step's reading yet, none in the column.)
-      const Vec3 column = column_valid_ ? Vec3(column_turn_ * (column_accel_C_ + (t0_s - column_t_s_) * column_trend_C_))
-                                        : Vec3::Zero();
+      const Vec3 held_accel = column_accel_C_ + (t0_s - column_t_s_) * column_trend_C_;  // m/s^2
+      const Vec3 column = column_valid_ ? Vec3(column_turn_ * held_accel) : Vec3::Zero();
       const Mat3 turn = expSO3(-dt * (s.gyro_radps - x->b_w));
       predictImuPiece(s, dt, nominal_dt_s, params_, x, P, &column);
       column_turn_ = turn * column_turn_;
