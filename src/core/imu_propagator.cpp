@@ -122,9 +122,9 @@ void ImuPropagator::propagateTo(double t_target_s, State* x, ErrorCov* P) {
   const double tau_s = params_.imu.jacobian_accel_smoothing_s;
   const bool held = tau_s >= 0.0;
   const double g0 = params_.imu.gravity_mps2;
-  // Without an image update for a while the held value would be extrapolated ever further: renewed then.
-  if (held && accel_smooth_valid_ && (!column_valid_ || t_state_s_ - column_t_s_ > kMaxColumnAccelAgeS))
-    holdColumnAccel();
+  // Without an image update for a while the held value would be extrapolated ever further: renewed then
+  // (holdColumnAccel is a no-op while nothing was propagated or without the smoothing).
+  if (!column_valid_ || t_state_s_ - column_t_s_ > kMaxColumnAccelAgeS) holdColumnAccel();
   forEachImuPiece(buffer_, t_state_s_, t_target_s, 2.0 * nominal_dt_s,
                   [&](double t0_s, double t1_s, const ImuSample& s) {
     const double dt = t1_s - t0_s;
