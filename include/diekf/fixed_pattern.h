@@ -43,6 +43,13 @@ double imageMotionPx(const Vec3& vartheta_inv_s, const Vec3& rate_radps, const P
 /// (vartheta_x, vartheta_y): what FixedPattern accumulates to know how far the ground under its mean has moved.
 Vec2 groundShiftPx(const Vec3& vartheta_inv_s, const PinholeK& K, double dt_s);
 
+/// A lower bound of vartheta for the two functions above while the filter has not converged: vartheta shrunk
+/// toward zero by twice its 1-sigma, sqrt(trace cov) (cov: its 3 x 3 covariance), and zero where it is not
+/// larger than that. The images measure vartheta (the flow over distance) long before the distance itself
+/// converges, but not yet exactly: counting the ground's motion low makes the pattern's statistics count fewer
+/// independent samples than they hold, never more (docs/noise_model.md section 11).
+Vec3 lowerBoundVartheta(const Vec3& vartheta_inv_s, const Mat3& cov);
+
 class FixedPattern {
  public:
   /// `width` x `height`: the working image. `flat_field` (optional, CV_32FC1 of the working size): an offline
@@ -109,21 +116,32 @@ class FixedPattern {
   /// Keeps the detail in scratch_ as the newest snapshot (in the slot of the older one).
   void takeSnapshot();
 
-  /// The detail's noise is measured against a snapshot once the two means share at most this correlation and the
-  /// ground under them has moved by at least kMinSnapshotShiftWidths image widths (the centroids of their samples'
-  /// ground positions): hovering, or flying a path again, the mean is of the same ground as the snapshot's, and
-  /// their difference says nothing of the ground structure left in both (the last measured noise, or else the
-  /// image's spread, is used then)...
+  /// The detail's noise is measured against a snapshot once the two means share at most this correlation,
+  /// counted over the pieces of ground they hold (ground_cells_): hovering, or flying a path again, the mean is
+  /// of the same ground as the snapshot's, and their difference says nothing of the ground structure left in both
+  /// (the last measured noise, or else the image's spread, is used then)...
   static constexpr double kMaxSnapshotCorrelation = 0.8;
-  static constexpr double kMinSnapshotShiftWidths = 0.1;
   /// ...and a new snapshot is taken when the newest shares less than this correlation with the mean.
   static constexpr double kSnapshotRenewCorrelation = 0.5;
+  /// The ground's track through the image in cells of decorrelation_px, kGroundSide per side, wrapped (cells
+  /// kGroundSide apart share one: their ground counts as the same, which only lowers the measured correlation's
+  /// chance of falling below kMaxSnapshotCorrelation).
+  static constexpr int kGroundSide = 256;
+
+  /// Weights per ground cell: the stored value times `scale` (all cells decay at once through the scale).
+  struct GroundWeights {
+    std::vector<double> cell;
+    double scale = 1.0;
+    double at(int i) const { return cell[static_cast<size_t>(i)] * scale; }
+  };
+  /// The ground cell of the ground position (working px).
+  int groundCell(const Vec2& position_px) const;
 
   struct Snapshot {
     cv::Mat detail;             // the detail at the snapshot
     double var_factor = 0.0;    // the mean's variance then, per unit sample variance
     double cov_factor = 0.0;    // covariance of the mean now with the mean then, per unit sample variance
-    Vec2 centroid = Vec2::Zero();  // the mean's ground position then (working px)
+    GroundWeights ground;       // the mean's weights per ground cell then
     bool valid = false;
   };
 
@@ -145,10 +163,11 @@ class FixedPattern {
   std::vector<double> colsum_;   // box filter column sums
   Snapshot snapshots_[2];        // two, so that one is old enough to compare with when the other was just taken
   int newest_ = 0;               // index of the newest snapshot
-  double var_factor_ = 0.0;      // variance of the mean m1 per unit sample variance (sum of squared weights)
+  double var_factor_ = 0.0;      // variance of the mean m1 per unit sample variance (sum over the ground cells of
+                                 // their squared weights)
+  GroundWeights ground_;         // the mean's weight of each ground cell
   double detail_noise_per_sample_ = 0.0;  // the detail's noise per unit sample variance, last measured (0: never)
   Vec2 position_ = Vec2::Zero(); // the ground's accumulated translation through the image (working px)
-  Vec2 centroid_ = Vec2::Zero(); // the mean's ground position: position_ averaged with the mean's weights
   double samples_ = 0.0;
   int frames_since_refresh_ = 0;
   bool last_valid_ = false;   // last_u_ not learned from yet

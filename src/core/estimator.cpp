@@ -268,9 +268,13 @@ struct Estimator::Impl {
       if (stats.applied && scale_init.holdsAlpha()) holdAlpha(alpha0, var_alpha0);
       if (update.lastPairPhotometric()) {
         // The camera-fixed pattern learns by how far the ground moved: the rotation (gyro) always, the translation
-        // once the filter has converged and accepted the image (docs/noise_model.md section 11).
-        const bool trusted = stats.applied && !stats.gated && health.converged();
-        const Vec3 vartheta = trusted ? x.vartheta : Vec3::Zero();
+        // of an accepted image, until the filter has converged only its lower bound (docs/noise_model.md
+        // section 11).
+        const bool accepted = stats.applied && !stats.gated;
+        const Mat3 cov_vartheta = P.block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta);
+        const Vec3 vartheta = !accepted            ? Vec3::Zero()
+                              : health.converged() ? x.vartheta
+                                                   : lowerBoundVartheta(x.vartheta, cov_vartheta);
         if (fixed_pattern.learn(
                 imageMotionPx(vartheta, update.lastGyroMean() - x.b_w, img_pre.workingK(), update.lastInterval()),
                 groundShiftPx(vartheta, img_pre.workingK(), update.lastInterval()))) {

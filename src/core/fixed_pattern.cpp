@@ -26,6 +26,12 @@ Vec2 groundShiftPx(const Vec3& vartheta_inv_s, const PinholeK& K, double dt_s) {
   return -dt_s * Vec2(K.fx * vartheta_inv_s.x(), K.fy * vartheta_inv_s.y());
 }
 
+Vec3 lowerBoundVartheta(const Vec3& vartheta_inv_s, const Mat3& cov) {
+  const double norm = vartheta_inv_s.norm(), trace = cov.trace();
+  if (!(norm > 0.0) || !std::isfinite(norm) || !(trace >= 0.0) || !std::isfinite(trace)) return Vec3::Zero();
+  return std::max(0.0, 1.0 - 2.0 * std::sqrt(trace) / norm) * vartheta_inv_s;
+}
+
 namespace {
 
 float medianOf(std::vector<float>* v) {
@@ -125,7 +131,12 @@ FixedPattern::FixedPattern(const FixedPatternParams& params, int width, int heig
   median_buf_.reserve(static_cast<size_t>(((width + 1) / 2) * ((height + 1) / 2)));
   smooth_.create(height, width, CV_32FC1);
   scratch_.create(height, width, CV_32FC1);
-  for (Snapshot& s : snapshots_) s.detail.create(height, width, CV_32FC1);
+  const size_t cells = static_cast<size_t>(kGroundSide) * kGroundSide;
+  ground_.cell.assign(cells, 0.0);
+  for (Snapshot& s : snapshots_) {
+    s.detail.create(height, width, CV_32FC1);
+    s.ground.cell.assign(cells, 0.0);
+  }
   colsum_.assign(static_cast<size_t>(width), 0.0);
   reset();
 }
@@ -144,7 +155,8 @@ void FixedPattern::reset() {
   for (Snapshot& s : snapshots_) s.valid = false;
   newest_ = 0;
   position_ = Vec2::Zero();
-  centroid_ = Vec2::Zero();
+  std::fill(ground_.cell.begin(), ground_.cell.end(), 0.0);
+  ground_.scale = 1.0;
   frames_since_refresh_ = 0;
   last_valid_ = false;
   last_kept_ = false;
@@ -248,11 +260,25 @@ bool FixedPattern::learn(double motion_px, const Vec2& ground_shift_px) {
     m1[i] += lambda * d;
     m2[i] = keep * (m2[i] + lambda * d * d);
   }
-  // The mean's variance and its covariances with the snapshots' means, in units of one sample's variance; the
-  // ground position of the mean, weighted like it.
-  var_factor_ = static_cast<double>(keep) * keep * var_factor_ + static_cast<double>(lambda) * lambda;
-  for (Snapshot& s : snapshots_) s.cov_factor *= keep;
-  centroid_ += lambda * (position_ - centroid_);
+  // The mean's variance and its covariances with the snapshots' means, in units of one sample's variance: the
+  // ground is counted per cell of its track through the image (docs/noise_model.md section 11), so that samples
+  // of ground seen before (hovering, flying back) add to that ground's weight, not to the number of samples. The
+  // mean's weights decay by keep and the current cell gains lambda.
+  {
+    const double l = lambda, kp = keep;
+    const int c = groundCell(position_);
+    const double w_c = kp * ground_.at(c);  // the cell's weight after the decay
+    var_factor_ = kp * kp * var_factor_ + 2.0 * l * w_c + l * l;
+    for (Snapshot& s : snapshots_)
+      s.cov_factor = kp * s.cov_factor + (s.valid ? l * s.ground.at(c) : 0.0);
+    if (kp * ground_.scale < 1e-200) {  // the first sample (keep 0), or the scale about to underflow
+      for (double& v : ground_.cell) v *= ground_.scale * kp;
+      ground_.scale = 1.0;
+    } else {
+      ground_.scale *= kp;
+    }
+    ground_.cell[static_cast<size_t>(c)] += l / ground_.scale;
+  }
   ++frames_since_refresh_;
   if (!snapshots_[newest_].valid && samples_ >= 0.5 * params_.startup_samples) {
     // The first snapshot of the detail, half-way through the start-up (refresh() takes the later ones).
@@ -289,13 +315,25 @@ void FixedPattern::computeDetail(float* dt, float* sm, float* tmp, float level) 
   for (int i = 0; i < n; ++i) dt[i] = dt[i] / std::max(sm[i], 1e-6f) - 1.f;
 }
 
+int FixedPattern::groundCell(const Vec2& position_px) const {
+  const double cell_px = params_.decorrelation_px > 0.0 ? params_.decorrelation_px : 1.0;
+  auto wrap = [](double v) {
+    const double k = std::floor(v);
+    if (!std::isfinite(k)) return 0;
+    const long long i = static_cast<long long>(std::fmod(k, static_cast<double>(kGroundSide)));
+    return static_cast<int>(i < 0 ? i + kGroundSide : i);
+  };
+  return wrap(position_px.y() / cell_px) * kGroundSide + wrap(position_px.x() / cell_px);
+}
+
 void FixedPattern::takeSnapshot() {
   if (snapshots_[newest_].valid) newest_ = 1 - newest_;  // the older slot
   Snapshot& s = snapshots_[newest_];
   scratch_.copyTo(s.detail);
   s.var_factor = var_factor_;
   s.cov_factor = var_factor_;
-  s.centroid = centroid_;
+  std::copy(ground_.cell.begin(), ground_.cell.end(), s.ground.cell.begin());
+  s.ground.scale = ground_.scale;
   s.valid = true;
 }
 
@@ -432,7 +470,7 @@ void FixedPattern::refresh() {
   // detail now and the snapshot's, taken when the mean was mostly of other samples: the fixed pattern cancels.
   // With the mean's variance v and the snapshot's v_s (per unit sample variance) and their covariance c:
   // Var(detail - snapshot) = s^2 (v + v_s - 2 c), so the detail's own noise is s sqrt(v). Only where the two
-  // means are of different ground (kMinSnapshotShiftWidths); the newest such snapshot.
+  // means are of different ground (their correlation counted over the ground cells); the newest such snapshot.
   const auto correlation = [&](const Snapshot& s) {
     return s.valid && var_factor_ > 0.0 && s.var_factor > 0.0 ? s.cov_factor / std::sqrt(var_factor_ * s.var_factor)
                                                               : 1.0;
@@ -440,9 +478,7 @@ void FixedPattern::refresh() {
   for (int j = 0; j < 2; ++j) {
     const Snapshot& s = snapshots_[j == 0 ? newest_ : 1 - newest_];
     const double vd = var_factor_ + s.var_factor - 2.0 * s.cov_factor;
-    if (!s.valid || !(vd > 0.0) || correlation(s) >= kMaxSnapshotCorrelation ||
-        (centroid_ - s.centroid).norm() < kMinSnapshotShiftWidths * width_)
-      continue;
+    if (!s.valid || !(vd > 0.0) || correlation(s) >= kMaxSnapshotCorrelation) continue;
     const float* snap = s.detail.ptr<float>();
     const float med = sampleMedian([&](int i) { return dt[i] - snap[i]; });
     const float spread = 1.4826f * sampleMedian([&](int i) { return std::abs(dt[i] - snap[i] - med); });

@@ -390,6 +390,14 @@ TEST(FixedPattern, ImageMotionFromTheState) {
   EXPECT_TRUE(groundShiftPx(Vec3(0.3, -0.2, 0.5), K, 0.1).isApprox(Vec2(-3.0, 2.0), 1e-12));
   EXPECT_TRUE(groundShiftPx(Vec3(NAN, 0.0, 0.0), K, 0.1).isZero());
   EXPECT_TRUE(groundShiftPx(Vec3(0.3, 0.0, 0.0), K, 0.0).isZero());
+  // Before convergence, vartheta shrunk by twice its 1-sigma (sqrt of the covariance's trace): 0.5 1/s with a
+  // 1-sigma of 0.1 counts as 0.3; not larger than twice its 1-sigma, as no motion.
+  const Vec3 v(0.3, 0.4, 0.0);
+  EXPECT_TRUE(lowerBoundVartheta(v, Mat3::Identity() * (0.01 / 3.0)).isApprox(0.6 * v, 1e-12));
+  EXPECT_TRUE(lowerBoundVartheta(v, Mat3::Identity() * (0.07 / 3.0)).isZero());
+  EXPECT_TRUE(lowerBoundVartheta(v, Mat3::Zero()).isApprox(v, 1e-15));
+  EXPECT_TRUE(lowerBoundVartheta(Vec3(NAN, 0.0, 0.0), Mat3::Zero()).isZero());
+  EXPECT_TRUE(lowerBoundVartheta(v, Mat3::Identity() * NAN).isZero());
 }
 
 TEST(FixedPattern, InThePreprocessingAndAFlatFieldFile) {
