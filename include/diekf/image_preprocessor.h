@@ -132,6 +132,8 @@ class ImagePreprocessor {
   double noise_correlation_area_px_ = 1.0;
   int pad_ = 0;                     // blur radius, px: columns of replicated border on each side of the padded stage
   cv::Mat raw_copy_;                // continuous copy of a non-continuous input
+  cv::Mat dot_kernel_;              // square element of the bright-dot opening (empty: off)
+  cv::Mat dots_removed_;            // the raw image opened by it
   ResampledImage stage_;            // process()'s own stage-1 buffers
   cv::Mat blur_tmp_;                // CV_32FC1 H x W: horizontal pass of the blur
 };

@@ -75,6 +75,9 @@ struct PreprocessParams {
   double antialias_sigma_px = 0.4;              ///< Gaussian footprint of the resampling, working px (0 = box)
   bool normalize_brightness = true;             ///< zero-mean, unit-variance intensity per frame
   int border_px = 1;                            ///< pixels at the border excluded from the update, px
+  /// Side of the square element (raw px, odd; 0 = off) of a grey-scale opening applied to the raw image before
+  /// the resampling: removes bright dots smaller than it, such as an IR projector's (docs/noise_model.md §11).
+  int dot_removal_px = 0;
 };
 
 /// How the photometric update models a brightness change between the two images of a pair

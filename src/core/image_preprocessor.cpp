@@ -38,6 +38,7 @@
 #include <tuple>
 
 #include <opencv2/core/hal/intrin.hpp>
+#include <opencv2/imgproc.hpp>
 
 namespace diekf {
 namespace {
@@ -231,6 +232,14 @@ ImagePreprocessor::ImagePreprocessor(const CameraModel& camera, const Preprocess
   }
   if (!(params.antialias_sigma_px >= 0.0) || params.antialias_sigma_px > 2.0) {
     throw std::invalid_argument("ImagePreprocessor: antialias_sigma_px outside [0, 2]");
+  }
+  if (params.dot_removal_px < 0 || params.dot_removal_px > 31 ||
+      (params.dot_removal_px > 0 && params.dot_removal_px % 2 == 0)) {
+    throw std::invalid_argument("ImagePreprocessor: dot_removal_px = " + std::to_string(params.dot_removal_px) +
+                                " is not 0 or odd in [1, 31]");
+  }
+  if (params.dot_removal_px > 1) {
+    dot_kernel_ = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(params.dot_removal_px, params.dot_removal_px));
   }
 
   // ---- working camera ----
@@ -557,6 +566,14 @@ void ImagePreprocessor::resample(const cv::Mat& raw, ResampledImage* stage) {
     ensure(raw_copy_, raw.rows, raw.cols, CV_8UC1);
     raw.copyTo(raw_copy_);
     src = raw_copy_.data;
+  }
+  if (dot_kernel_.rows > 0) {
+    // Bright specks smaller than the element (an IR projector's dots) removed by a grey-scale opening: a
+    // translation-equivariant filter, so the ground's image still moves as the warp says.
+    ensure(dots_removed_, raw.rows, raw.cols, CV_8UC1);
+    cv::morphologyEx(cv::Mat(raw.rows, raw.cols, CV_8UC1, const_cast<uint8_t*>(src)), dots_removed_, cv::MORPH_OPEN,
+                     dot_kernel_);
+    src = dots_removed_.data;
   }
   const int W = working_K_.width, H = working_K_.height;
   const int PW = W + 2 * pad_;

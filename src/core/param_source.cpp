@@ -340,6 +340,7 @@ const std::vector<Entry>& table() {
                      between(0.0, 2.0)));
     t.push_back(flag("preprocess/normalize_brightness", DIEKF_FIELD(bool, preprocess.normalize_brightness)));
     t.push_back(integer("preprocess/border_px", DIEKF_FIELD(int, preprocess.border_px), between(1, 100)));
+    t.push_back(integer("preprocess/dot_removal_px", DIEKF_FIELD(int, preprocess.dot_removal_px), between(0, 31)));
     // photometric update
     t.push_back(integer("photometric/max_passes", DIEKF_FIELD(int, photometric.max_passes), between(1, 100)));
     t.push_back(real("photometric/stop_threshold", DIEKF_FIELD(double, photometric.stop_threshold), positive()));

@@ -7,7 +7,8 @@ const char* const kIrControlKeys[3] = {"standard/ir_control", "STANDARD/ir_contr
 bool irProjectorMayBeOn(const std::map<std::string, int>& found, const std::string& driver_ns, std::string* text) {
   const std::string fix = "its pattern is fixed to the camera, not to the ground, and breaks the brightness "
                           "constancy of the photometric update: set " + driver_ns + "/standard/ir_control to 0 "
-                          "(S1030; " + driver_ns + "/STANDARD/ir_control on the S2 models), docs/ros.md";
+                          "(S1030; " + driver_ns + "/STANDARD/ir_control on the S2 models), or, with the "
+                          "projector needed, set diekf's preprocess/dot_removal_px to 5, docs/ros.md";
   if (found.empty()) {
     *text = "no IR parameter of the driver under " + driver_ns;
     return false;

@@ -2,6 +2,7 @@
 // gradient definition, input validation, buffer reuse.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <stdexcept>
@@ -347,6 +348,54 @@ TEST(ImagePreprocessor, NormalisationZeroMeanUnitVariance) {
   PreprocessedFrame f2;
   pre.process(brighter, 1.6, &f2);
   EXPECT_LT(cv::norm(f.intensity, f2.intensity, cv::NORM_INF), 0.1);
+}
+
+// Bright dots of an IR projector (Gaussian, sigma 1.2 raw px, +150 grey levels at the peak, one every ~14 x 14 raw px)
+// on a smooth texture: the opening of dot_removal_px = 5 takes them out of the working image, and without it
+// they stay; an even or negative size is refused with the key's name.
+TEST(ImagePreprocessor, DotRemovalTakesProjectorDotsOut) {
+  const cv::Mat ground = stripes(60.0, 0.4);
+  cv::Mat dotted = ground.clone();
+  cv::RNG rng(7);
+  for (int k = 0; k < 1800; ++k) {
+    const double cx = rng.uniform(0.0, 752.0), cy = rng.uniform(0.0, 480.0);
+    for (int y = std::max(0, int(cy) - 4); y <= std::min(479, int(cy) + 4); ++y)
+      for (int x = std::max(0, int(cx) - 4); x <= std::min(751, int(cx) + 4); ++x) {
+        const double r2 = (x - cx) * (x - cx) + (y - cy) * (y - cy);
+        dotted.at<uint8_t>(y, x) =
+            cv::saturate_cast<uint8_t>(dotted.at<uint8_t>(y, x) + 150.0 * std::exp(-0.5 * r2 / (1.2 * 1.2)));
+      }
+  }
+  auto working = [](const cv::Mat& raw, int dot_removal_px) {
+    PreprocessParams p;
+    p.normalize_brightness = false;
+    p.dot_removal_px = dot_removal_px;
+    ImagePreprocessor pre(myntEyeCamera(), p);
+    PreprocessedFrame f;
+    pre.process(raw, 0.0, &f);
+    return f.intensity.clone();
+  };
+  const int b = 4;
+  const cv::Rect inner(b, b, 180 - 2 * b, 116 - 2 * b);
+  auto rms = [&](const cv::Mat& a, const cv::Mat& c) { return cv::norm(a(inner), c(inner), cv::NORM_L2) / std::sqrt(inner.area()); };
+  const cv::Mat clean = working(ground, 0), opened = working(ground, 5);
+  const double kept = rms(working(dotted, 0), clean);      // the dots in the working image
+  const double removed = rms(working(dotted, 5), opened);  // what is left of them after the opening
+  const double ground_change = rms(opened, clean);         // what the opening does to the ground alone
+  std::printf("dots: kept %.4f, left %.4f, ground changed by %.4f (rms, grey / 255)\n", kept, removed, ground_change);
+  EXPECT_GT(kept, 8.0 / 255.0);
+  EXPECT_LT(removed, 0.5 * kept);  // 0.35: dots closer than the element to each other stay in part
+  EXPECT_LT(ground_change, 0.1 * kept);
+  for (int bad : {-1, 4}) {
+    PreprocessParams p;
+    p.dot_removal_px = bad;
+    try {
+      ImagePreprocessor pre(myntEyeCamera(), p);
+      FAIL() << "no exception for dot_removal_px = " << bad;
+    } catch (const std::invalid_argument& e) {
+      EXPECT_NE(std::string(e.what()).find("dot_removal_px"), std::string::npos) << e.what();
+    }
+  }
 }
 
 TEST(ImagePreprocessor, UniformImagesGiveFiniteZeros) {

@@ -83,7 +83,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          ra.working_width_px == rb.working_width_px && ra.working_height_px == rb.working_height_px &&
          ra.blur_sigma_px == rb.blur_sigma_px && ra.antialias_sigma_px == rb.antialias_sigma_px &&
          ra.normalize_brightness == rb.normalize_brightness &&
-         ra.border_px == rb.border_px && ha.max_passes == hb.max_passes && ha.stop_threshold == hb.stop_threshold &&
+         ra.border_px == rb.border_px && ra.dot_removal_px == rb.dot_removal_px && ha.max_passes == hb.max_passes && ha.stop_threshold == hb.stop_threshold &&
          ha.intensity_noise_sigma == hb.intensity_noise_sigma && ha.gradient_weighting == hb.gradient_weighting &&
          ha.huber_threshold == hb.huber_threshold && ha.min_valid_ratio == hb.min_valid_ratio &&
          ha.pixel_stride == hb.pixel_stride && ha.adaptive_noise == hb.adaptive_noise &&
