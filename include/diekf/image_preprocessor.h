@@ -33,6 +33,8 @@ struct PreprocessedFrame {
   cv::Mat grad_y;         ///< CV_32FC1 (I(x,y+1) - I(x,y-1)) / 2 of `intensity`, per pixel; 0 on the border
   double grey_per_unit = 255.0;  ///< grey levels per unit of `intensity` (the working image's std when
                                  ///< normalize_brightness, else 255): converts a sensor noise in grey levels
+  int dot_removal_px = 0;  ///< the opening the raw image went through (ImagePreprocessor::setDotRemoval; 0: none):
+                           ///< two frames with different openings are not a pair
   bool valid = false;
 };
 
@@ -42,6 +44,7 @@ struct PreprocessedFrame {
 struct ResampledImage {
   cv::Mat padded;  ///< CV_32FC1 H x (W + 2 blur radius): grey levels, border columns replicated
   cv::Mat gray8;   ///< CV_8UC1 H x W: the same, rounded (PreprocessedFrame::gray8)
+  int dot_removal_px = 0;  ///< the opening the raw image went through (PreprocessParams::dot_removal_px; 0: none)
   bool valid = false;
 };
 
@@ -76,6 +79,11 @@ class ImagePreprocessor {
   /// (FixedPattern::reapply), normalised and differentiated again: after the fields changed, so that the next
   /// pair sees one correction in both images. No-op when the pattern cannot (nothing kept, or disabled).
   void reapplyPattern(FixedPattern* pattern, PreprocessedFrame* frame) const;
+
+  /// Switches the bright-dot opening of the raw images (PreprocessParams::dot_removal_px) to a square of side px
+  /// (odd, <= 31; 0 = off) for the images resampled from now on. Throws std::invalid_argument otherwise.
+  void setDotRemoval(int px);
+  int dotRemovalPx() const { return dot_removal_px_; }
 
  private:
   // ---- Resampling lookup table (built once in the constructor; see image_preprocessor.cpp). ----
@@ -132,7 +140,8 @@ class ImagePreprocessor {
   double noise_correlation_area_px_ = 1.0;
   int pad_ = 0;                     // blur radius, px: columns of replicated border on each side of the padded stage
   cv::Mat raw_copy_;                // continuous copy of a non-continuous input
-  cv::Mat dot_kernel_;              // square element of the bright-dot opening (empty: off)
+  int dot_removal_px_ = 0;          // side of the bright-dot opening (0: off)
+  cv::Mat dot_kernel_;              // its square element (empty: off)
   cv::Mat dots_removed_;            // the raw image opened by it
   ResampledImage stage_;            // process()'s own stage-1 buffers
   cv::Mat blur_tmp_;                // CV_32FC1 H x W: horizontal pass of the blur

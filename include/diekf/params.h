@@ -151,6 +151,11 @@ struct FixedPatternParams {
   /// The learned pattern's share of the image's gradient energy (0..1) from which it dominates the image: named in
   /// the status and diagnostics (the status degraded once when it gets there); 0: never.
   double dominant_contrast_share = 0.25;
+  /// When the learned pattern reaches dominant_contrast_share and the raw images are not opened yet
+  /// (PreprocessParams::dot_removal_px = 0), switch the bright-dot opening on with this side (raw px, odd; 0 =
+  /// never) and learn the pattern anew: a pattern that dominates the contrast is an IR projector's dots
+  /// (docs/noise_model.md section 11).
+  int auto_dot_removal_px = 5;
   /// Optional offline flat field: a cv::FileStorage file (YAML/XML) with a matrix `gain` (relative response per
   /// raw pixel at the calibration resolution, any scale); empty: none. Divided out before the online model.
   std::string vignetting_file;

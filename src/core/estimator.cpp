@@ -100,6 +100,11 @@ struct Estimator::Impl {
     sc.accel_noise_density = p.imu.accel_noise_density;
     sc.gravity_mps2 = p.imu.gravity_mps2;
     scale_init.configure(sc);
+    const int dot_px = p.fixed_pattern.auto_dot_removal_px;
+    if (dot_px < 0 || dot_px > 31 || (dot_px > 0 && dot_px % 2 == 0)) {
+      throw std::invalid_argument("fixed_pattern/auto_dot_removal_px = " + std::to_string(dot_px) +
+                                  " is not 0 or odd in [1, 31]");
+    }
     resetFilter();
   }
 
@@ -174,6 +179,38 @@ struct Estimator::Impl {
       health.noteDegraded(t_s, why);
     }
     if (share < 0.5 * fp.dominant_contrast_share) pattern_named = false;
+  }
+
+  /// A camera-fixed pattern that dominates the image's contrast (fixed_pattern.dominant_contrast_share) while the
+  /// raw images are not opened is taken for an IR projector's dots: the images resampled from now on are opened
+  /// (fixed_pattern.auto_dot_removal_px; 0 = never), the pattern is learned anew from them, and the distance and
+  /// velocity over distance get their initial uncertainty back; the first opened image starts a new pair
+  /// (processImage). Once per estimator: the opening stays on. docs/noise_model.md §11.
+  void switchOnDotRemovalIfDominant(double t_s) {
+    const FixedPatternParams& fp = params.fixed_pattern;
+    const double share = fixed_pattern.contrastShare();
+    if (fp.auto_dot_removal_px <= 1 || img_pre.dotRemovalPx() != 0 || !(fp.dominant_contrast_share > 0.0) ||
+        share < fp.dominant_contrast_share)
+      return;
+    img_pre.setDotRemoval(fp.auto_dot_removal_px);
+    fixed_pattern.reset();
+    char why[kMessageCapacity];
+    std::snprintf(why, sizeof(why),
+                  "camera-fixed pattern of %.0f %% of the image's contrast taken for projector dots: raw images "
+                  "opened over %d px from now on (fixed_pattern/auto_dot_removal_px)",
+                  100.0 * share, fp.auto_dot_removal_px);
+    health.noteDegraded(t_s, why);
+    // What the filter holds of the distance and the velocity over distance came from images with the dots (their
+    // vote for "no motion" biased every update before the model had learned them, by more than the share learned
+    // so far): both are given back their initial uncertainty, uncorrelated (the estimates are kept; the attitude,
+    // normal and biases are not affected). Measured better than a restart of the whole filter (docs/results.md).
+    const double sa = params.init.sigma_alpha0_inv_m, sv = params.init.sigma_vartheta0_inv_s;
+    for (int i = ErrIdx::kAlpha; i < ErrIdx::kVartheta + 3; ++i) {
+      P.row(i).setZero();
+      P.col(i).setZero();
+    }
+    P(ErrIdx::kAlpha, ErrIdx::kAlpha) = sa * sa;
+    P.block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta) = Mat3::Identity() * sv * sv;
   }
 
   /// Starts the filter at image `t_s`: gravity from the accelerometer, no propagation before.
@@ -259,6 +296,9 @@ struct Estimator::Impl {
     if (!usable) {
       // Keep the reference and the gyro integral: the next usable image is compared with the old reference.
       skip_reason = usable_why;
+    } else if (have_reference && frames[ref_index].dot_removal_px != cur.dot_removal_px) {
+      // The dot removal was switched on between the two images: not a pair; this image is the next reference.
+      skip_reason = "raw images opened from this image on (dots fixed in the image): new reference";
     } else if (have_reference) {
       update.setPixelConfidence(fixed_pattern.confidence());
       const double alpha0 = x.alpha, var_alpha0 = P(ErrIdx::kAlpha, ErrIdx::kAlpha);
@@ -280,6 +320,7 @@ struct Estimator::Impl {
                 groundShiftPx(vartheta, img_pre.workingK(), update.lastInterval()))) {
           img_pre.reapplyPattern(&fixed_pattern, &cur);  // the next pair: one correction in both images
           discountPatternBiasedInformation(img.t_s);
+          switchOnDotRemovalIfDominant(img.t_s);
         }
       }
     }

@@ -163,6 +163,7 @@ void FixedPattern::reset() {
   active_ = false;
   has_low_confidence_ = false;
   strong_fraction_ = 0.0;
+  contrast_share_ = 0.0;
 }
 
 namespace {

@@ -233,14 +233,7 @@ ImagePreprocessor::ImagePreprocessor(const CameraModel& camera, const Preprocess
   if (!(params.antialias_sigma_px >= 0.0) || params.antialias_sigma_px > 2.0) {
     throw std::invalid_argument("ImagePreprocessor: antialias_sigma_px outside [0, 2]");
   }
-  if (params.dot_removal_px < 0 || params.dot_removal_px > 31 ||
-      (params.dot_removal_px > 0 && params.dot_removal_px % 2 == 0)) {
-    throw std::invalid_argument("ImagePreprocessor: dot_removal_px = " + std::to_string(params.dot_removal_px) +
-                                " is not 0 or odd in [1, 31]");
-  }
-  if (params.dot_removal_px > 1) {
-    dot_kernel_ = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(params.dot_removal_px, params.dot_removal_px));
-  }
+  setDotRemoval(params.dot_removal_px);
 
   // ---- working camera ----
   const int W = params.working_width_px;
@@ -554,6 +547,16 @@ void ImagePreprocessor::process(const cv::Mat& raw, double t_s, PreprocessedFram
   finish(&stage_, t_s, out, pattern);
 }
 
+void ImagePreprocessor::setDotRemoval(int px) {
+  if (px < 0 || px > 31 || (px > 0 && px % 2 == 0)) {
+    throw std::invalid_argument("ImagePreprocessor: dot_removal_px = " + std::to_string(px) +
+                                " is not 0 or odd in [1, 31]");
+  }
+  dot_removal_px_ = px;
+  dot_kernel_.release();
+  if (px > 1) dot_kernel_ = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(px, px));
+}
+
 void ImagePreprocessor::resample(const cv::Mat& raw, ResampledImage* stage) {
   if (stage == nullptr) throw std::invalid_argument("ImagePreprocessor::resample: null stage");
   if (raw.type() != CV_8UC1 || raw.cols != raw_K_.width || raw.rows != raw_K_.height || raw.dims != 2) {
@@ -590,6 +593,7 @@ void ImagePreprocessor::resample(const cv::Mat& raw, ResampledImage* stage) {
       std::fill(r + pad_ + W, r + PW, r[pad_ + W - 1]);
     }
   }
+  stage->dot_removal_px = dot_removal_px_;
   stage->valid = true;
 }
 
@@ -660,6 +664,7 @@ void ImagePreprocessor::finish(ResampledImage* stage, double t_s, PreprocessedFr
 
   normalizeAndGradients(sum, sum_sq, pivot, out);
   out->t_s = t_s;
+  out->dot_removal_px = stage->dot_removal_px;
   out->valid = true;
 }
 
