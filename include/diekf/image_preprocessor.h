@@ -81,7 +81,7 @@ class ImagePreprocessor {
   void reapplyPattern(FixedPattern* pattern, PreprocessedFrame* frame) const;
 
   /// Switches the bright-dot opening of the raw images (PreprocessParams::dot_removal_px) to a square of side px
-  /// (odd, <= 31; 0 = off) for the images resampled from now on. Throws std::invalid_argument otherwise.
+  /// (odd, <= 31; 0 or 1 = off) for the images resampled from now on. Throws std::invalid_argument otherwise.
   void setDotRemoval(int px);
   int dotRemovalPx() const { return dot_removal_px_; }
 
@@ -141,8 +141,8 @@ class ImagePreprocessor {
   int pad_ = 0;                     // blur radius, px: columns of replicated border on each side of the padded stage
   cv::Mat raw_copy_;                // continuous copy of a non-continuous input
   int dot_removal_px_ = 0;          // side of the bright-dot opening (0: off)
-  cv::Mat dot_kernel_;              // its square element (empty: off)
   cv::Mat dots_removed_;            // the raw image opened by it
+  cv::Mat dots_scratch_;            // two raw-size scratch images of the opening
   ResampledImage stage_;            // process()'s own stage-1 buffers
   cv::Mat blur_tmp_;                // CV_32FC1 H x W: horizontal pass of the blur
 };

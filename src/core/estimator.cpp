@@ -360,6 +360,7 @@ struct Estimator::Impl {
     r.fixed_pattern_active = fixed_pattern.active();
     r.fixed_pattern_fraction = fixed_pattern.strongFraction();
     r.fixed_pattern_contrast_share = fixed_pattern.contrastShare();
+    r.dot_removal_px = img_pre.dotRemovalPx();
     health.countUpdate(stats.applied);
 
     // Health checks and restarts.

@@ -317,7 +317,7 @@ void FixedPattern::computeDetail(float* dt, float* sm, float* tmp, float level) 
 }
 
 int FixedPattern::groundCell(const Vec2& position_px) const {
-  const double cell_px = params_.decorrelation_px > 0.0 ? params_.decorrelation_px : 1.0;
+  const double cell_px = kGroundCellSamples * (params_.decorrelation_px > 0.0 ? params_.decorrelation_px : 1.0);
   auto wrap = [](double v) {
     const double k = std::floor(v);
     if (!std::isfinite(k)) return 0;

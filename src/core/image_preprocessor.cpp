@@ -38,7 +38,6 @@
 #include <tuple>
 
 #include <opencv2/core/hal/intrin.hpp>
-#include <opencv2/imgproc.hpp>
 
 namespace diekf {
 namespace {
@@ -50,6 +49,62 @@ std::string describe(const cv::Mat& m) {
 }
 
 // Ensures `m` is rows x cols of `type`, allocating only when it is not.
+/// Running minimum (kMax false) or maximum (kMax true) over [i - r, i + r] of a row of n bytes, the window clipped
+/// at the ends (what lies outside does not count, as in OpenCV's morphology). src and dst must not overlap.
+template <bool kMax>
+void rankRow(const uint8_t* src, uint8_t* dst, int n, int r) {
+  auto pick = [](uint8_t a, uint8_t b) { return kMax ? std::max(a, b) : std::min(a, b); };
+  auto scalar = [&](int x) {
+    uint8_t v = src[x];
+    for (int j = std::max(0, x - r); j <= std::min(n - 1, x + r); ++j) v = pick(v, src[j]);
+    dst[x] = v;
+  };
+  int x = 0;
+  for (; x < std::min(r, n); ++x) scalar(x);
+  for (; x + 16 + r <= n; x += 16) {
+    cv::v_uint8x16 v = cv::v_load(src + x - r);
+    for (int j = 1; j <= 2 * r; ++j) v = kMax ? cv::v_max(v, cv::v_load(src + x - r + j)) : cv::v_min(v, cv::v_load(src + x - r + j));
+    cv::v_store(dst + x, v);
+  }
+  for (; x < n; ++x) scalar(x);
+}
+
+/// The same down the columns: row y of dst from the rows y - r .. y + r of src (clipped), w bytes each.
+template <bool kMax>
+void rankColumns(const uint8_t* src, uint8_t* dst, int w, int h, int r) {
+  for (int y = 0; y < h; ++y) {
+    const int y0 = std::max(0, y - r), y1 = std::min(h - 1, y + r);
+    uint8_t* out = dst + static_cast<size_t>(y) * w;
+    const uint8_t* first = src + static_cast<size_t>(y0) * w;
+    int x = 0;
+    for (; x + 16 <= w; x += 16) {
+      cv::v_uint8x16 v = cv::v_load(first + x);
+      for (int yy = y0 + 1; yy <= y1; ++yy) {
+        const cv::v_uint8x16 u = cv::v_load(src + static_cast<size_t>(yy) * w + x);
+        v = kMax ? cv::v_max(v, u) : cv::v_min(v, u);
+      }
+      cv::v_store(out + x, v);
+    }
+    for (; x < w; ++x) {
+      uint8_t v = first[x];
+      for (int yy = y0 + 1; yy <= y1; ++yy) {
+        const uint8_t u = src[static_cast<size_t>(yy) * w + x];
+        v = kMax ? std::max(v, u) : std::min(v, u);
+      }
+      out[x] = v;
+    }
+  }
+}
+
+/// Grey-scale opening of a w x h image by a square of side 2 r + 1 (minimum, then maximum, each separable) into
+/// dst; a and b: scratch images of the same size. Allocation-free.
+void openSquare(const uint8_t* src, uint8_t* dst, uint8_t* a, uint8_t* b, int w, int h, int r) {
+  for (int y = 0; y < h; ++y) rankRow<false>(src + static_cast<size_t>(y) * w, a + static_cast<size_t>(y) * w, w, r);
+  rankColumns<false>(a, b, w, h, r);
+  for (int y = 0; y < h; ++y) rankRow<true>(b + static_cast<size_t>(y) * w, a + static_cast<size_t>(y) * w, w, r);
+  rankColumns<true>(a, dst, w, h, r);
+}
+
 void ensure(cv::Mat& m, int rows, int cols, int type) {
   if (m.rows != rows || m.cols != cols || m.type() != type || !m.isContinuous()) m.create(rows, cols, type);
 }
@@ -552,9 +607,7 @@ void ImagePreprocessor::setDotRemoval(int px) {
     throw std::invalid_argument("ImagePreprocessor: dot_removal_px = " + std::to_string(px) +
                                 " is not 0 or odd in [1, 31]");
   }
-  dot_removal_px_ = px;
-  dot_kernel_.release();
-  if (px > 1) dot_kernel_ = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(px, px));
+  dot_removal_px_ = px > 1 ? px : 0;  // (an opening over 1 px changes nothing)
 }
 
 void ImagePreprocessor::resample(const cv::Mat& raw, ResampledImage* stage) {
@@ -570,12 +623,13 @@ void ImagePreprocessor::resample(const cv::Mat& raw, ResampledImage* stage) {
     raw.copyTo(raw_copy_);
     src = raw_copy_.data;
   }
-  if (dot_kernel_.rows > 0) {
+  if (dot_removal_px_ > 1) {
     // Bright specks smaller than the element (an IR projector's dots) removed by a grey-scale opening: a
     // translation-equivariant filter, so the ground's image still moves as the warp says.
     ensure(dots_removed_, raw.rows, raw.cols, CV_8UC1);
-    cv::morphologyEx(cv::Mat(raw.rows, raw.cols, CV_8UC1, const_cast<uint8_t*>(src)), dots_removed_, cv::MORPH_OPEN,
-                     dot_kernel_);
+    ensure(dots_scratch_, 2 * raw.rows, raw.cols, CV_8UC1);
+    openSquare(src, dots_removed_.data, dots_scratch_.data, dots_scratch_.ptr<uint8_t>(raw.rows), raw.cols, raw.rows,
+               dot_removal_px_ / 2);
     src = dots_removed_.data;
   }
   const int W = working_K_.width, H = working_K_.height;

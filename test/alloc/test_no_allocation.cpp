@@ -189,6 +189,8 @@ TEST(NoAllocationFixedPattern, LearningAndCorrectingAfterWarmUp) {
   params.fixed_pattern.startup_samples = 1.0;
   params.fixed_pattern.refresh_frames = 1;
   params.fixed_pattern.significance_sigma = 0.0;  // every deviation is corrected: the correction really runs
+  // (so the learned pattern holds the whole contrast: the projector-dot opening is switched on as well and runs
+  // on every image after warm-up)
   Estimator est(flight().camera(), params);
   FrameResult result;
   long frame = 0, imu = 0;
@@ -200,6 +202,7 @@ TEST(NoAllocationFixedPattern, LearningAndCorrectingAfterWarmUp) {
   EXPECT_EQ(c.results, 90);
   EXPECT_GT(c.applied, 80);
   EXPECT_TRUE(result.fixed_pattern_active);
+  EXPECT_EQ(result.dot_removal_px, params.fixed_pattern.auto_dot_removal_px);
   EXPECT_TRUE(est.state().allFinite());
 }
 

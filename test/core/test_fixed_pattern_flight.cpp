@@ -43,6 +43,7 @@ cv::Mat projectorGain(int width, int height) {
 struct PatternRun {
   double found_at_s = -1.0;   // the image whose status names the discount (-1: never)
   double opened_at_s = -1.0;  // the image whose status says the raw images are opened from now on (-1: never)
+  int dot_removal_px = 0;     // the results' dot_removal_px at the end
   double coverage_after_open = 0.0;  // share of the frames from 2 s after the opening with |d error| < 2 sigma
   double rmse_after_open_m = 0.0;    // over the same frames
   double coverage_d = 0.0;    // share of the frames after the model is active with |d error| < 2 sigma
@@ -94,6 +95,7 @@ PatternRun flyOverProjectorDots(bool discount, int auto_dot_removal_px = 0) {
         run.found_at_s = r.t_s;
       if (run.opened_at_s < 0.0 && r.message.find("taken for projector dots") != std::string::npos)
         run.opened_at_s = r.t_s;
+      run.dot_removal_px = r.dot_removal_px;
       if (run.opened_at_s >= 0.0 && r.t_s >= run.opened_at_s + 2.0) {
         const double e = r.distance_m() - flightTruth(flight, cam, r.t_s).d_m;
         sq_open += e * e;
@@ -153,8 +155,10 @@ TEST(FixedPatternFlight, DominantDotsSwitchTheOpeningOnAndTheFilterStartsAgain) 
   EXPECT_LT(opened.opened_at_s, 12.0);
   EXPECT_LT(opened.found_at_s, 0.0);  // the pattern is learned anew from the opened images: not named again
   EXPECT_GT(opened.coverage_after_open, 0.9);
+  EXPECT_EQ(opened.dot_removal_px, EstimatorParams{}.fixed_pattern.auto_dot_removal_px);
   const PatternRun kept = flyOverProjectorDots(true, 0);
   EXPECT_LT(kept.opened_at_s, 0.0);
+  EXPECT_EQ(kept.dot_removal_px, 0);
   EXPECT_GT(kept.found_at_s, 0.0);
 }
 

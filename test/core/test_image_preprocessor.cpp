@@ -9,6 +9,7 @@
 #include <string>
 
 #include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "diekf/image_preprocessor.h"
 
@@ -386,6 +387,12 @@ TEST(ImagePreprocessor, DotRemovalTakesProjectorDotsOut) {
   EXPECT_GT(kept, 8.0 / 255.0);
   EXPECT_LT(removed, 0.5 * kept);  // 0.35: dots closer than the element to each other stay in part
   EXPECT_LT(ground_change, 0.1 * kept);
+  // The opening is OpenCV's (a square element, the image's outside not counted), written without allocation.
+  for (int side : {3, 5, 9}) {
+    cv::Mat opened;
+    cv::morphologyEx(dotted, opened, cv::MORPH_OPEN, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(side, side)));
+    EXPECT_EQ(cv::norm(working(dotted, side), working(opened, 0), cv::NORM_INF), 0.0) << "side " << side;
+  }
   for (int bad : {-1, 4}) {
     PreprocessParams p;
     p.dot_removal_px = bad;

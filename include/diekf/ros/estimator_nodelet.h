@@ -173,6 +173,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
   double last_brightness_gain_ = 1.0, last_brightness_offset_ = 0.0;  ///< the pair's (photometric/brightness_model)
   double last_fixed_pattern_fraction_ = 0.0;
   double last_fixed_pattern_contrast_share_ = 0.0;
+  int last_dot_removal_px_ = 0;
   bool fixed_pattern_active_ = false;
   double last_time_offset_ms_ = 0.0, last_sigma_time_offset_ms_ = 0.0;
   double last_focal_scale_pct_ = 0.0, last_sigma_focal_scale_pct_ = 0.0;  // focal length correction, %
