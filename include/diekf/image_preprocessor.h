@@ -83,6 +83,8 @@ class ImagePreprocessor {
   /// Switches the bright-dot opening of the raw images (PreprocessParams::dot_removal_px) to a square of side px
   /// (odd, <= 31; 0 or 1 = off) for the images resampled from now on. Throws std::invalid_argument otherwise.
   void setDotRemoval(int px);
+  /// Whether px is a side setDotRemoval accepts: 0, or odd in [1, 31].
+  static bool validDotRemovalPx(int px);
   int dotRemovalPx() const { return dot_removal_px_; }
 
  private:

@@ -101,7 +101,7 @@ struct Estimator::Impl {
     sc.gravity_mps2 = p.imu.gravity_mps2;
     scale_init.configure(sc);
     const int dot_px = p.fixed_pattern.auto_dot_removal_px;
-    if (dot_px < 0 || dot_px > 31 || (dot_px > 0 && dot_px % 2 == 0)) {
+    if (!ImagePreprocessor::validDotRemovalPx(dot_px)) {
       throw std::invalid_argument("fixed_pattern/auto_dot_removal_px = " + std::to_string(dot_px) +
                                   " is not 0 or odd in [1, 31]");
     }

@@ -48,22 +48,30 @@ std::string describe(const cv::Mat& m) {
   return os.str();
 }
 
-// Ensures `m` is rows x cols of `type`, allocating only when it is not.
+/// The smaller (kMax false) or larger (kMax true) of two bytes, one or sixteen at a time.
+template <bool kMax>
+uint8_t rank(uint8_t a, uint8_t b) {
+  return kMax ? std::max(a, b) : std::min(a, b);
+}
+template <bool kMax>
+cv::v_uint8x16 rank(const cv::v_uint8x16& a, const cv::v_uint8x16& b) {
+  return kMax ? cv::v_max(a, b) : cv::v_min(a, b);
+}
+
 /// Running minimum (kMax false) or maximum (kMax true) over [i - r, i + r] of a row of n bytes, the window clipped
 /// at the ends (what lies outside does not count, as in OpenCV's morphology). src and dst must not overlap.
 template <bool kMax>
 void rankRow(const uint8_t* src, uint8_t* dst, int n, int r) {
-  auto pick = [](uint8_t a, uint8_t b) { return kMax ? std::max(a, b) : std::min(a, b); };
   auto scalar = [&](int x) {
     uint8_t v = src[x];
-    for (int j = std::max(0, x - r); j <= std::min(n - 1, x + r); ++j) v = pick(v, src[j]);
+    for (int j = std::max(0, x - r); j <= std::min(n - 1, x + r); ++j) v = rank<kMax>(v, src[j]);
     dst[x] = v;
   };
   int x = 0;
   for (; x < std::min(r, n); ++x) scalar(x);
   for (; x + 16 + r <= n; x += 16) {
     cv::v_uint8x16 v = cv::v_load(src + x - r);
-    for (int j = 1; j <= 2 * r; ++j) v = kMax ? cv::v_max(v, cv::v_load(src + x - r + j)) : cv::v_min(v, cv::v_load(src + x - r + j));
+    for (int j = 1; j <= 2 * r; ++j) v = rank<kMax>(v, cv::v_load(src + x - r + j));
     cv::v_store(dst + x, v);
   }
   for (; x < n; ++x) scalar(x);
@@ -79,18 +87,12 @@ void rankColumns(const uint8_t* src, uint8_t* dst, int w, int h, int r) {
     int x = 0;
     for (; x + 16 <= w; x += 16) {
       cv::v_uint8x16 v = cv::v_load(first + x);
-      for (int yy = y0 + 1; yy <= y1; ++yy) {
-        const cv::v_uint8x16 u = cv::v_load(src + static_cast<size_t>(yy) * w + x);
-        v = kMax ? cv::v_max(v, u) : cv::v_min(v, u);
-      }
+      for (int yy = y0 + 1; yy <= y1; ++yy) v = rank<kMax>(v, cv::v_load(src + static_cast<size_t>(yy) * w + x));
       cv::v_store(out + x, v);
     }
     for (; x < w; ++x) {
       uint8_t v = first[x];
-      for (int yy = y0 + 1; yy <= y1; ++yy) {
-        const uint8_t u = src[static_cast<size_t>(yy) * w + x];
-        v = kMax ? std::max(v, u) : std::min(v, u);
-      }
+      for (int yy = y0 + 1; yy <= y1; ++yy) v = rank<kMax>(v, src[static_cast<size_t>(yy) * w + x]);
       out[x] = v;
     }
   }
@@ -105,6 +107,7 @@ void openSquare(const uint8_t* src, uint8_t* dst, uint8_t* a, uint8_t* b, int w,
   rankColumns<true>(a, dst, w, h, r);
 }
 
+// Ensures `m` is rows x cols of `type`, allocating only when it is not.
 void ensure(cv::Mat& m, int rows, int cols, int type) {
   if (m.rows != rows || m.cols != cols || m.type() != type || !m.isContinuous()) m.create(rows, cols, type);
 }
@@ -602,8 +605,10 @@ void ImagePreprocessor::process(const cv::Mat& raw, double t_s, PreprocessedFram
   finish(&stage_, t_s, out, pattern);
 }
 
+bool ImagePreprocessor::validDotRemovalPx(int px) { return px >= 0 && px <= 31 && (px == 0 || px % 2 == 1); }
+
 void ImagePreprocessor::setDotRemoval(int px) {
-  if (px < 0 || px > 31 || (px > 0 && px % 2 == 0)) {
+  if (!validDotRemovalPx(px)) {
     throw std::invalid_argument("ImagePreprocessor: dot_removal_px = " + std::to_string(px) +
                                 " is not 0 or odd in [1, 31]");
   }
