@@ -1,6 +1,7 @@
 #include "diekf/estimator.h"
 
 #include <algorithm>
+#include <array>
 #include <chrono>
 #include <cmath>
 #include <cstdio>
@@ -10,7 +11,9 @@
 #include "diekf/fixed_pattern.h"
 #include "diekf/image_preprocessor.h"
 #include "diekf/imu_filter.h"
+#include "diekf/photometric_update.h"
 #include "diekf/stamp_check.h"
+#include "dot_detector.h"
 #include "health_monitor.h"
 #include "image_update.h"
 #include "imu_propagator.h"
@@ -56,6 +59,7 @@ struct PendingImage {
   double stamp_s = 0.0;  // the stamp it was given (camera clock)
   ResampledImage stage;  // the image resampled to the working size on arrival (reused buffers; no raw copy kept)
   double resample_ms = 0.0;  // time of that stage, added to the frame's update_ms
+  bool dots_sampled = false; // the projector-dot detector sampled the raw image (DotDetector::addImage)
 };
 
 constexpr size_t kResultCapacity = 64;  // unread results kept (oldest dropped): nobody reads, memory bounded
@@ -105,6 +109,11 @@ struct Estimator::Impl {
       throw std::invalid_argument("fixed_pattern/auto_dot_removal_px = " + std::to_string(dot_px) +
                                   " is not 0 or odd in [1, 31]");
     }
+    if (dot_px > 1 && p.fixed_pattern.dot_detect_share > 0.0 && img_pre.dotRemovalPx() == 0 &&
+        p.mode != UpdateMode::kFeature && internal::DotDetector::fits(cam.K.width, cam.K.height)) {
+      dots.configure(cam.K.width, cam.K.height, dot_px, p.fixed_pattern.dot_detect_contrast,
+                     p.fixed_pattern.dot_detect_share);
+    }
     resetFilter();
   }
 
@@ -134,6 +143,7 @@ struct Estimator::Impl {
     relief_var = 0.0;
     scale_init.reset();
     if (!params.init.scale_batch) scale_init.finish();
+    dots.restartMotion();  // (the new run's first pair starts the ground's track again)
   }
 
   /// Start-up while the camera is still (ScaleInitializer): the update leaves alpha and its variance as they were
@@ -189,16 +199,63 @@ struct Estimator::Impl {
   void switchOnDotRemovalIfDominant(double t_s) {
     const FixedPatternParams& fp = params.fixed_pattern;
     const double share = fixed_pattern.contrastShare();
-    if (fp.auto_dot_removal_px <= 1 || img_pre.dotRemovalPx() != 0 || !(fp.dominant_contrast_share > 0.0) ||
-        share < fp.dominant_contrast_share)
-      return;
-    img_pre.setDotRemoval(fp.auto_dot_removal_px);
-    fixed_pattern.reset();
+    if (!(fp.dominant_contrast_share > 0.0) || share < fp.dominant_contrast_share) return;
     char why[kMessageCapacity];
     std::snprintf(why, sizeof(why),
                   "camera-fixed pattern of %.0f %% of the image's contrast taken for projector dots: raw images "
                   "opened over %d px from now on (fixed_pattern/auto_dot_removal_px)",
                   100.0 * share, fp.auto_dot_removal_px);
+    switchOnDotRemoval(t_s, why);
+  }
+
+  /// The projector-dot detector on the raw images (DotDetector; fixed_pattern.dot_detect_share): the pair's
+  /// estimated shift of the ground at the raw image's centre with its 1-sigma (from the observed states'
+  /// covariance through the warp's Jacobian), the sampled image's position, and the verdict once the ground has
+  /// moved enough. Called after the pair's update, with the state at the update's time.
+  void detectDots(const PendingImage& img, bool pair_updated, bool first_of_run) {
+    if (!dots.armed()) return;
+    if (pair_updated) {
+      using internal::DotDetector;
+      constexpr int kObserved[8] = {ErrIdx::kVartheta, ErrIdx::kVartheta + 1, ErrIdx::kVartheta + 2, ErrIdx::kMu,
+                                    ErrIdx::kMu + 1,    ErrIdx::kBw,         ErrIdx::kBw + 1,      ErrIdx::kBw + 2};
+      Eigen::Matrix<double, 8, 8> P_obs;
+      for (int i = 0; i < 8; ++i)
+        for (int j = 0; j < 8; ++j) P_obs(i, j) = P(kObserved[i], kObserved[j]);
+      std::array<Vec2, DotDetector::kBlocks> shift, sigma;
+      for (int b = 0; b < DotDetector::kBlocks; ++b) {
+        WarpJacobian J;
+        const Vec2 c = dots.blockCentre(b);
+        const Vec2 p_ref = warpToReference(x, camera.K, update.lastGyroMean(), update.lastInterval(), c.x(), c.y(),
+                                           &J, img.t_s - imu.stateTime());
+        shift[static_cast<size_t>(b)] = c - p_ref;
+        sigma[static_cast<size_t>(b)] = (J * P_obs * J.transpose()).diagonal().cwiseMax(0.0).cwiseSqrt();
+      }
+      dots.addMotion(shift, sigma);
+    }
+    if (img.dots_sampled) dots.notePosition(pair_updated || first_of_run);
+    const internal::DotDetector::Verdict verdict = dots.decide();
+    if (verdict == internal::DotDetector::Verdict::kDots) {
+      dot_share = dots.share();
+      char why[kMessageCapacity];
+      std::snprintf(why, sizeof(why),
+                    "projector dots found (fixed bright specks on %.1f %% of the image): raw images opened over %d px",
+                    100.0 * dots.share(), params.fixed_pattern.auto_dot_removal_px);
+      switchOnDotRemoval(img.t_s, why);
+    } else if (verdict == internal::DotDetector::Verdict::kNoDots) {
+      dot_share = dots.share();
+    }
+  }
+
+  /// Switches the opening of the raw images on (fixed_pattern.auto_dot_removal_px; 0 = never), once per
+  /// estimator: the pattern is learned anew from the opened images, the distance and velocity over distance get
+  /// their initial uncertainty back; the first opened image starts a new pair (processImage). `why`: the status's
+  /// reason. docs/noise_model.md section 11.
+  void switchOnDotRemoval(double t_s, const char* why) {
+    const FixedPatternParams& fp = params.fixed_pattern;
+    if (fp.auto_dot_removal_px <= 1 || img_pre.dotRemovalPx() != 0) return;
+    img_pre.setDotRemoval(fp.auto_dot_removal_px);
+    fixed_pattern.reset();
+    dots.disarm();  // (when the learned pattern came first)
     health.noteDegraded(t_s, why);
     // What the filter holds of the distance and the velocity over distance came from images with the dots (their
     // vote for "no motion" biased every update before the model had learned them, by more than the share learned
@@ -292,6 +349,7 @@ struct Estimator::Impl {
 
     // Update.
     UpdateStats stats;
+    bool pair_updated = false;  // the pair went to the update (the state at its time estimates the pair's motion)
     skip_reason.clear();
     if (!usable) {
       // Keep the reference and the gyro integral: the next usable image is compared with the old reference.
@@ -323,7 +381,9 @@ struct Estimator::Impl {
           switchOnDotRemovalIfDominant(img.t_s);
         }
       }
+      pair_updated = true;
     }
+    detectDots(img, pair_updated, usable && !have_reference);
     const double t_update_s = imu.stateTime();
     if (state_initialized && imu.stateTime() < img.t_s) imu.propagateTo(img.t_s, &x, &P);  // from the midpoint
     internal::ScaleInitializer::ImageVartheta image_vartheta;
@@ -361,6 +421,7 @@ struct Estimator::Impl {
     r.fixed_pattern_fraction = fixed_pattern.strongFraction();
     r.fixed_pattern_contrast_share = fixed_pattern.contrastShare();
     r.dot_removal_px = img_pre.dotRemovalPx();
+    r.projector_dot_share = dot_share;
     health.countUpdate(stats.applied);
 
     // Health checks and restarts.
@@ -504,6 +565,8 @@ struct Estimator::Impl {
   double discounted_share = 0.0;     // the pattern's contrast share the covariance allows for (discountPattern...)
   double relief_var = 0.0;           // the scene's smoothed relief variance of the last update, relative^2
   bool pattern_named = false;        // the status has named the dominant pattern in view
+  internal::DotDetector dots;        // projector dots in the raw images (configured when enabled)
+  double dot_share = -1.0;           // the detector's share of fixed specks at its verdict (-1: none yet)
   internal::ImuPropagator imu;       // filtered samples, state time, prediction
   internal::ImageUpdate update;      // update from an image pair
   internal::HealthMonitor health;    // checks and status
@@ -634,12 +697,12 @@ bool Estimator::addImage(double t_cam_s, const cv::Mat& image) {
     // The first stage of the preprocessing now, straight from the caller's pixels (8-bit grey: no copy);
     // other types through the package's one grey conversion (grey_image.h) into a reused buffer.
     const auto t0 = std::chrono::steady_clock::now();
-    if (depth == CV_8U && channels == 1) {
-      m.img_pre.resample(image, &slot.stage);
-    } else {
-      toGrey8(image, ChannelOrder::kBgr, &m.grey_scratch);
-      m.img_pre.resample(m.grey_scratch, &slot.stage);
-    }
+    const bool grey8 = depth == CV_8U && channels == 1;
+    if (!grey8) toGrey8(image, ChannelOrder::kBgr, &m.grey_scratch);
+    const cv::Mat& grey = grey8 ? image : m.grey_scratch;
+    m.img_pre.resample(grey, &slot.stage);
+    slot.dots_sampled = m.dots.wantsImage();
+    if (slot.dots_sampled) m.dots.addImage(grey);
     slot.resample_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();
     m.last_image_t_s = t_s;
     m.processReady();

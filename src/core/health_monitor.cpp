@@ -116,6 +116,11 @@ FilterStatus HealthMonitor::frameStatus(const FrameFacts& f, const State& x, con
       std::snprintf(msg, msg_size, "converging: sigma_d/d = %g (tracking below %g)", relative_sigma_d,
                     params_.init.tracking_max_relative_sigma_d);
     }
+    if (!converged_ && f.t_s <= degraded_until_s_) {
+      // A note of the hold (a pattern found, projector dots, large innovations): said while converging too.
+      const size_t used = std::strlen(msg);
+      std::snprintf(msg + used, msg_size - used, "%s%s", used > 0 ? "; " : "", degraded_reason_);
+    }
     if (!converged_ && !f.last_reset_reason->empty()) {
       const size_t used = std::strlen(msg);
       std::snprintf(msg + used, msg_size - used, " (last reset: %s%s", f.last_reset_reason->c_str(),

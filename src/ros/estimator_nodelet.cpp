@@ -833,6 +833,7 @@ void EstimatorNodelet::publishResult(const diekf::FrameResult& r) {
     last_fixed_pattern_fraction_ = r.fixed_pattern_fraction;
     last_fixed_pattern_contrast_share_ = r.fixed_pattern_contrast_share;
     last_dot_removal_px_ = r.dot_removal_px;
+    last_projector_dot_share_ = r.projector_dot_share;
     fixed_pattern_active_ = r.fixed_pattern_active;
     update_ms_sum_ += r.update_ms;
     update_ms_max_ = std::max(update_ms_max_, r.update_ms);
@@ -904,6 +905,8 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
   stat.add("strong camera-fixed pattern (share of the image; projector, shadow, dirt)", last_fixed_pattern_fraction_);
   stat.add("camera-fixed pattern's share of the image contrast", last_fixed_pattern_contrast_share_);
   stat.add("projector dot removal (opening of the raw images, px; 0 = off)", last_dot_removal_px_);
+  stat.add("projector dots: share of fixed bright specks at the raw-image test (-1 = running or off)",
+           last_projector_dot_share_);
   stat.add("gated updates", gated_updates_);
   stat.add("mean update time (ms)", update_count_ > 0 ? update_ms_sum_ / update_count_ : 0.0);
   stat.add("max update time (ms)", update_ms_max_);

@@ -336,7 +336,8 @@ int run(const RunnerOptions& o) {
     frames.open(out_dir / "frames.csv");
     if (!frames) throw RunError("cannot write " + (out_dir / "frames.csv").string());
     frames << "t,applied,passes,photometric_rms,valid_ratio,nis,noise_sigma,noise_correlation,nis_scale,gate_inflation,outlier_fraction,time_offset_ms,sigma_time_offset_ms,readout_ms,sigma_readout_ms,focal_scale_pct,sigma_focal_scale_pct,"
-              "fixed_pattern_active,fixed_pattern_fraction,fixed_pattern_contrast_share,brightness_gain,brightness_offset,relief_pct,status,message\n";
+              "fixed_pattern_active,fixed_pattern_fraction,fixed_pattern_contrast_share,brightness_gain,brightness_offset,relief_pct,"
+              "dot_removal_px,projector_dot_share,status,message\n";
     frames.precision(12);
   }
   std::vector<diekf::eval::EstimateRow> rows;
@@ -361,6 +362,7 @@ int run(const RunnerOptions& o) {
                << (result.fixed_pattern_active ? 1 : 0) << ',' << result.fixed_pattern_fraction << ','
                << result.fixed_pattern_contrast_share << ',' << result.brightness_gain << ','
                << result.brightness_offset << ',' << 1e2 * result.relief_sigma << ','
+               << result.dot_removal_px << ',' << result.projector_dot_share << ','
                << diekf::toString(result.status) << ',' << msg << '\n';
       }
       if (keep_rows) {

@@ -1,0 +1,128 @@
+// Detection of an IR projector's dots in the raw images within the first seconds of motion (docs/noise_model.md
+// section 11): the dots are bright specks fixed in the image, the ground's specks move with the ground.
+//
+// Per sampled raw image I: the white top-hat T = I - open(I) (square of side `element_px`, the opening that
+// would take the dots out); a speck where T > contrast open(I) + kNoiseFloorGrey (it adds at least `contrast`
+// of the brightness around it), or where I is saturated and T > kNoiseFloorGrey (a dot clipped); the speck mask dilated by one pixel (a dot whose image drifts by a pixel, as a
+// real projector's does with the distance, stays in it); the masks of all sampled images intersected (M).
+//
+// A ground speck is no larger than the element (larger bright structure passes the opening). The image is cut
+// into kBlocksX x kBlocksY blocks, and the ground's position at each block's centre is followed (addMotion: the
+// filter's estimate of its shift per image pair, with the 1-sigma). A sample is independent in a block when the
+// ground there stands at least element + 2 px (a dilated speck) away from where it stood in every earlier
+// independent sample of that block: a ground speck is then on a pixel only by chance, so with q_k the share of
+// sample k covered by specks in a tile of kTilePx x kTilePx px, what is left of the ground in M is about the
+// product of the q_k of the tile's independent samples (tiles, not the whole image: near the working Nyquist a
+// ground's aliasing covers whole regions with specks), while each dot stays. A block is resolved when its
+// independent positions span kMotionElements elements along both image axes (or kStraightFactor times that along
+// one: a thin bright line lying along a straight motion stays on its pixels), beyond twice their 1-sigma.
+//
+// Dots: the resolved blocks cover at least half the image (a climb resolves the rim before the centre), the
+// chance share over them is below a tenth of `min_share`, M's share over them is at least `min_share`, and M's
+// share has stopped falling (a periodic ground can bring its specks back onto the same pixels: such chance
+// agreements fall with each sample, dots do not). No dots: M's share of the whole image below `min_share` after
+// kStableSamples + 1 samples (M only ever shrinks, and every dot is in every sample), or kMaxSamples samples.
+// Images are sampled only when the ground moved enough in some block: a hovering camera costs one sample. All
+// buffers are allocated by configure().
+#pragma once
+
+#include <array>
+#include <vector>
+
+#include <opencv2/core.hpp>
+
+#include "diekf/types.h"
+
+namespace diekf {
+namespace internal {
+
+class DotDetector {
+ public:
+  enum class Verdict { kUndecided, kDots, kNoDots };
+
+  /// Ground motion along both axes, in elements, before a block is resolved...
+  static constexpr double kMotionElements = 3.0;
+  /// ...or along one of them, this many times as far.
+  static constexpr double kStraightFactor = 5.0;
+  /// A speck must also stand this far above the opening (grey levels): about four times a camera's read noise.
+  static constexpr int kNoiseFloorGrey = 8;
+  /// M's share has stopped falling when it keeps this fraction over the last kStableSamples samples.
+  static constexpr double kStableFraction = 0.7;
+  static constexpr int kStableSamples = 3;
+  /// Sampled images after which the detector gives up (verdict kNoDots).
+  static constexpr int kMaxSamples = 64;
+  /// Side of the tiles over which the chance agreements are counted, raw px.
+  static constexpr int kTilePx = 16;
+  /// Blocks whose ground positions are followed.
+  static constexpr int kBlocksX = 4, kBlocksY = 3, kBlocks = kBlocksX * kBlocksY;
+
+  /// Whether raw images of width x height are large enough (two tiles per block each way).
+  static bool fits(int width, int height) {
+    return width >= 2 * kTilePx * kBlocksX && height >= 2 * kTilePx * kBlocksY;
+  }
+  /// Arms the detector for raw images of width x height (allocates): specks smaller than `element_px` (odd,
+  /// >= 3) that add at least `contrast` of their surroundings' brightness; dots found when they hold at least
+  /// `min_share` of the image. Throws std::invalid_argument on a bad argument.
+  void configure(int width, int height, int element_px, double contrast, double min_share);
+
+  /// Still looking (configured, no verdict yet).
+  bool armed() const { return armed_; }
+  /// Stops looking (no verdict).
+  void disarm() { armed_ = false; }
+  /// Whether the next raw image should be sampled: armed, and in some block the ground stands at least element
+  /// + 2 px away from where it stood in every independent sample of the block so far.
+  bool wantsImage() const;
+  /// Samples a raw 8-bit grey image (width x height of configure(); any row stride). No allocation.
+  void addImage(const cv::Mat& grey);
+  /// The centre of block b (raw px), where addMotion wants the ground's shift.
+  Vec2 blockCentre(int b) const;
+  /// One image pair's shift of the ground at each block's centre (raw px, the current image's position minus the
+  /// reference's) and its 1-sigma per axis, as the filter estimates them.
+  void addMotion(const std::array<Vec2, kBlocks>& shift_px, const std::array<Vec2, kBlocks>& sigma_px);
+  /// The sampled image has been processed: its positions (those of the last addMotion()) count when `known`
+  /// (its pair was updated, or it starts the positions).
+  void notePosition(bool known);
+  /// The motion is unknown from here on (a restart of the filter): the positions and the chance products start
+  /// again (M is kept).
+  void restartMotion();
+  /// The verdict, once the conditions above hold (then the detector disarms).
+  Verdict decide();
+  /// The share of the image held by fixed specks (M) over the resolved blocks (over the whole image before
+  /// any is resolved), after the last sample.
+  double share() const { return share_; }
+  int samples() const { return samples_; }
+
+ private:
+  struct Block {
+    int x0 = 0, y0 = 0, x1 = 0, y1 = 0;      // pixel bounds [x0, x1) x [y0, y1)
+    Vec2 position = Vec2::Zero();            // the ground's accumulated shift at the centre, raw px
+    Vec2 uncertainty = Vec2::Zero();         // its 1-sigma, the pairs' errors taken as independent
+    std::array<Vec2, kMaxSamples> samples{};  // positions of the independent samples
+    int count = 0;
+  };
+  bool independent(const Block& b) const;
+  bool resolved(const Block& b) const;
+  /// Share of M over the pixels of the blocks flagged (inside the border, where the opening saw a whole element).
+  double fixedShare(const std::array<bool, kBlocks>& use) const;
+
+  int width_ = 0, height_ = 0, radius_ = 0, border_ = 0;
+  int contrast_q8_ = 0;  // contrast in 1/256
+  double min_share_ = 0.0;
+  double motion_px_ = 0.0;  // kMotionElements elements, raw px
+  double step_px_ = 0.0;    // element + 2 px: the least distance between independent samples
+  cv::Mat opened_, scratch_a_, scratch_b_, copy_, fixed_;  // CV_8UC1, width x height (copy_: a strided input)
+  bool armed_ = false;
+  int samples_ = 0;                                   // images in M
+  double share_ = 0.0;                                // see share()
+  std::array<double, kMaxSamples> share_history_{};   // M's share of the whole image after each sample
+  std::array<Block, kBlocks> blocks_;
+  int tiles_x_ = 0, tiles_y_ = 0;
+  std::vector<double> tile_chance_;  // per tile: product of the speck shares of its block's independent samples
+  std::vector<double> tile_q_;       // per tile: speck share of the last sample (until notePosition)
+  std::vector<int> tile_block_;      // per tile: its block
+  bool pending_position_ = false;    // an image was sampled whose position is not noted yet (a sampled image
+                                     // dropped before its processing leaves it set: harmless)
+};
+
+}  // namespace internal
+}  // namespace diekf

@@ -1,0 +1,22 @@
+// Grey-scale morphology of 8-bit images by squares, allocation-free (the caller owns every buffer): the opening
+// that takes an IR projector's dots out of the raw images (ImagePreprocessor, preprocess/dot_removal_px) and the
+// top-hat and dilation the projector-dot detector reads them with (DotDetector). Equal to cv::morphologyEx /
+// cv::dilate with a rectangular element and their default border (what lies outside does not count), byte for
+// byte (ImagePreprocessor.DotRemovalTakesProjectorDotsOut, DotDetector.MorphologyEqualsOpenCv).
+#pragma once
+
+#include <cstdint>
+
+namespace diekf {
+namespace internal {
+
+/// Grey-scale opening of a w x h image by a square of side 2 r + 1 (minimum, then maximum, each separable) into
+/// dst; a and b: scratch images of the same size. src and dst may not overlap a or b.
+void openSquare(const uint8_t* src, uint8_t* dst, uint8_t* a, uint8_t* b, int w, int h, int r);
+
+/// Grey-scale dilation (maximum) of a w x h image over a square of side 2 r + 1 into dst; a: scratch of the same
+/// size. src and dst may be the same buffer; neither may be a.
+void dilateSquare(const uint8_t* src, uint8_t* dst, uint8_t* a, int w, int h, int r);
+
+}  // namespace internal
+}  // namespace diekf

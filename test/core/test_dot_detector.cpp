@@ -1,0 +1,174 @@
+// The projector-dot test on the raw images (DotDetector, docs/noise_model.md section 11) and the morphology it
+// and the dot removal share: a ground of specks moving under a camera with and without fixed dots, a hovering
+// camera, a periodic ground, an uncertain motion; the dilation against OpenCV's.
+#include <gtest/gtest.h>
+
+#include <array>
+#include <cmath>
+#include <stdexcept>
+
+#include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
+
+#include "../../src/core/dot_detector.h"
+#include "../../src/core/morphology.h"
+
+namespace diekf {
+namespace {
+
+using internal::DotDetector;
+
+constexpr int kW = 752, kH = 480;
+
+/// A ground larger than the view: smooth brightness 60..180 with small bright specks (2 x 2 px, 40 % brighter)
+/// on 6 % of it, the kind of fine bright detail grass or gravel has.
+cv::Mat specklyGround(int w, int h, int seed) {
+  cv::RNG rng(seed);
+  cv::Mat noise(h / 8, w / 8, CV_32FC1);
+  rng.fill(noise, cv::RNG::UNIFORM, 60.0, 180.0);
+  cv::Mat ground;
+  cv::resize(noise, ground, cv::Size(w, h), 0, 0, cv::INTER_CUBIC);
+  for (int k = 0; k < w * h / 66; ++k) {
+    const int x = rng.uniform(0, w - 2), y = rng.uniform(0, h - 2);
+    ground(cv::Rect(x, y, 2, 2)) *= 1.4;
+  }
+  return ground;
+}
+
+/// The same with the specks on a lattice of `period_px` (a checkerboard-like periodic ground).
+cv::Mat periodicGround(int w, int h, int period_px) {
+  cv::Mat ground(h, w, CV_32FC1, cv::Scalar(100.f));
+  for (int y = 0; y + 2 < h; y += period_px)
+    for (int x = 0; x + 2 < w; x += period_px) ground(cv::Rect(x, y, 2, 2)) *= 1.8f;
+  return ground;
+}
+
+/// The simulator's projector (--projector-dots): gain 1 + strength x a Gaussian dot of sigma 1.2 px.
+cv::Mat projectorGain(int dots, double strength) {
+  cv::RNG rng(7);
+  cv::Mat g(kH, kW, CV_32FC1, cv::Scalar(0.f));
+  for (int k = 0; k < dots; ++k) {
+    const double cx = rng.uniform(0.0, kW - 1.0), cy = rng.uniform(0.0, kH - 1.0);
+    for (int y = std::max(0, static_cast<int>(cy) - 4); y <= std::min(kH - 1, static_cast<int>(cy) + 4); ++y)
+      for (int x = std::max(0, static_cast<int>(cx) - 4); x <= std::min(kW - 1, static_cast<int>(cx) + 4); ++x)
+        g.at<float>(y, x) += static_cast<float>(std::exp(-0.5 * ((x - cx) * (x - cx) + (y - cy) * (y - cy)) / 1.44));
+  }
+  return 1.0 + strength * g;
+}
+
+struct Outcome {
+  DotDetector::Verdict verdict = DotDetector::Verdict::kUndecided;
+  int frame = -1;  // the frame of the verdict
+  int samples = 0;
+  double share = 0.0;
+};
+
+/// The camera looks at `ground` through a kW x kH window moving along `path(k)` (integer px), the images times
+/// `gain` (empty: none); each frame's ground shift is given to the detector with 1-sigma `sigma_px`, as the
+/// estimator does (sample, motion of the pair, position, verdict).
+template <class Path>
+Outcome fly(const cv::Mat& ground, const cv::Mat& gain, Path path, int frames, double sigma_px = 0.1) {
+  DotDetector det;
+  det.configure(kW, kH, 5, 0.5, 0.01);
+  Outcome out;
+  cv::Point prev = path(0);
+  cv::Mat view, image;
+  for (int k = 0; k < frames && det.armed(); ++k) {
+    const cv::Point at = path(k);
+    view = ground(cv::Rect(at.x, at.y, kW, kH)).clone();
+    if (!gain.empty()) view = view.mul(gain);
+    view.convertTo(image, CV_8UC1);
+    const bool sampled = det.wantsImage();
+    if (sampled) det.addImage(image);
+    if (k > 0) {
+      std::array<Vec2, DotDetector::kBlocks> shift, sigma;
+      shift.fill(Vec2(prev.x - at.x, prev.y - at.y));  // the window moves on: the ground moves back
+      sigma.fill(Vec2(sigma_px, sigma_px));
+      det.addMotion(shift, sigma);
+    }
+    if (sampled) det.notePosition(true);
+    prev = at;
+    const DotDetector::Verdict v = det.decide();
+    if (v != DotDetector::Verdict::kUndecided) {
+      out.verdict = v;
+      out.frame = k;
+    }
+    out.samples = det.samples();
+    out.share = det.share();
+  }
+  return out;
+}
+
+/// A circle of 40 px radius, 3 px per frame, about the centre of a 1000 x 700 ground.
+cv::Point circle(int k) {
+  const double a = 3.0 * k / 40.0;
+  return cv::Point(124 + static_cast<int>(std::lround(40.0 * std::cos(a))),
+                   110 + static_cast<int>(std::lround(40.0 * std::sin(a))));
+}
+
+TEST(DotDetector, DilationEqualsOpenCv) {
+  cv::Mat img(77, 101, CV_8UC1);
+  cv::RNG(3).fill(img, cv::RNG::UNIFORM, 0, 256);
+  for (int r : {1, 2, 4}) {
+    cv::Mat expected;
+    cv::dilate(img, expected, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * r + 1, 2 * r + 1)));
+    cv::Mat out(img.size(), CV_8UC1), scratch(img.size(), CV_8UC1);
+    internal::dilateSquare(img.data, out.data, scratch.data, img.cols, img.rows, r);
+    EXPECT_EQ(cv::norm(out, expected, cv::NORM_INF), 0.0) << "r = " << r;
+    cv::Mat in_place = img.clone();  // (src and dst may be the same buffer)
+    internal::dilateSquare(in_place.data, in_place.data, scratch.data, img.cols, img.rows, r);
+    EXPECT_EQ(cv::norm(in_place, expected, cv::NORM_INF), 0.0) << "in place, r = " << r;
+  }
+}
+
+TEST(DotDetector, FindsFixedDotsWithinTheFirstMotion) {
+  const cv::Mat ground = specklyGround(1000, 700, 1);
+  const Outcome dots = fly(ground, projectorGain(1500, 1.5), circle, 120);
+  EXPECT_EQ(dots.verdict, DotDetector::Verdict::kDots);
+  EXPECT_LT(dots.frame, 60);  // within two seconds at 30 Hz of a motion of 3 px per frame
+  EXPECT_GT(dots.share, 0.02);
+  EXPECT_LT(dots.share, 0.25);
+  // 500 dots: fewer, still found.
+  const Outcome fewer = fly(ground, projectorGain(500, 1.5), circle, 120);
+  EXPECT_EQ(fewer.verdict, DotDetector::Verdict::kDots);
+  EXPECT_LT(fewer.share, dots.share);
+}
+
+TEST(DotDetector, GroundSpecksAloneAreNoDots) {
+  const Outcome none = fly(specklyGround(1000, 700, 2), cv::Mat(), circle, 200);
+  EXPECT_EQ(none.verdict, DotDetector::Verdict::kNoDots);
+  EXPECT_LT(none.share, 0.01);
+  // A periodic ground brings its specks back onto the same pixels now and then: no dots either.
+  const Outcome lattice = fly(periodicGround(1000, 700, 12), cv::Mat(), circle, 200);
+  EXPECT_NE(lattice.verdict, DotDetector::Verdict::kDots);
+}
+
+TEST(DotDetector, AHoveringCameraCostsOneSampleAndGivesNoVerdict) {
+  const Outcome hover = fly(specklyGround(1000, 700, 3), projectorGain(1500, 1.5),
+                            [](int) { return cv::Point(120, 110); }, 150);
+  EXPECT_EQ(hover.verdict, DotDetector::Verdict::kUndecided);
+  EXPECT_EQ(hover.samples, 1);
+}
+
+TEST(DotDetector, AnUncertainMotionDelaysTheVerdict) {
+  // 1-sigma of 2 px per frame: the positions start again before they span the required motion.
+  const Outcome uncertain = fly(specklyGround(1000, 700, 1), projectorGain(1500, 1.5), circle, 120, 2.0);
+  EXPECT_EQ(uncertain.verdict, DotDetector::Verdict::kUndecided);
+  const Outcome certain = fly(specklyGround(1000, 700, 1), projectorGain(1500, 1.5), circle, 120, 0.1);
+  EXPECT_EQ(certain.verdict, DotDetector::Verdict::kDots);
+}
+
+TEST(DotDetector, RejectsBadArguments) {
+  DotDetector det;
+  EXPECT_THROW(det.configure(kW, kH, 4, 0.5, 0.01), std::invalid_argument);   // even element
+  EXPECT_THROW(det.configure(kW, kH, 5, 0.0, 0.01), std::invalid_argument);   // no contrast
+  EXPECT_THROW(det.configure(kW, kH, 5, 0.5, 0.0), std::invalid_argument);    // no share
+  EXPECT_THROW(det.configure(100, 60, 5, 0.5, 0.01), std::invalid_argument);  // too small
+  EXPECT_FALSE(det.armed());
+  det.configure(kW, kH, 5, 0.5, 0.01);
+  EXPECT_TRUE(det.armed());
+  EXPECT_THROW(det.addImage(cv::Mat(kH, kW - 1, CV_8UC1, cv::Scalar(0))), std::invalid_argument);
+}
+
+}  // namespace
+}  // namespace diekf
