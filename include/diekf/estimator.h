@@ -55,7 +55,8 @@ struct FrameResult {
   int dot_removal_px = 0;
   /// The projector-dot test on the raw images (fixed_pattern/dot_detect_share; docs/noise_model.md section 11): the
   /// share of the image held by bright specks that stayed on the same pixels while the ground moved, at its verdict
-  /// (the dots were found when it reached dot_detect_share); -1 while the test runs or when it is off.
+  /// (the dots were found when it reached dot_detect_share); -1 while the test runs, when it is off, or when it gave up
+  /// (the ground's motion never qualified within its samples: the learned pattern's switch still applies).
   double projector_dot_share = -1.0;
   /// The pair's brightness change (photometric/brightness_model): current = gain reference + offset, in
   /// normalised units; 1 and 0 when not estimated.

@@ -7,6 +7,8 @@
 
 #include "morphology.h"
 
+#include <opencv2/core/hal/intrin.hpp>
+
 namespace diekf {
 namespace internal {
 
@@ -15,6 +17,39 @@ void ensureBytes(cv::Mat& m, int rows, int cols) {
   if (m.rows != rows || m.cols != cols || m.type() != CV_8UC1 || !m.isContinuous()) m.create(rows, cols, CV_8UC1);
 }
 }  // namespace
+
+void speckMask(const uint8_t* src, const uint8_t* opened, size_t n, int contrast_q8, uint8_t* out) {
+  // Speck where I - O > contrast O + floor, or where I is saturated and I - O > floor. Exact integer arithmetic
+  // (the same on every platform): with the contrast in 1/256, c = 256 c_hi + c_lo, 256 (I - O) > c O + 256 floor
+  // holds exactly when I - O > c_hi O + ((c_lo O) >> 8) + floor (I - O is an integer; O <= I for an opening).
+  const uint8_t* o = opened;
+  uint8_t* speck = out;
+  const int c_hi = contrast_q8 >> 8, c_lo = contrast_q8 & 255;
+  size_t i = 0;
+  {
+    using namespace cv;
+    const v_uint16x8 vhi = v_setall_u16(static_cast<uint16_t>(c_hi)), vlo = v_setall_u16(static_cast<uint16_t>(c_lo));
+    const v_uint16x8 vfloor = v_setall_u16(static_cast<uint16_t>(DotDetector::kNoiseFloorGrey));
+    const v_uint8x16 v255 = v_setall_u8(255);
+    for (; i + 16 <= n; i += 16) {
+      const v_uint8x16 vi = v_load(src + i), vo = v_load(o + i);
+      v_uint16x8 i0, i1, o0, o1;
+      v_expand(vi, i0, i1);
+      v_expand(vo, o0, o1);
+      const v_uint16x8 t0 = i0 - o0, t1 = i1 - o1;
+      const v_uint16x8 thr0 = v_mul_wrap(o0, vhi) + v_shr<8>(v_mul_wrap(o0, vlo)) + vfloor;
+      const v_uint16x8 thr1 = v_mul_wrap(o1, vhi) + v_shr<8>(v_mul_wrap(o1, vlo)) + vfloor;
+      const v_uint8x16 bright = v_pack(v_reinterpret_as_u16(t0 > thr0), v_reinterpret_as_u16(t1 > thr1));
+      const v_uint8x16 above = v_pack(v_reinterpret_as_u16(t0 > vfloor), v_reinterpret_as_u16(t1 > vfloor));
+      v_store(speck + i, bright | ((vi == v255) & above));
+    }
+  }
+  for (; i < n; ++i) {
+    const int top = static_cast<int>(src[i]) - static_cast<int>(o[i]);
+    const int thr = c_hi * o[i] + ((c_lo * o[i]) >> 8) + DotDetector::kNoiseFloorGrey;
+    speck[i] = top > thr || (src[i] == 255 && top > DotDetector::kNoiseFloorGrey) ? 255 : 0;
+  }
+}
 
 void DotDetector::configure(int width, int height, int element_px, double contrast, double min_share) {
   if (!fits(width, height)) {
@@ -30,7 +65,6 @@ void DotDetector::configure(int width, int height, int element_px, double contra
   width_ = width;
   height_ = height;
   radius_ = element_px / 2;
-  border_ = radius_ + 1;
   contrast_q8_ = static_cast<int>(std::lround(contrast * 256.0));
   min_share_ = min_share;
   motion_px_ = kMotionElements * element_px;
@@ -47,6 +81,7 @@ void DotDetector::configure(int width, int height, int element_px, double contra
   tile_chance_.assign(tiles, 1.0);
   tile_q_.assign(tiles, 1.0);
   tile_block_.assign(tiles, 0);
+  tile_fixed_.assign(tiles, 0);
   for (int by = 0; by < kBlocksY; ++by) {
     for (int bx = 0; bx < kBlocksX; ++bx) {
       Block& b = blocks_[static_cast<size_t>(by * kBlocksX + bx)];
@@ -90,7 +125,8 @@ bool DotDetector::resolved(const Block& b) const {
 }
 
 bool DotDetector::wantsImage() const {
-  if (!armed_ || samples_ >= kMaxSamples) return false;
+  // (One sample at a time: images queued for the IMU would all look independent of the positions not yet noted.)
+  if (!armed_ || samples_ >= kMaxSamples || pending_position_) return false;
   for (const Block& b : blocks_)
     if (independent(b)) return true;
   return false;
@@ -98,17 +134,14 @@ bool DotDetector::wantsImage() const {
 
 double DotDetector::fixedShare(const std::array<bool, kBlocks>& use) const {
   size_t count = 0, area = 0;
-  for (int i = 0; i < kBlocks; ++i) {
-    if (!use[static_cast<size_t>(i)]) continue;
-    const Block& b = blocks_[static_cast<size_t>(i)];
-    const int x0 = std::max(b.x0, border_), x1 = std::min(b.x1, width_ - border_);
-    const int y0 = std::max(b.y0, border_), y1 = std::min(b.y1, height_ - border_);
-    if (x1 <= x0 || y1 <= y0) continue;
-    for (int y = y0; y < y1; ++y) {
-      const uint8_t* row = fixed_.ptr<uint8_t>(y);
-      for (int x = x0; x < x1; ++x) count += row[x] != 0;
+  for (int ty = 0; ty < tiles_y_; ++ty) {
+    const int th = std::min(kTilePx, height_ - ty * kTilePx);
+    for (int tx = 0; tx < tiles_x_; ++tx) {
+      const size_t t = static_cast<size_t>(ty * tiles_x_ + tx);
+      if (!use[static_cast<size_t>(tile_block_[t])]) continue;
+      count += static_cast<size_t>(tile_fixed_[t]);
+      area += static_cast<size_t>(std::min(kTilePx, width_ - tx * kTilePx) * th);
     }
-    area += static_cast<size_t>(x1 - x0) * static_cast<size_t>(y1 - y0);
   }
   return area > 0 ? static_cast<double>(count) / static_cast<double>(area) : 0.0;
 }
@@ -124,23 +157,43 @@ void DotDetector::addImage(const cv::Mat& grey) {
     src = copy_.data;
   }
   openSquare(src, opened_.data, scratch_a_.data, scratch_b_.data, width_, height_, radius_);
-  // Speck where I - O > contrast O + floor, in 1/256 grey levels (integers: the same on every platform), or where
-  // the pixel is saturated above its surroundings (a dot on bright ground is clipped below that contrast).
   uint8_t* speck = scratch_a_.data;
-  const uint8_t* o = opened_.data;
-  const int floor_q8 = kNoiseFloorGrey * 256;
   const size_t n = static_cast<size_t>(width_) * static_cast<size_t>(height_);
-  for (size_t i = 0; i < n; ++i) {
-    const int top = (static_cast<int>(src[i]) - static_cast<int>(o[i])) * 256;
-    speck[i] = top > contrast_q8_ * static_cast<int>(o[i]) + floor_q8 || (src[i] == 255 && top > floor_q8) ? 255 : 0;
-  }
+  speckMask(src, opened_.data, n, contrast_q8_, speck);
   dilateSquare(speck, speck, scratch_b_.data, width_, height_, 1);
-  // The sample's speck share per tile (counted into tile_chance_ by notePosition where it is independent).
+  // M = M and the speck mask; per tile the specks of this sample and the pixels left in M.
   std::fill(tile_q_.begin(), tile_q_.end(), 0.0);
+  std::fill(tile_fixed_.begin(), tile_fixed_.end(), 0);
+  uint8_t* f = fixed_.data;
+  if (samples_ == 0) std::copy(speck, speck + n, f);
   for (int y = 0; y < height_; ++y) {
-    const uint8_t* row = speck + static_cast<size_t>(y) * static_cast<size_t>(width_);
-    double* q = tile_q_.data() + static_cast<size_t>((y / kTilePx) * tiles_x_);
-    for (int x = 0; x < width_; ++x) q[x / kTilePx] += row[x] != 0 ? 1.0 : 0.0;
+    const size_t row = static_cast<size_t>(y) * static_cast<size_t>(width_);
+    const size_t t0 = static_cast<size_t>((y / kTilePx) * tiles_x_);
+    for (int tx = 0; tx < tiles_x_; ++tx) {
+      const int x0 = tx * kTilePx, x1 = std::min(width_, x0 + kTilePx);
+      unsigned specks = 0, fixed = 0;
+      int x = x0;
+      if (x1 - x0 == 16) {
+        using namespace cv;
+        const v_uint8x16 sp = v_load(speck + row + x0);
+        const v_uint8x16 m = v_min(v_load(f + row + x0), sp);
+        v_store(f + row + x0, m);
+        const v_uint8x16 one = v_setall_u8(1);
+        v_uint16x8 a0, a1, b0, b1;
+        v_expand(sp & one, a0, a1);
+        v_expand(m & one, b0, b1);
+        specks = v_reduce_sum(a0 + a1);
+        fixed = v_reduce_sum(b0 + b1);
+        x = x1;
+      }
+      for (; x < x1; ++x) {
+        f[row + x] = std::min(f[row + x], speck[row + x]);
+        specks += speck[row + x] != 0;
+        fixed += f[row + x] != 0;
+      }
+      tile_q_[t0 + tx] += specks;
+      tile_fixed_[t0 + tx] += static_cast<int>(fixed);
+    }
   }
   for (int ty = 0; ty < tiles_y_; ++ty) {
     const int th = std::min(kTilePx, height_ - ty * kTilePx);
@@ -148,12 +201,6 @@ void DotDetector::addImage(const cv::Mat& grey) {
       const int tw = std::min(kTilePx, width_ - tx * kTilePx);
       tile_q_[static_cast<size_t>(ty * tiles_x_ + tx)] /= static_cast<double>(tw * th);
     }
-  }
-  if (samples_ == 0) {
-    std::copy(speck, speck + n, fixed_.data);
-  } else {
-    uint8_t* f = fixed_.data;
-    for (size_t i = 0; i < n; ++i) f[i] = std::min(f[i], speck[i]);
   }
   std::array<bool, kBlocks> all;
   all.fill(true);
@@ -210,10 +257,15 @@ DotDetector::Verdict DotDetector::decide() {
   if (!armed_ || samples_ <= kStableSamples) return Verdict::kUndecided;
   // Every dot is in every sample: fewer fixed specks than the share are no dots (M only ever shrinks).
   const double whole = share_history_[static_cast<size_t>(samples_ - 1)];
-  if (whole < min_share_ || (samples_ >= kMaxSamples && !pending_position_)) {
+  if (whole < min_share_) {
     share_ = whole;
     armed_ = false;
     return Verdict::kNoDots;
+  }
+  if (samples_ >= kMaxSamples && !pending_position_) {
+    share_ = whole;
+    armed_ = false;  // the motion never qualified (or M never settled): no verdict, the learned pattern decides
+    return Verdict::kUndecided;
   }
   std::array<bool, kBlocks> use;
   size_t resolved_area = 0;

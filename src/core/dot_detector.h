@@ -21,7 +21,8 @@
 // chance share over them is below a tenth of `min_share`, M's share over them is at least `min_share`, and M's
 // share has stopped falling (a periodic ground can bring its specks back onto the same pixels: such chance
 // agreements fall with each sample, dots do not). No dots: M's share of the whole image below `min_share` after
-// kStableSamples + 1 samples (M only ever shrinks, and every dot is in every sample), or kMaxSamples samples.
+// kStableSamples + 1 samples (M only ever shrinks, and every dot is in every sample). After kMaxSamples samples
+// without either the detector gives up without a verdict (the filter never followed the ground well enough).
 // Images are sampled only when the ground moved enough in some block: a hovering camera costs one sample. All
 // buffers are allocated by configure().
 #pragma once
@@ -49,7 +50,7 @@ class DotDetector {
   /// M's share has stopped falling when it keeps this fraction over the last kStableSamples samples.
   static constexpr double kStableFraction = 0.7;
   static constexpr int kStableSamples = 3;
-  /// Sampled images after which the detector gives up (verdict kNoDots).
+  /// Sampled images after which the detector gives up (disarmed, no verdict).
   static constexpr int kMaxSamples = 64;
   /// Side of the tiles over which the chance agreements are counted, raw px.
   static constexpr int kTilePx = 16;
@@ -69,8 +70,9 @@ class DotDetector {
   bool armed() const { return armed_; }
   /// Stops looking (no verdict).
   void disarm() { armed_ = false; }
-  /// Whether the next raw image should be sampled: armed, and in some block the ground stands at least element
-  /// + 2 px away from where it stood in every independent sample of the block so far.
+  /// Whether the next raw image should be sampled: armed, no sampled image waiting for notePosition(), and in
+  /// some block the ground stands at least element + 2 px away from where it stood in every independent sample of
+  /// the block so far.
   bool wantsImage() const;
   /// Samples a raw 8-bit grey image (width x height of configure(); any row stride). No allocation.
   void addImage(const cv::Mat& grey);
@@ -79,13 +81,14 @@ class DotDetector {
   /// One image pair's shift of the ground at each block's centre (raw px, the current image's position minus the
   /// reference's) and its 1-sigma per axis, as the filter estimates them.
   void addMotion(const std::array<Vec2, kBlocks>& shift_px, const std::array<Vec2, kBlocks>& sigma_px);
-  /// The sampled image has been processed: its positions (those of the last addMotion()) count when `known`
-  /// (its pair was updated, or it starts the positions).
+  /// The sampled image has been processed (or dropped: `known` false): its positions (those of the last
+  /// addMotion()) count when `known` (its pair was updated, or it starts the positions).
   void notePosition(bool known);
   /// The motion is unknown from here on (a restart of the filter): the positions and the chance products start
   /// again (M is kept).
   void restartMotion();
-  /// The verdict, once the conditions above hold (then the detector disarms).
+  /// The verdict, once the conditions above hold (then the detector disarms; it also disarms without one after
+  /// kMaxSamples samples).
   Verdict decide();
   /// The share of the image held by fixed specks (M) over the resolved blocks (over the whole image before
   /// any is resolved), after the last sample.
@@ -102,10 +105,10 @@ class DotDetector {
   };
   bool independent(const Block& b) const;
   bool resolved(const Block& b) const;
-  /// Share of M over the pixels of the blocks flagged (inside the border, where the opening saw a whole element).
+  /// Share of M over the pixels of the blocks flagged.
   double fixedShare(const std::array<bool, kBlocks>& use) const;
 
-  int width_ = 0, height_ = 0, radius_ = 0, border_ = 0;
+  int width_ = 0, height_ = 0, radius_ = 0;
   int contrast_q8_ = 0;  // contrast in 1/256
   double min_share_ = 0.0;
   double motion_px_ = 0.0;  // kMotionElements elements, raw px
@@ -120,9 +123,14 @@ class DotDetector {
   std::vector<double> tile_chance_;  // per tile: product of the speck shares of its block's independent samples
   std::vector<double> tile_q_;       // per tile: speck share of the last sample (until notePosition)
   std::vector<int> tile_block_;      // per tile: its block
-  bool pending_position_ = false;    // an image was sampled whose position is not noted yet (a sampled image
-                                     // dropped before its processing leaves it set: harmless)
+  std::vector<int> tile_fixed_;      // per tile: pixels in M after the last sample
+  bool pending_position_ = false;    // an image was sampled whose position is not noted yet
 };
+
+/// The speck mask of an image `src` and its opening `opened` (n bytes each) into `out` (255: speck, 0: not):
+/// src - opened > contrast opened + DotDetector::kNoiseFloorGrey (the contrast in 1/256, contrast_q8 <= 2560),
+/// or src saturated (255) and src - opened > kNoiseFloorGrey. Exact in integers; 16 bytes at a time.
+void speckMask(const uint8_t* src, const uint8_t* opened, size_t n, int contrast_q8, uint8_t* out);
 
 }  // namespace internal
 }  // namespace diekf

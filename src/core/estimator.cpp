@@ -525,6 +525,7 @@ struct Estimator::Impl {
         std::ostringstream os;
         os << "image at " << img.t_s << " s older than the IMU data (from " << imu.oldest().t_s << " s) dropped";
         warn(os.str());
+        if (img.dots_sampled) dots.notePosition(false);  // (the detector samples one image at a time)
         images.pop();
         continue;
       }
@@ -690,7 +691,10 @@ bool Estimator::addImage(double t_cam_s, const cv::Mat& image) {
       m.warn(step == StampStep::kDuplicate ? "duplicated image stamp rejected" : "out-of-order image rejected");
       return false;
     }
-    if (m.images.full()) m.warn("image queue full (no IMU data covering the images): oldest image dropped");
+    if (m.images.full()) {
+      m.warn("image queue full (no IMU data covering the images): oldest image dropped");
+      if (m.images[0].dots_sampled) m.dots.notePosition(false);
+    }
     PendingImage& slot = m.images.emplaceSlot();
     slot.t_s = t_s;
     slot.stamp_s = t_cam_s;

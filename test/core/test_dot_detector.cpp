@@ -6,6 +6,7 @@
 #include <array>
 #include <cmath>
 #include <stdexcept>
+#include <vector>
 
 #include <opencv2/core.hpp>
 #include <opencv2/imgproc.hpp>
@@ -118,6 +119,30 @@ TEST(DotDetector, DilationEqualsOpenCv) {
     cv::Mat in_place = img.clone();  // (src and dst may be the same buffer)
     internal::dilateSquare(in_place.data, in_place.data, scratch.data, img.cols, img.rows, r);
     EXPECT_EQ(cv::norm(in_place, expected, cv::NORM_INF), 0.0) << "in place, r = " << r;
+  }
+}
+
+TEST(DotDetector, SpeckMaskIsTheDefinitionExactly) {
+  // 16 bytes at a time against the definition in plain integers, over random images with saturated pixels and an
+  // opening below them (an opening never exceeds its image), for several contrasts and a length with a tail.
+  cv::RNG rng(11);
+  const size_t n = 16 * 70 + 7;
+  std::vector<uint8_t> img(n), opened(n), out(n);
+  for (int contrast_q8 : {1, 128, 256, 333, 700, 2560}) {
+    for (size_t i = 0; i < n; ++i) {
+      img[i] = rng.uniform(0, 10) == 0 ? 255 : static_cast<uint8_t>(rng.uniform(0, 256));
+      opened[i] = static_cast<uint8_t>(std::min<int>(img[i], rng.uniform(0, 256)));
+    }
+    internal::speckMask(img.data(), opened.data(), n, contrast_q8, out.data());
+    int specks = 0;
+    for (size_t i = 0; i < n; ++i) {
+      const int top = img[i] - opened[i];
+      const bool speck = 256 * top > contrast_q8 * opened[i] + 256 * DotDetector::kNoiseFloorGrey ||
+                         (img[i] == 255 && top > DotDetector::kNoiseFloorGrey);
+      ASSERT_EQ(out[i], speck ? 255 : 0) << "contrast " << contrast_q8 << ", byte " << i;
+      specks += speck;
+    }
+    EXPECT_GT(specks, 0);
   }
 }
 
