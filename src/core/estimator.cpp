@@ -261,13 +261,7 @@ struct Estimator::Impl {
     // vote for "no motion" biased every update before the model had learned them, by more than the share learned
     // so far): both are given back their initial uncertainty, uncorrelated (the estimates are kept; the attitude,
     // normal and biases are not affected). Measured better than a restart of the whole filter (docs/results.md).
-    const double sa = params.init.sigma_alpha0_inv_m, sv = params.init.sigma_vartheta0_inv_s;
-    for (int i = ErrIdx::kAlpha; i < ErrIdx::kVartheta + 3; ++i) {
-      P.row(i).setZero();
-      P.col(i).setZero();
-    }
-    P(ErrIdx::kAlpha, ErrIdx::kAlpha) = sa * sa;
-    P.block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta) = Mat3::Identity() * sv * sv;
+    restarts.setInitialScaleCovariance(&P);
   }
 
   /// Starts the filter at image `t_s`: gravity from the accelerometer, no propagation before.

@@ -24,9 +24,7 @@ void RestartPolicy::coldStart(bool converged, double configured_readout_s, State
   x.mu = UnitVector(in.mu0);
   x.g = UnitVector(in.g0);
   P.setZero();
-  P(ErrIdx::kAlpha, ErrIdx::kAlpha) = in.sigma_alpha0_inv_m * in.sigma_alpha0_inv_m;
-  P.block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta) =
-      Mat3::Identity() * in.sigma_vartheta0_inv_s * in.sigma_vartheta0_inv_s;
+  setInitialScaleCovariance(&P);
   P.block<2, 2>(ErrIdx::kMu, ErrIdx::kMu) = Mat2::Identity() * in.sigma_mu0_rad * in.sigma_mu0_rad;
   P.block<2, 2>(ErrIdx::kG, ErrIdx::kG) = Mat2::Identity() * in.sigma_g0_rad * in.sigma_g0_rad;
   P.block<3, 3>(ErrIdx::kBa, ErrIdx::kBa) = Mat3::Identity() * in.sigma_ba0_mps2 * in.sigma_ba0_mps2;
@@ -35,6 +33,18 @@ void RestartPolicy::coldStart(bool converged, double configured_readout_s, State
   P(ErrIdx::kRo, ErrIdx::kRo) = in.sigma_readout_s * in.sigma_readout_s;
   P(ErrIdx::kFs, ErrIdx::kFs) = in.sigma_focal_scale * in.sigma_focal_scale;
   warm_started_ = false;
+}
+
+void RestartPolicy::setInitialScaleCovariance(ErrorCov* P_io) const {
+  const InitParams& in = params_.init;
+  ErrorCov& P = *P_io;
+  for (int i = ErrIdx::kAlpha; i < ErrIdx::kVartheta + 3; ++i) {
+    P.row(i).setZero();
+    P.col(i).setZero();
+  }
+  P(ErrIdx::kAlpha, ErrIdx::kAlpha) = in.sigma_alpha0_inv_m * in.sigma_alpha0_inv_m;
+  P.block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta) =
+      Mat3::Identity() * in.sigma_vartheta0_inv_s * in.sigma_vartheta0_inv_s;
 }
 
 // A fault is usually detected within a second of its start: the snapshot used is at least kWarmRestartLagS old,

@@ -27,6 +27,10 @@ class RestartPolicy {
   /// init.warm_restart_max_age_s old, alpha's 1-sigma relative (init.warm_restart_sigma_alpha_relative). The
   /// velocity keeps the prior (the fault made it unknown). No-op without such a state.
   void applyWarmPrior(double t_now_s, State* x, ErrorCov* P);
+  /// The initial uncertainty of alpha and vartheta (init.sigma_alpha0_inv_m, init.sigma_vartheta0_inv_s),
+  /// uncorrelated: their rows and columns of P replaced. Part of coldStart; also what the opening's switch for
+  /// projector dots gives them back (docs/noise_model.md section 11).
+  void setInitialScaleCovariance(ErrorCov* P) const;
   /// Whether the current run started from a remembered state (for the status text).
   bool warmStarted() const { return warm_started_; }
   void setWarmStarted(bool warm) { warm_started_ = warm; }
