@@ -107,18 +107,27 @@ cv::Point circle(int k) {
                    110 + static_cast<int>(std::lround(40.0 * std::sin(a))));
 }
 
-TEST(DotDetector, DilationEqualsOpenCv) {
-  cv::Mat img(77, 101, CV_8UC1);
-  cv::RNG(3).fill(img, cv::RNG::UNIFORM, 0, 256);
-  for (int r : {1, 2, 4}) {
-    cv::Mat expected;
-    cv::dilate(img, expected, cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * r + 1, 2 * r + 1)));
-    cv::Mat out(img.size(), CV_8UC1), scratch(img.size(), CV_8UC1);
-    internal::dilateSquare(img.data, out.data, scratch.data, img.cols, img.rows, r);
-    EXPECT_EQ(cv::norm(out, expected, cv::NORM_INF), 0.0) << "r = " << r;
-    cv::Mat in_place = img.clone();  // (src and dst may be the same buffer)
-    internal::dilateSquare(in_place.data, in_place.data, scratch.data, img.cols, img.rows, r);
-    EXPECT_EQ(cv::norm(in_place, expected, cv::NORM_INF), 0.0) << "in place, r = " << r;
+TEST(DotDetector, MorphologyEqualsOpenCv) {
+  // The dilation and the opening against OpenCV's (rectangular element, default border) to the byte: sides whose
+  // radius is unrolled (1-4) or not (6), rows shorter than, equal to and longer than a vector of 16 with the window.
+  cv::RNG rng(3);
+  for (const cv::Size size : {cv::Size(101, 77), cv::Size(20, 9), cv::Size(35, 18), cv::Size(16, 5), cv::Size(7, 4)}) {
+    cv::Mat img(size, CV_8UC1);
+    rng.fill(img, cv::RNG::UNIFORM, 0, 256);
+    cv::Mat out(size, CV_8UC1), a(size, CV_8UC1), b(size, CV_8UC1);
+    for (int r : {1, 2, 3, 4, 6}) {
+      const cv::Mat element = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * r + 1, 2 * r + 1));
+      cv::Mat expected;
+      cv::dilate(img, expected, element);
+      internal::dilateSquare(img.data, out.data, a.data, img.cols, img.rows, r);
+      EXPECT_EQ(cv::norm(out, expected, cv::NORM_INF), 0.0) << size << " dilation r = " << r;
+      cv::Mat in_place = img.clone();  // (src and dst may be the same buffer)
+      internal::dilateSquare(in_place.data, in_place.data, a.data, img.cols, img.rows, r);
+      EXPECT_EQ(cv::norm(in_place, expected, cv::NORM_INF), 0.0) << size << " in place, r = " << r;
+      cv::morphologyEx(img, expected, cv::MORPH_OPEN, element);
+      internal::openSquare(img.data, out.data, a.data, b.data, img.cols, img.rows, r);
+      EXPECT_EQ(cv::norm(out, expected, cv::NORM_INF), 0.0) << size << " opening r = " << r;
+    }
   }
 }
 
