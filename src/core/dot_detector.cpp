@@ -82,6 +82,11 @@ void DotDetector::configure(int width, int height, int element_px, double contra
   tile_q_.assign(tiles, 1.0);
   tile_block_.assign(tiles, 0);
   tile_fixed_.assign(tiles, 0);
+  tile_area_.assign(tiles, 0);
+  for (int ty = 0; ty < tiles_y_; ++ty)
+    for (int tx = 0; tx < tiles_x_; ++tx)
+      tile_area_[static_cast<size_t>(ty * tiles_x_ + tx)] =
+          std::min(kTilePx, width - tx * kTilePx) * std::min(kTilePx, height - ty * kTilePx);
   for (int by = 0; by < kBlocksY; ++by) {
     for (int bx = 0; bx < kBlocksX; ++bx) {
       Block& b = blocks_[static_cast<size_t>(by * kBlocksX + bx)];
@@ -134,14 +139,10 @@ bool DotDetector::wantsImage() const {
 
 double DotDetector::fixedShare(const std::array<bool, kBlocks>& use) const {
   size_t count = 0, area = 0;
-  for (int ty = 0; ty < tiles_y_; ++ty) {
-    const int th = std::min(kTilePx, height_ - ty * kTilePx);
-    for (int tx = 0; tx < tiles_x_; ++tx) {
-      const size_t t = static_cast<size_t>(ty * tiles_x_ + tx);
-      if (!use[static_cast<size_t>(tile_block_[t])]) continue;
-      count += static_cast<size_t>(tile_fixed_[t]);
-      area += static_cast<size_t>(std::min(kTilePx, width_ - tx * kTilePx) * th);
-    }
+  for (size_t t = 0; t < tile_area_.size(); ++t) {
+    if (!use[static_cast<size_t>(tile_block_[t])]) continue;
+    count += static_cast<size_t>(tile_fixed_[t]);
+    area += static_cast<size_t>(tile_area_[t]);
   }
   return area > 0 ? static_cast<double>(count) / static_cast<double>(area) : 0.0;
 }
@@ -195,13 +196,7 @@ void DotDetector::addImage(const cv::Mat& grey) {
       tile_fixed_[t0 + tx] += static_cast<int>(fixed);
     }
   }
-  for (int ty = 0; ty < tiles_y_; ++ty) {
-    const int th = std::min(kTilePx, height_ - ty * kTilePx);
-    for (int tx = 0; tx < tiles_x_; ++tx) {
-      const int tw = std::min(kTilePx, width_ - tx * kTilePx);
-      tile_q_[static_cast<size_t>(ty * tiles_x_ + tx)] /= static_cast<double>(tw * th);
-    }
-  }
+  for (size_t t = 0; t < tile_q_.size(); ++t) tile_q_[t] /= static_cast<double>(tile_area_[t]);
   std::array<bool, kBlocks> all;
   all.fill(true);
   share_history_[static_cast<size_t>(samples_)] = fixedShare(all);
@@ -279,14 +274,8 @@ DotDetector::Verdict DotDetector::decide() {
     return Verdict::kUndecided;
   }
   double chance = 0.0;
-  for (int ty = 0; ty < tiles_y_; ++ty) {
-    const int th = std::min(kTilePx, height_ - ty * kTilePx);
-    for (int tx = 0; tx < tiles_x_; ++tx) {
-      const size_t t = static_cast<size_t>(ty * tiles_x_ + tx);
-      if (!use[static_cast<size_t>(tile_block_[t])]) continue;
-      chance += tile_chance_[t] * std::min(kTilePx, width_ - tx * kTilePx) * th;
-    }
-  }
+  for (size_t t = 0; t < tile_chance_.size(); ++t)
+    if (use[static_cast<size_t>(tile_block_[t])]) chance += tile_chance_[t] * tile_area_[t];
   chance /= static_cast<double>(resolved_area);
   share_ = fixedShare(use);
   if (chance > 0.1 * min_share_ || share_ < min_share_) return Verdict::kUndecided;

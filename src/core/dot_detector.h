@@ -124,6 +124,7 @@ class DotDetector {
   std::vector<double> tile_q_;       // per tile: speck share of the last sample (until notePosition)
   std::vector<int> tile_block_;      // per tile: its block
   std::vector<int> tile_fixed_;      // per tile: pixels in M after the last sample
+  std::vector<int> tile_area_;       // per tile: its pixels (the last column and row of tiles may be cut)
   bool pending_position_ = false;    // an image was sampled whose position is not noted yet
 };
 
