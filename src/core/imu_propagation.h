@@ -4,6 +4,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <type_traits>
 
 #include "diekf/params.h"
 #include "diekf/prediction.h"
@@ -16,6 +17,9 @@ namespace internal {
 /// interpolation between the two samples around the piece (meanImuOver) when they are at most
 /// `max_interp_span_s` apart, otherwise (the first sample of the buffer, or across a bridged gap) the sample
 /// at the piece's end held over it. Pieces after the last sample are not visited. Returns the time reached.
+/// A callback taking two more arguments, fn(t0_s, t1_s, input, u, starts), is also given the later sample's
+/// weight u in `input` (the interpolation's at the piece's middle; 1 when held) and whether the piece starts at
+/// the earlier sample's stamp.
 template <class Buffer, class Fn>
 double forEachImuPiece(const Buffer& buf, double t_from_s, double t_to_s, double max_interp_span_s, Fn&& fn) {
   size_t i = 0;
@@ -26,7 +30,14 @@ double forEachImuPiece(const Buffer& buf, double t_from_s, double t_to_s, double
     const double t_end = std::min(s.t_s, t_to_s);
     if (t_end > t) {
       const bool interpolate = i > 0 && s.t_s - buf[i - 1].t_s <= max_interp_span_s;
-      fn(t, t_end, interpolate ? meanImuOver(buf[i - 1], s, t, t_end) : s);
+      const ImuSample input = interpolate ? meanImuOver(buf[i - 1], s, t, t_end) : s;
+      if constexpr (std::is_invocable_v<Fn, double, double, const ImuSample&, double, bool>) {
+        // Also: the later sample's weight in `input` (1 when held) and whether the piece starts a sample interval.
+        const double u = interpolate ? (0.5 * (t + t_end) - buf[i - 1].t_s) / (s.t_s - buf[i - 1].t_s) : 1.0;
+        fn(t, t_end, input, u, i > 0 && t == buf[i - 1].t_s);
+      } else {
+        fn(t, t_end, input);
+      }
       t = t_end;
     }
     if (s.t_s <= t_to_s) ++i;

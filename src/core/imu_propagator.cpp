@@ -126,7 +126,7 @@ void ImuPropagator::propagateTo(double t_target_s, State* x, ErrorCov* P) {
   // (holdColumnAccel is a no-op while nothing was propagated or without the smoothing).
   if (!column_valid_ || t_state_s_ - column_t_s_ > kMaxColumnAccelAgeS) holdColumnAccel();
   forEachImuPiece(buffer_, t_state_s_, t_target_s, 2.0 * nominal_dt_s,
-                  [&](double t0_s, double t1_s, const ImuSample& s) {
+                  [&](double t0_s, double t1_s, const ImuSample& s, double u, bool starts_interval) {
     const double dt = t1_s - t0_s;
     if (!held) {
       predictImuPiece(s, dt, nominal_dt_s, params_, x, P);
@@ -140,9 +140,15 @@ void ImuPropagator::propagateTo(double t_target_s, State* x, ErrorCov* P) {
       predictImuPiece(s, dt, nominal_dt_s, params_, x, P, &column);
       column_turn_ = turn * column_turn_;
       const Vec3 accel = s.accel_mps2 - x->b_a + g0 * x->g.vector();  // m/s^2
+      // The two averages' variances and covariance per unit sample variance (white samples), exactly from the
+      // first one: a piece's input is (1 - u) n_prev + u n_next of the two samples around it (the interpolation at
+      // its middle), so the pieces of one interval share their noise; each sample's coefficients in s1, s2 add up
+      // until it leaves the interpolation (s1' = k s1 + w a, s2' = k s2 + w s1').
       if (!accel_smooth_valid_) {
         smooth1_C_ = smooth2_C_ = accel;
-        var11_ = var12_ = var22_ = 1.0;
+        prev_c1_ = prev_c2_ = 1.0 - u;
+        next_c1_ = next_c2_ = u;
+        closed11_ = closed12_ = closed22_ = 0.0;
         accel_smooth_valid_ = true;
       } else {
         const double w = tau_s > 0.0 ? -std::expm1(-dt / tau_s) : 1.0, k = 1.0 - w;
@@ -150,11 +156,25 @@ void ImuPropagator::propagateTo(double t_target_s, State* x, ErrorCov* P) {
         smooth1_C_ += w * (accel - smooth1_C_);
         smooth2_C_ = turn * smooth2_C_;
         smooth2_C_ += w * (smooth1_C_ - smooth2_C_);
-        // Their variances and covariance per unit sample variance (white samples), exactly from the first one.
-        var11_ = k * k * var11_ + w * w;
-        var22_ = k * k * var22_ + 2.0 * k * k * w * var12_ + w * w * var11_;
-        var12_ = k * k * var12_ + w * var11_;
+        if (starts_interval) {  // the earlier sample leaves; the later one becomes the earlier
+          closed11_ += prev_c1_ * prev_c1_;
+          closed12_ += prev_c1_ * prev_c2_;
+          closed22_ += prev_c2_ * prev_c2_;
+          prev_c1_ = next_c1_;
+          prev_c2_ = next_c2_;
+          next_c1_ = next_c2_ = 0.0;
+        }
+        closed22_ = k * k * (closed22_ + 2.0 * w * closed12_ + w * w * closed11_);
+        closed12_ = k * k * (closed12_ + w * closed11_);
+        closed11_ = k * k * closed11_;
+        prev_c1_ = k * prev_c1_ + w * (1.0 - u);
+        prev_c2_ = k * prev_c2_ + w * prev_c1_;
+        next_c1_ = k * next_c1_ + w * u;
+        next_c2_ = k * next_c2_ + w * next_c1_;
       }
+      var11_ = closed11_ + prev_c1_ * prev_c1_ + next_c1_ * next_c1_;
+      var12_ = closed12_ + prev_c1_ * prev_c2_ + next_c1_ * next_c2_;
+      var22_ = closed22_ + prev_c2_ * prev_c2_ + next_c2_ * next_c2_;
     }
     gyro_integral_ += s.gyro_radps * dt;
     gyro_time_s_ += dt;

@@ -42,6 +42,11 @@ class ImuPropagator {
   /// section 2.1, "The distance's column"). No-op before anything was propagated, or with the smoothing negative
   /// (each step's own reading, the textbook EKF).
   void holdColumnAccel();
+  /// The smoothed acceleration's level (2 s1 - s2, C frame, m/s^2) before it is shrunk and held, and its variance
+  /// per unit variance of one filtered sample's noise (4 v11 - 4 v12 + v22, white samples): what holdColumnAccel
+  /// shrinks by. For tests.
+  Vec3 smoothedAccelLevel() const { return 2.0 * smooth1_C_ - smooth2_C_; }
+  double levelVarianceFactor() const { return 4.0 * var11_ - 4.0 * var12_ + var22_; }
 
   // --- The image interval (reference image -> current image) ---
   /// A new reference image at t_s: the interval's gyro integral restarts, the rate at t_s is remembered.
@@ -109,6 +114,10 @@ class ImuPropagator {
   Vec3 smooth1_C_ = Vec3::Zero();         // propagated acceleration (a - b_a + g0 g), smoothed once, in C now
   Vec3 smooth2_C_ = Vec3::Zero();         // ... and twice (Brown), m/s^2
   double var11_ = 1.0, var12_ = 1.0, var22_ = 1.0;  // their variances, covariance per unit sample variance
+  // Coefficients of the two samples the pieces interpolate between (the earlier, the later) in s1 and s2; the
+  // samples before them only through closed*_ (their part of var11_ ...).
+  double prev_c1_ = 0.0, prev_c2_ = 0.0, next_c1_ = 0.0, next_c2_ = 0.0;
+  double closed11_ = 0.0, closed12_ = 0.0, closed22_ = 0.0;
   bool accel_smooth_valid_ = false;
   Vec3 column_accel_C_ = Vec3::Zero();   // the held acceleration of the distance's column, in C then, m/s^2
   Vec3 column_trend_C_ = Vec3::Zero();   // its rate of change, m/s^3
