@@ -56,6 +56,28 @@ BENCHMARK(BM_PreprocessFrame)
     ->Args({376, 240})
     ->Unit(benchmark::kMillisecond);
 
+// The same at 180x116 with the raw images opened first (preprocess/dot_removal_px: the projector dots' removal),
+// for the element sides the dot detector chooses from (docs/noise_model.md section 11).
+void BM_PreprocessFrameOpened(benchmark::State& state) {
+  diekf::PreprocessParams params;
+  params.working_width_px = 180;
+  params.working_height_px = 116;
+  params.dot_removal_px = static_cast<int>(state.range(0));
+  diekf::ImagePreprocessor pre(myntCamera(), params);
+  const cv::Mat raw = texturedRaw(752, 480);
+  diekf::PreprocessedFrame frame;
+  pre.process(raw, 0.0, &frame);
+  double t = 0.0;
+  for (auto _ : state) {
+    pre.process(raw, t, &frame);
+    t += 1.0 / 30.0;
+    benchmark::DoNotOptimize(frame.intensity.data);
+    benchmark::ClobberMemory();
+  }
+}
+
+BENCHMARK(BM_PreprocessFrameOpened)->Arg(5)->Arg(9)->Arg(11)->Arg(13)->Arg(17)->Unit(benchmark::kMillisecond);
+
 }  // namespace
 
 namespace {

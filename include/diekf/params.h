@@ -164,6 +164,11 @@ struct FixedPatternParams {
   double dot_detect_share = 0.01;
   /// A speck for that detector: a top-hat (image minus its opening) above this fraction of the opening, unitless.
   double dot_detect_contrast = 0.5;
+  /// When the detector finds dots, the opening's side is measured on its last sample instead of taking
+  /// auto_dot_removal_px: the least odd side from auto_dot_removal_px up to this one (raw px) at which a larger
+  /// side no longer takes more from the dots than from the ground (their tails and clusters are gone;
+  /// DotDetector::removalElement). Equal to auto_dot_removal_px: that side, not measured.
+  int max_dot_removal_px = 21;
   /// Optional offline flat field: a cv::FileStorage file (YAML/XML) with a matrix `gain` (relative response per
   /// raw pixel at the calibration resolution, any scale); empty: none. Divided out before the online model.
   std::string vignetting_file;

@@ -74,6 +74,8 @@ void DotDetector::configure(int width, int height, int element_px, double contra
   ensureBytes(scratch_b_, height, width);
   ensureBytes(copy_, height, width);
   ensureBytes(fixed_, height, width);
+  ensureBytes(last_, height, width);
+  ensureBytes(larger_, height, width);
   // Tiles, and blocks made of whole tiles.
   tiles_x_ = (width + kTilePx - 1) / kTilePx;
   tiles_y_ = (height + kTilePx - 1) / kTilePx;
@@ -157,6 +159,7 @@ void DotDetector::addImage(const cv::Mat& grey) {
     grey.copyTo(copy_);
     src = copy_.data;
   }
+  std::copy(src, src + static_cast<size_t>(width_) * static_cast<size_t>(height_), last_.data);
   openSquare(src, opened_.data, scratch_a_.data, scratch_b_.data, width_, height_, radius_);
   uint8_t* speck = scratch_a_.data;
   const size_t n = static_cast<size_t>(width_) * static_cast<size_t>(height_);
@@ -283,6 +286,36 @@ DotDetector::Verdict DotDetector::decide() {
   if (whole < kStableFraction * earlier) return Verdict::kUndecided;  // still falling: chance agreements
   armed_ = false;
   return Verdict::kDots;
+}
+
+int DotDetector::removalElement(int max_px) {
+  int side = 2 * radius_ + 1;
+  if (samples_ == 0) return side;
+  const size_t n = static_cast<size_t>(width_) * static_cast<size_t>(height_);
+  const uint8_t* img = last_.data;
+  const uint8_t* m = fixed_.data;
+  // opened_ holds the last sample's opening by `side` (addImage); the next larger one goes to larger_.
+  uint8_t* cur = opened_.data;
+  uint8_t* next = larger_.data;
+  for (; side + 2 <= max_px; side += 2) {
+    openSquare(img, next, scratch_a_.data, scratch_b_.data, width_, height_, (side + 1) / 2);
+    uint64_t sum_dots = 0, sum_ground = 0, n_dots = 0;
+    for (size_t i = 0; i < n; ++i) {
+      const unsigned d = static_cast<unsigned>(cur[i] - next[i]);  // (openings shrink with the element)
+      if (m[i] != 0) {
+        sum_dots += d;
+        ++n_dots;
+      } else {
+        sum_ground += d;
+      }
+    }
+    if (n_dots == 0 || n_dots == n) break;
+    const double excess = static_cast<double>(sum_dots) / static_cast<double>(n_dots) -
+                          static_cast<double>(sum_ground) / static_cast<double>(n - n_dots);
+    if (excess < kRemnantGrey) break;
+    std::swap(cur, next);
+  }
+  return side;
 }
 
 }  // namespace internal

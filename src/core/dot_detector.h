@@ -94,6 +94,14 @@ class DotDetector {
   /// any is resolved), after the last sample.
   double share() const { return share_; }
   int samples() const { return samples_; }
+  /// Side (odd, raw px) of the opening that takes the dots out of the last sampled image, from element_px up to
+  /// max_px: the first side at which a larger one darkens M's pixels by less than kRemnantGrey more than it darkens
+  /// the rest of the image (the dots' tails and clusters are then gone; what a larger element still takes is
+  /// ground). One-off, after a verdict of dots: a few openings of the image. No allocation.
+  int removalElement(int max_px);
+  /// See removalElement: grey levels a larger element may still take from the dots, beyond what it takes from the
+  /// ground (a camera's quantisation; its read noise is 1-2).
+  static constexpr double kRemnantGrey = 1.0;
 
  private:
   struct Block {
@@ -114,6 +122,7 @@ class DotDetector {
   double motion_px_ = 0.0;  // kMotionElements elements, raw px
   double step_px_ = 0.0;    // element + 2 px: the least distance between independent samples
   cv::Mat opened_, scratch_a_, scratch_b_, copy_, fixed_;  // CV_8UC1, width x height (copy_: a strided input)
+  cv::Mat last_, larger_;  // the last sampled image and a second opening of it (removalElement)
   bool armed_ = false;
   int samples_ = 0;                                   // images in M
   double share_ = 0.0;                                // see share()

@@ -109,6 +109,10 @@ struct Estimator::Impl {
       throw std::invalid_argument("fixed_pattern/auto_dot_removal_px = " + std::to_string(dot_px) +
                                   " is not 0 or odd in [1, 31]");
     }
+    if (!ImagePreprocessor::validDotRemovalPx(p.fixed_pattern.max_dot_removal_px)) {
+      throw std::invalid_argument("fixed_pattern/max_dot_removal_px = " +
+                                  std::to_string(p.fixed_pattern.max_dot_removal_px) + " is not 0 or odd in [1, 31]");
+    }
     if (dot_px > 1 && p.fixed_pattern.dot_detect_share > 0.0 && img_pre.dotRemovalPx() == 0 &&
         p.mode != UpdateMode::kFeature && internal::DotDetector::fits(cam.K.width, cam.K.height)) {
       dots.configure(cam.K.width, cam.K.height, dot_px, p.fixed_pattern.dot_detect_contrast,
@@ -236,24 +240,26 @@ struct Estimator::Impl {
     const internal::DotDetector::Verdict verdict = dots.decide();
     if (verdict == internal::DotDetector::Verdict::kDots) {
       dot_share = dots.share();
+      // The opening's side from the dots' own extent on the last sample (their tails, clusters).
+      const int side = dots.removalElement(params.fixed_pattern.max_dot_removal_px);
       char why[kMessageCapacity];
       std::snprintf(why, sizeof(why),
                     "projector dots found (fixed bright specks on %.1f %% of the image): raw images opened over %d px",
-                    100.0 * dots.share(), params.fixed_pattern.auto_dot_removal_px);
-      switchOnDotRemoval(img.t_s, why);
+                    100.0 * dots.share(), side);
+      switchOnDotRemoval(img.t_s, why, side);
     } else if (verdict == internal::DotDetector::Verdict::kNoDots) {
       dot_share = dots.share();
     }
   }
 
-  /// Switches the opening of the raw images on (fixed_pattern.auto_dot_removal_px; 0 = never), once per
-  /// estimator: the pattern is learned anew from the opened images, the distance and velocity over distance get
-  /// their initial uncertainty back; the first opened image starts a new pair (processImage). `why`: the status's
-  /// reason. docs/noise_model.md section 11.
-  void switchOnDotRemoval(double t_s, const char* why) {
+  /// Switches the opening of the raw images on (side_px, or fixed_pattern.auto_dot_removal_px when 0; never when
+  /// auto_dot_removal_px is 0), once per estimator: the pattern is learned anew from the opened images, the
+  /// distance and velocity over distance get their initial uncertainty back; the first opened image starts a new
+  /// pair (processImage). `why`: the status's reason. docs/noise_model.md section 11.
+  void switchOnDotRemoval(double t_s, const char* why, int side_px = 0) {
     const FixedPatternParams& fp = params.fixed_pattern;
     if (fp.auto_dot_removal_px <= 1 || img_pre.dotRemovalPx() != 0) return;
-    img_pre.setDotRemoval(fp.auto_dot_removal_px);
+    img_pre.setDotRemoval(side_px > 0 ? side_px : fp.auto_dot_removal_px);
     fixed_pattern.reset();
     dots.disarm();  // (when the learned pattern came first)
     health.noteDegraded(t_s, why);

@@ -82,9 +82,115 @@ void rankColumns(const uint8_t* src, uint8_t* dst, int w, int h, int r) {
   }
 }
 
+// Larger windows by doubling: with L_s[i] the rank over [i, i + s - 1] (clipped at the end), L_2s[i] = rank(L_s[i],
+// L_s[i + s]); a window of W <= 2 S elements starting at i is rank(L_S[i], L_S[i + W - S]). About log2(W) + 1
+// passes instead of W - 1 comparisons per element.
+
+/// The doubling's last level S for a window of `width` elements: the least power of two with 2 S >= width.
+int doublingSpan(int width) {
+  int span = 1;
+  while (2 * span < width) span *= 2;
+  return span;
+}
+
+/// In place: v[i] becomes the rank of v[i .. i + span - 1] (clipped at n), through the levels 2, 4, .., span.
+/// Each level reads ahead of what it writes, so increasing i sees the previous level's values.
+template <bool kMax>
+void doubleInPlace(uint8_t* v, int n, int span, int first_level = 1) {
+  for (int s = first_level; s < span; s *= 2) {
+    int i = 0;
+    for (; i + s + 16 <= n; i += 16) cv::v_store(v + i, rank<kMax>(cv::v_load(v + i), cv::v_load(v + i + s)));
+    for (; i + s < n; ++i) v[i] = rank<kMax>(v[i], v[i + s]);
+  }
+}
+
+/// rankRow for r > 4 by doubling in dst (src and dst must not overlap).
+template <bool kMax>
+void rankRowDoubling(const uint8_t* src, uint8_t* dst, int n, int r) {
+  auto clipped = [&](int x) {
+    uint8_t v = src[x];
+    for (int j = std::max(0, x - r); j <= std::min(n - 1, x + r); ++j) v = rank<kMax>(v, src[j]);
+    dst[x] = v;
+  };
+  if (n <= 2 * r) {  // every window clipped
+    for (int x = 0; x < n; ++x) clipped(x);
+    return;
+  }
+  // The first level straight from the source (span >= 8 here), the others in place.
+  const int span = doublingSpan(2 * r + 1);
+  int i = 0;
+  for (; i + 17 <= n; i += 16) cv::v_store(dst + i, rank<kMax>(cv::v_load(src + i), cv::v_load(src + i + 1)));
+  for (; i + 1 < n; ++i) dst[i] = rank<kMax>(src[i], src[i + 1]);
+  dst[n - 1] = src[n - 1];
+  doubleInPlace<kMax>(dst, n, span, 2);
+  // The whole windows, downwards: x reads L[x - r] and L[x - r + off] (off = 2 r + 1 - span <= r), both at or
+  // below x, where nothing has been written yet.
+  const int off = 2 * r + 1 - span;
+  int x = n - 1 - r;
+  for (; x - 15 >= r; x -= 16) {
+    const int b = x - 15;
+    cv::v_store(dst + b, rank<kMax>(cv::v_load(dst + b - r), cv::v_load(dst + b - r + off)));
+  }
+  for (; x >= r; --x) dst[x] = rank<kMax>(dst[x - r], dst[x - r + off]);
+  // The clipped windows from the source, as running ranks: [0, x + r] growing, [x - r, n - 1] growing downwards.
+  uint8_t v = src[0];
+  for (x = 1; x < r; ++x) v = rank<kMax>(v, src[x]);
+  for (x = 0; x < r; ++x) dst[x] = v = rank<kMax>(v, src[x + r]);
+  v = src[n - 1];
+  for (x = n - r; x < n - 1; ++x) v = rank<kMax>(v, src[x]);
+  for (x = n - 1; x >= n - r; --x) dst[x] = v = rank<kMax>(v, src[x - r]);
+}
+
+/// rankColumns for r > 4 by doubling: the clipped rows of dst first, then the levels in place in src (which is
+/// scratch), then the whole windows.
+template <bool kMax>
+void rankColumnsDoubling(uint8_t* src, uint8_t* dst, int w, int h, int r) {
+  const size_t step = static_cast<size_t>(w);
+  auto clipped_row = [&](int y) {
+    const int y0 = std::max(0, y - r), y1 = std::min(h - 1, y + r);
+    uint8_t* out = dst + static_cast<size_t>(y) * step;
+    std::copy(src + static_cast<size_t>(y0) * step, src + static_cast<size_t>(y0 + 1) * step, out);
+    for (int yy = y0 + 1; yy <= y1; ++yy) {
+      const uint8_t* row = src + static_cast<size_t>(yy) * step;
+      int x = 0;
+      for (; x + 16 <= w; x += 16) cv::v_store(out + x, rank<kMax>(cv::v_load(out + x), cv::v_load(row + x)));
+      for (; x < w; ++x) out[x] = rank<kMax>(out[x], row[x]);
+    }
+  };
+  if (h <= 2 * r) {
+    for (int y = 0; y < h; ++y) clipped_row(y);
+    return;
+  }
+  for (int y = 0; y < r; ++y) clipped_row(y);
+  for (int y = h - r; y < h; ++y) clipped_row(y);
+  const int span = doublingSpan(2 * r + 1);
+  auto rank_rows = [&](const uint8_t* p, const uint8_t* q, uint8_t* out) {
+    int x = 0;
+    for (; x + 16 <= w; x += 16) cv::v_store(out + x, rank<kMax>(cv::v_load(p + x), cv::v_load(q + x)));
+    for (; x < w; ++x) out[x] = rank<kMax>(p[x], q[x]);
+  };
+  for (int s = 1; s < span; s *= 2) {
+    for (int y = 0; y + s < h; ++y) {
+      uint8_t* row = src + static_cast<size_t>(y) * step;
+      rank_rows(row, row + static_cast<size_t>(s) * step, row);
+    }
+  }
+  const int off = 2 * r + 1 - span;
+  for (int y = r; y < h - r; ++y) {
+    const uint8_t* first = src + static_cast<size_t>(y - r) * step;
+    rank_rows(first, first + static_cast<size_t>(off) * step, dst + static_cast<size_t>(y) * step);
+  }
+}
+
 /// The rows' then the columns' rank of a w x h image into dst (a: scratch), with r at compile time where it is small.
 template <bool kMax>
 void rankSquare(const uint8_t* src, uint8_t* dst, uint8_t* a, int w, int h, int r) {
+  if (r > 4) {
+    for (int y = 0; y < h; ++y)
+      rankRowDoubling<kMax>(src + static_cast<size_t>(y) * w, a + static_cast<size_t>(y) * w, w, r);
+    rankColumnsDoubling<kMax>(a, dst, w, h, r);
+    return;
+  }
   auto run = [&](auto radius) {
     constexpr int R = decltype(radius)::value;
     for (int y = 0; y < h; ++y)

@@ -405,6 +405,8 @@ const std::vector<Entry>& table() {
                      Range{0.0, 1.0, false, true}));
     t.push_back(real("fixed_pattern/dot_detect_contrast", DIEKF_FIELD(double, fixed_pattern.dot_detect_contrast),
                      Range{0.0, 10.0, true, false}));
+    t.push_back(integer("fixed_pattern/max_dot_removal_px", DIEKF_FIELD(int, fixed_pattern.max_dot_removal_px),
+                        between(0, 31)));
     t.push_back({"fixed_pattern/vignetting_file", [](const ParamSource& s, EstimatorParams& p) {
                    std::string path;
                    if (s.get("fixed_pattern/vignetting_file", &path)) p.fixed_pattern.vignetting_file = path;

@@ -5,6 +5,7 @@
 
 #include <array>
 #include <cmath>
+#include <cstdio>
 #include <stdexcept>
 #include <vector>
 
@@ -44,15 +45,18 @@ cv::Mat periodicGround(int w, int h, int period_px) {
   return ground;
 }
 
-/// The simulator's projector (--projector-dots): gain 1 + strength x a Gaussian dot of sigma 1.2 px.
-cv::Mat projectorGain(int dots, double strength) {
+/// The simulator's projector (--projector-dots): gain 1 + strength x a Gaussian dot of sigma 1.2 px (or sigma_px).
+cv::Mat projectorGain(int dots, double strength, double sigma_px = 1.2) {
   cv::RNG rng(7);
   cv::Mat g(kH, kW, CV_32FC1, cv::Scalar(0.f));
+  const int reach = static_cast<int>(std::ceil(4.0 * sigma_px));
   for (int k = 0; k < dots; ++k) {
     const double cx = rng.uniform(0.0, kW - 1.0), cy = rng.uniform(0.0, kH - 1.0);
-    for (int y = std::max(0, static_cast<int>(cy) - 4); y <= std::min(kH - 1, static_cast<int>(cy) + 4); ++y)
-      for (int x = std::max(0, static_cast<int>(cx) - 4); x <= std::min(kW - 1, static_cast<int>(cx) + 4); ++x)
-        g.at<float>(y, x) += static_cast<float>(std::exp(-0.5 * ((x - cx) * (x - cx) + (y - cy) * (y - cy)) / 1.44));
+    for (int y = std::max(0, static_cast<int>(cy) - reach); y <= std::min(kH - 1, static_cast<int>(cy) + reach); ++y)
+      for (int x = std::max(0, static_cast<int>(cx) - reach); x <= std::min(kW - 1, static_cast<int>(cx) + reach);
+           ++x)
+        g.at<float>(y, x) += static_cast<float>(
+            std::exp(-0.5 * ((x - cx) * (x - cx) + (y - cy) * (y - cy)) / (sigma_px * sigma_px)));
   }
   return 1.0 + strength * g;
 }
@@ -62,6 +66,7 @@ struct Outcome {
   int frame = -1;  // the frame of the verdict
   int samples = 0;
   double share = 0.0;
+  int element = 0;  // the opening's side measured at a verdict of dots (removalElement(21))
 };
 
 /// The camera looks at `ground` through a kW x kH window moving along `path(k)` (integer px), the images times
@@ -93,6 +98,7 @@ Outcome fly(const cv::Mat& ground, const cv::Mat& gain, Path path, int frames, d
     if (v != DotDetector::Verdict::kUndecided) {
       out.verdict = v;
       out.frame = k;
+      if (v == DotDetector::Verdict::kDots) out.element = det.removalElement(21);
     }
     out.samples = det.samples();
     out.share = det.share();
@@ -109,13 +115,15 @@ cv::Point circle(int k) {
 
 TEST(DotDetector, MorphologyEqualsOpenCv) {
   // The dilation and the opening against OpenCV's (rectangular element, default border) to the byte: sides whose
-  // radius is unrolled (1-4) or not (6), rows shorter than, equal to and longer than a vector of 16 with the window.
+  // radius is unrolled (1-4) or taken by doubling (5-15: spans 8 and 16, windows just above and below a power of
+  // two), rows and columns shorter than, equal to and longer than a vector of 16 with the window.
   cv::RNG rng(3);
-  for (const cv::Size size : {cv::Size(101, 77), cv::Size(20, 9), cv::Size(35, 18), cv::Size(16, 5), cv::Size(7, 4)}) {
+  for (const cv::Size size : {cv::Size(101, 77), cv::Size(20, 9), cv::Size(35, 18), cv::Size(16, 5), cv::Size(7, 4),
+                              cv::Size(64, 40), cv::Size(33, 31)}) {
     cv::Mat img(size, CV_8UC1);
     rng.fill(img, cv::RNG::UNIFORM, 0, 256);
     cv::Mat out(size, CV_8UC1), a(size, CV_8UC1), b(size, CV_8UC1);
-    for (int r : {1, 2, 3, 4, 6}) {
+    for (int r : {1, 2, 3, 4, 5, 6, 7, 8, 9, 12, 15}) {
       const cv::Mat element = cv::getStructuringElement(cv::MORPH_RECT, cv::Size(2 * r + 1, 2 * r + 1));
       cv::Mat expected;
       cv::dilate(img, expected, element);
@@ -166,6 +174,44 @@ TEST(DotDetector, FindsFixedDotsWithinTheFirstMotion) {
   const Outcome fewer = fly(ground, projectorGain(500, 1.5), circle, 120);
   EXPECT_EQ(fewer.verdict, DotDetector::Verdict::kDots);
   EXPECT_LT(fewer.share, dots.share);
+}
+
+TEST(DotDetector, TheOpeningCoversTheDotsTails) {
+  // The side measured at the verdict takes the dots out down to their tails: opened with it, the image with the
+  // dots is within a few grey levels of the same view without them where the dots are (what is left: the tails of
+  // the neighbouring dots inside the window), against ~19 with the detector's own side of 5 px; wider dots get a
+  // wider side, and the side stays within its bounds.
+  const cv::Mat ground = specklyGround(1000, 700, 1);
+  auto remnant = [&](const cv::Mat& gain, int frame, int side) {
+    const cv::Point at = circle(frame);
+    cv::Mat plain, dotted, opened_plain(kH, kW, CV_8UC1), opened_dotted(kH, kW, CV_8UC1), a(kH, kW, CV_8UC1),
+        b(kH, kW, CV_8UC1);
+    ground(cv::Rect(at.x, at.y, kW, kH)).convertTo(plain, CV_8UC1);
+    cv::Mat(ground(cv::Rect(at.x, at.y, kW, kH)).mul(gain)).convertTo(dotted, CV_8UC1);
+    internal::openSquare(plain.data, opened_plain.data, a.data, b.data, kW, kH, side / 2);
+    internal::openSquare(dotted.data, opened_dotted.data, a.data, b.data, kW, kH, side / 2);
+    const cv::Mat cores = gain > 1.5;  // where a dot adds more than half the brightness
+    cv::Mat diff;
+    cv::absdiff(opened_dotted, opened_plain, diff);
+    return cv::mean(diff, cores)[0];
+  };
+  const cv::Mat gain = projectorGain(1500, 1.5);
+  const Outcome dots = fly(ground, gain, circle, 120);
+  ASSERT_EQ(dots.verdict, DotDetector::Verdict::kDots);
+  EXPECT_GE(dots.element, 9);  // a dot of sigma 1.2 px at 2.5x the brightness reaches 1 % at 3.9 px
+  EXPECT_LE(dots.element, 21);
+  EXPECT_EQ(dots.element % 2, 1);
+  const double left = remnant(gain, dots.frame, dots.element), left5 = remnant(gain, dots.frame, 5);
+  std::printf("side %d: dots' remnant %.2f grey levels (side 5: %.2f)\n", dots.element, left, left5);
+  EXPECT_LT(left, 5.0);
+  EXPECT_GT(left5, 3.0 * left);
+  const Outcome wide = fly(ground, projectorGain(1500, 1.5, 1.5), circle, 120);
+  ASSERT_EQ(wide.verdict, DotDetector::Verdict::kDots);
+  EXPECT_GT(wide.element, dots.element);
+  const Outcome narrow = fly(ground, projectorGain(1500, 1.5, 0.8), circle, 120);
+  ASSERT_EQ(narrow.verdict, DotDetector::Verdict::kDots);
+  EXPECT_LT(narrow.element, dots.element);
+  std::printf("sides for dots of sigma 0.8, 1.2, 1.5 px: %d, %d, %d\n", narrow.element, dots.element, wide.element);
 }
 
 TEST(DotDetector, GroundSpecksAloneAreNoDots) {
