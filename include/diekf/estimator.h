@@ -26,8 +26,9 @@ struct FrameResult {
   double t_s = 0.0;                  ///< the image's time on the IMU clock (stamp + timeshift + stamp convention + estimated offset), s
   double stamp_s = 0.0;              ///< the image's stamp as given to addImage, s
   State state;                       ///< posterior state
-  /// Covariance of the posterior state: the filter's, plus the plane's ambiguity over a scene that is not one
-  /// plane along the scale direction of (alpha, vartheta) (relief_sigma; photometric/relief_in_covariance).
+  /// Covariance of the posterior state: the filter's, plus, along the scale direction of (alpha, vartheta), the
+  /// plane's ambiguity over a scene that is not one plane (relief_sigma; photometric/relief_in_covariance) and the
+  /// calibration's focal-length uncertainty (photometric/focal_scale_in_covariance).
   ErrorCov covariance = ErrorCov::Zero();
   FilterStatus status = FilterStatus::kInitializing;
   bool update_applied = false;       ///< false for the first frame after (re)start or a skipped update

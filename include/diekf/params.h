@@ -122,6 +122,11 @@ struct PhotometricParams {
   /// over boxes, plants or movers the images define "the plane" only to that relative accuracy. The filter's own
   /// covariance is not changed (docs/noise_model.md section 13).
   bool relief_in_covariance = true;
+  /// While the focal length is not estimated (estimate_focal_scale false), add its calibration uncertainty
+  /// (init.sigma_focal_scale) to the reported covariance as a scale ambiguity of the distance (alpha and vartheta
+  /// together: velocity unchanged): a focal length off by e reads the translation's flow, and so the distance, off
+  /// by e. The filter's own covariance is not changed (docs/noise_model.md section 9).
+  bool focal_scale_in_covariance = true;
   /// Brightness change of the pair (docs/noise_model.md section 12): kNormalised compares the images as they are
   /// (each standardised to zero mean and unit variance on its own); kGain compares the current image with g I_r and kAffine with g I_r + o, the
   /// pair's gain g (and offset o) estimated in the update's Gauss-Newton passes and marginalised from the

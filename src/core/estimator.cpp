@@ -485,6 +485,9 @@ struct Estimator::Impl {
     r.covariance = P;
     // The distance to which layer of a scene that is not one plane (section 13 of docs/noise_model.md).
     if (params.photometric.relief_in_covariance) addScaleAmbiguity(x, relief_var, &r.covariance);
+    // The calibration's focal length, when not estimated: a scale error of the translation's flow (section 9).
+    if (params.photometric.focal_scale_in_covariance && !params.estimate_focal_scale)
+      addScaleAmbiguity(x, params.init.sigma_focal_scale * params.init.sigma_focal_scale, &r.covariance);
     r.resets = restarts.count();
     // Into a ring slot (the oldest unread result is dropped when full), reusing the slot's string buffers.
     FrameResult& slot = results.emplaceSlot();
