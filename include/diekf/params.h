@@ -164,8 +164,8 @@ struct FixedPatternParams {
   /// The projector-dot detector on the raw images (docs/noise_model.md section 11): once the ground has moved by
   /// three auto_dot_removal_px along both image axes, bright specks that stayed on the same pixels in every image
   /// sampled are counted; if they hold at least this share of the image (0..1) they are taken for an IR
-  /// projector's dots and the raw images are opened with auto_dot_removal_px from then on, as above, without
-  /// waiting for the pattern's statistics. Once per estimator; 0 = off.
+  /// projector's dots and the raw images are opened from then on (the side measured on them, max_dot_removal_px
+  /// below), as above, without waiting for the pattern's statistics. Once per estimator; 0 = off.
   double dot_detect_share = 0.01;
   /// A speck for that detector: a top-hat (image minus its opening) above this fraction of the opening, unitless.
   double dot_detect_contrast = 0.5;
