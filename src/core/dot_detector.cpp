@@ -72,7 +72,6 @@ void DotDetector::configure(int width, int height, int element_px, double contra
   ensureBytes(opened_, height, width);
   ensureBytes(scratch_a_, height, width);
   ensureBytes(scratch_b_, height, width);
-  ensureBytes(copy_, height, width);
   ensureBytes(fixed_, height, width);
   ensureBytes(last_, height, width);
   ensureBytes(larger_, height, width);
@@ -154,12 +153,8 @@ void DotDetector::addImage(const cv::Mat& grey) {
   if (grey.type() != CV_8UC1 || grey.cols != width_ || grey.rows != height_) {
     throw std::invalid_argument("DotDetector::addImage: expected an 8-bit grey image of the configured size");
   }
-  const uint8_t* src = grey.data;
-  if (!grey.isContinuous()) {  // (the opening reads rows contiguously)
-    grey.copyTo(copy_);
-    src = copy_.data;
-  }
-  std::copy(src, src + static_cast<size_t>(width_) * static_cast<size_t>(height_), last_.data);
+  grey.copyTo(last_);  // kept for removalElement; contiguous rows for the opening whatever the input's stride
+  const uint8_t* src = last_.data;
   openSquare(src, opened_.data, scratch_a_.data, scratch_b_.data, width_, height_, radius_);
   uint8_t* speck = scratch_a_.data;
   const size_t n = static_cast<size_t>(width_) * static_cast<size_t>(height_);

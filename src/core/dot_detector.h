@@ -121,8 +121,8 @@ class DotDetector {
   double min_share_ = 0.0;
   double motion_px_ = 0.0;  // kMotionElements elements, raw px
   double step_px_ = 0.0;    // element + 2 px: the least distance between independent samples
-  cv::Mat opened_, scratch_a_, scratch_b_, copy_, fixed_;  // CV_8UC1, width x height (copy_: a strided input)
-  cv::Mat last_, larger_;  // the last sampled image and a second opening of it (removalElement)
+  cv::Mat opened_, scratch_a_, scratch_b_, fixed_;  // CV_8UC1, width x height
+  cv::Mat last_, larger_;  // the last sampled image (contiguous) and a second opening of it (removalElement)
   bool armed_ = false;
   int samples_ = 0;                                   // images in M
   double share_ = 0.0;                                // see share()

@@ -105,13 +105,12 @@ struct Estimator::Impl {
     sc.gravity_mps2 = p.imu.gravity_mps2;
     scale_init.configure(sc);
     const int dot_px = p.fixed_pattern.auto_dot_removal_px;
-    if (!ImagePreprocessor::validDotRemovalPx(dot_px)) {
-      throw std::invalid_argument("fixed_pattern/auto_dot_removal_px = " + std::to_string(dot_px) +
-                                  " is not 0 or odd in [1, 31]");
-    }
-    if (!ImagePreprocessor::validDotRemovalPx(p.fixed_pattern.max_dot_removal_px)) {
-      throw std::invalid_argument("fixed_pattern/max_dot_removal_px = " +
-                                  std::to_string(p.fixed_pattern.max_dot_removal_px) + " is not 0 or odd in [1, 31]");
+    for (const auto& [key, px] : {std::pair<const char*, int>{"auto_dot_removal_px", dot_px},
+                                  {"max_dot_removal_px", p.fixed_pattern.max_dot_removal_px}}) {
+      if (!ImagePreprocessor::validDotRemovalPx(px)) {
+        throw std::invalid_argument(std::string("fixed_pattern/") + key + " = " + std::to_string(px) +
+                                    " is not 0 or odd in [1, 31]");
+      }
     }
     if (dot_px > 1 && p.fixed_pattern.dot_detect_share > 0.0 && img_pre.dotRemovalPx() == 0 &&
         p.mode != UpdateMode::kFeature && internal::DotDetector::fits(cam.K.width, cam.K.height)) {

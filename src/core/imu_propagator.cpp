@@ -172,15 +172,19 @@ void ImuPropagator::propagateTo(double t_target_s, State* x, ErrorCov* P) {
         next_c1_ = k * next_c1_ + w * u;
         next_c2_ = k * next_c2_ + w * next_c1_;
       }
-      var11_ = closed11_ + prev_c1_ * prev_c1_ + next_c1_ * next_c1_;
-      var12_ = closed12_ + prev_c1_ * prev_c2_ + next_c1_ * next_c2_;
-      var22_ = closed22_ + prev_c2_ * prev_c2_ + next_c2_ * next_c2_;
     }
     gyro_integral_ += s.gyro_radps * dt;
     gyro_time_s_ += dt;
   });
   t_state_s_ = t_target_s;
   dropUsed();
+}
+
+double ImuPropagator::levelVarianceFactor() const {
+  const double v11 = closed11_ + prev_c1_ * prev_c1_ + next_c1_ * next_c1_;
+  const double v12 = closed12_ + prev_c1_ * prev_c2_ + next_c1_ * next_c2_;
+  const double v22 = closed22_ + prev_c2_ * prev_c2_ + next_c2_ * next_c2_;
+  return 4.0 * v11 - 4.0 * v12 + v22;
 }
 
 void ImuPropagator::holdColumnAccel() {
@@ -200,7 +204,7 @@ void ImuPropagator::holdColumnAccel() {
   // the images' "vartheta did not change" is no information about the distance. (The gravity direction's and the
   // bias's uncertainty are not counted: they are states whose first-order effect F models, and counted here they
   // hold the distance back until the tilt is known: docs/algorithm.md 2.1.)
-  const double noise_factor = std::max(0.0, 4.0 * var11_ - 4.0 * var12_ + var22_) *
+  const double noise_factor = std::max(0.0, levelVarianceFactor()) *
                               std::max(1.0, 1.0 + 2.0 * (sample_rho1_ + sample_rho2_));
   const Vec3 var = noise_factor * accelSampleVariance();
   column_accel_C_ = expectedGivenReading(level, var);

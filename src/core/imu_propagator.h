@@ -46,7 +46,7 @@ class ImuPropagator {
   /// per unit variance of one filtered sample's noise (4 v11 - 4 v12 + v22, white samples): what holdColumnAccel
   /// shrinks by. For tests.
   Vec3 smoothedAccelLevel() const { return 2.0 * smooth1_C_ - smooth2_C_; }
-  double levelVarianceFactor() const { return 4.0 * var11_ - 4.0 * var12_ + var22_; }
+  double levelVarianceFactor() const;
 
   // --- The image interval (reference image -> current image) ---
   /// A new reference image at t_s: the interval's gyro integral restarts, the rate at t_s is remembered.
@@ -113,9 +113,9 @@ class ImuPropagator {
   double sample_rho1_ = 0.0, sample_rho2_ = 0.0;  // correlation of the filtered samples 1 and 2 periods apart
   Vec3 smooth1_C_ = Vec3::Zero();         // propagated acceleration (a - b_a + g0 g), smoothed once, in C now
   Vec3 smooth2_C_ = Vec3::Zero();         // ... and twice (Brown), m/s^2
-  double var11_ = 1.0, var12_ = 1.0, var22_ = 1.0;  // their variances, covariance per unit sample variance
-  // Coefficients of the two samples the pieces interpolate between (the earlier, the later) in s1 and s2; the
-  // samples before them only through closed*_ (their part of var11_ ...).
+  // Their variances and covariance per unit sample variance, v11 = closed11_ + prev_c1_^2 + next_c1_^2 etc.
+  // (levelVarianceFactor): the coefficients of the two samples the pieces interpolate between (the earlier, the
+  // later) in s1 and s2, and the part of the samples before them.
   double prev_c1_ = 0.0, prev_c2_ = 0.0, next_c1_ = 0.0, next_c2_ = 0.0;
   double closed11_ = 0.0, closed12_ = 0.0, closed22_ = 0.0;
   bool accel_smooth_valid_ = false;

@@ -20,22 +20,18 @@ cv::v_uint8x16 rank(const cv::v_uint8x16& a, const cv::v_uint8x16& b) {
   return kMax ? cv::v_max(a, b) : cv::v_min(a, b);
 }
 
-/// Rank of the 2 r + 1 vectors of 16 bytes at p, p + step, ..., p + 2 r step; R > 0: r = R known at compile time
-/// (the loop unrolled), else r at run time.
+/// Rank of the 2 R + 1 vectors of 16 bytes at p, p + step, ..., p + 2 R step (R known at compile time: the loop
+/// unrolled).
 template <bool kMax, int R>
-cv::v_uint8x16 rankVectors(const uint8_t* p, size_t step, int r) {
+cv::v_uint8x16 rankVectors(const uint8_t* p, size_t step) {
   cv::v_uint8x16 v = cv::v_load(p);
-  if constexpr (R > 0) {
-    for (int j = 1; j <= 2 * R; ++j) v = rank<kMax>(v, cv::v_load(p + j * step));
-  } else {
-    for (int j = 1; j <= 2 * r; ++j) v = rank<kMax>(v, cv::v_load(p + j * step));
-  }
+  for (int j = 1; j <= 2 * R; ++j) v = rank<kMax>(v, cv::v_load(p + j * step));
   return v;
 }
 
 /// Running minimum (kMax false) or maximum (kMax true) over [i - r, i + r] of a row of n bytes, the window clipped
 /// at the ends (what lies outside does not count, as in OpenCV's morphology). src and dst must not overlap.
-/// R: r at compile time (0: at run time).
+/// R: r at compile time (1-4).
 template <bool kMax, int R>
 void rankRow(const uint8_t* src, uint8_t* dst, int n, int r) {
   auto scalar = [&](int x) {
@@ -46,10 +42,10 @@ void rankRow(const uint8_t* src, uint8_t* dst, int n, int r) {
   int x = 0;
   for (; x < std::min(r, n); ++x) scalar(x);
   const int last = n - r - 16;  // the last start of a whole window of 16 outputs
-  for (; x <= last; x += 16) cv::v_store(dst + x, rankVectors<kMax, R>(src + x - r, 1, r));
+  for (; x <= last; x += 16) cv::v_store(dst + x, rankVectors<kMax, R>(src + x - r, 1));
   if (x > r && x < n - r && last >= r) {
     // The rest of the interior as one more window ending at the last interior output (overlapping the previous).
-    cv::v_store(dst + last, rankVectors<kMax, R>(src + last - r, 1, r));
+    cv::v_store(dst + last, rankVectors<kMax, R>(src + last - r, 1));
     x = n - r;
   }
   for (; x < n; ++x) scalar(x);
@@ -67,7 +63,7 @@ void rankColumns(const uint8_t* src, uint8_t* dst, int w, int h, int r) {
     int x = 0;
     for (; x + 16 <= w; x += 16) {
       if (whole) {
-        cv::v_store(out + x, rankVectors<kMax, R>(first + x, step, r));
+        cv::v_store(out + x, rankVectors<kMax, R>(first + x, step));
       } else {
         cv::v_uint8x16 v = cv::v_load(first + x);
         for (int yy = y0 + 1; yy <= y1; ++yy) v = rank<kMax>(v, cv::v_load(src + static_cast<size_t>(yy) * step + x));
@@ -146,16 +142,16 @@ void rankRowDoubling(const uint8_t* src, uint8_t* dst, int n, int r) {
 template <bool kMax>
 void rankColumnsDoubling(uint8_t* src, uint8_t* dst, int w, int h, int r) {
   const size_t step = static_cast<size_t>(w);
+  auto rank_rows = [&](const uint8_t* p, const uint8_t* q, uint8_t* out) {
+    int x = 0;
+    for (; x + 16 <= w; x += 16) cv::v_store(out + x, rank<kMax>(cv::v_load(p + x), cv::v_load(q + x)));
+    for (; x < w; ++x) out[x] = rank<kMax>(p[x], q[x]);
+  };
   auto clipped_row = [&](int y) {
     const int y0 = std::max(0, y - r), y1 = std::min(h - 1, y + r);
     uint8_t* out = dst + static_cast<size_t>(y) * step;
     std::copy(src + static_cast<size_t>(y0) * step, src + static_cast<size_t>(y0 + 1) * step, out);
-    for (int yy = y0 + 1; yy <= y1; ++yy) {
-      const uint8_t* row = src + static_cast<size_t>(yy) * step;
-      int x = 0;
-      for (; x + 16 <= w; x += 16) cv::v_store(out + x, rank<kMax>(cv::v_load(out + x), cv::v_load(row + x)));
-      for (; x < w; ++x) out[x] = rank<kMax>(out[x], row[x]);
-    }
+    for (int yy = y0 + 1; yy <= y1; ++yy) rank_rows(out, src + static_cast<size_t>(yy) * step, out);
   };
   if (h <= 2 * r) {
     for (int y = 0; y < h; ++y) clipped_row(y);
@@ -164,11 +160,6 @@ void rankColumnsDoubling(uint8_t* src, uint8_t* dst, int w, int h, int r) {
   for (int y = 0; y < r; ++y) clipped_row(y);
   for (int y = h - r; y < h; ++y) clipped_row(y);
   const int span = doublingSpan(2 * r + 1);
-  auto rank_rows = [&](const uint8_t* p, const uint8_t* q, uint8_t* out) {
-    int x = 0;
-    for (; x + 16 <= w; x += 16) cv::v_store(out + x, rank<kMax>(cv::v_load(p + x), cv::v_load(q + x)));
-    for (; x < w; ++x) out[x] = rank<kMax>(p[x], q[x]);
-  };
   for (int s = 1; s < span; s *= 2) {
     for (int y = 0; y + s < h; ++y) {
       uint8_t* row = src + static_cast<size_t>(y) * step;
@@ -182,9 +173,14 @@ void rankColumnsDoubling(uint8_t* src, uint8_t* dst, int w, int h, int r) {
   }
 }
 
-/// The rows' then the columns' rank of a w x h image into dst (a: scratch), with r at compile time where it is small.
+/// The rows' then the columns' rank of a w x h image into dst (a: scratch): r 1-4 with r at compile time, larger
+/// by doubling; r <= 0 is the image itself.
 template <bool kMax>
 void rankSquare(const uint8_t* src, uint8_t* dst, uint8_t* a, int w, int h, int r) {
+  if (r <= 0) {
+    if (dst != src) std::copy(src, src + static_cast<size_t>(w) * static_cast<size_t>(h), dst);
+    return;
+  }
   if (r > 4) {
     for (int y = 0; y < h; ++y)
       rankRowDoubling<kMax>(src + static_cast<size_t>(y) * w, a + static_cast<size_t>(y) * w, w, r);
@@ -201,8 +197,7 @@ void rankSquare(const uint8_t* src, uint8_t* dst, uint8_t* a, int w, int h, int 
     case 1: run(std::integral_constant<int, 1>()); break;
     case 2: run(std::integral_constant<int, 2>()); break;
     case 3: run(std::integral_constant<int, 3>()); break;
-    case 4: run(std::integral_constant<int, 4>()); break;
-    default: run(std::integral_constant<int, 0>()); break;
+    default: run(std::integral_constant<int, 4>()); break;
   }
 }
 
