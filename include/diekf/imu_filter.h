@@ -41,8 +41,12 @@ class ImuPreprocessor {
   /// Autocovariance of the filter's output `lag` input samples apart for white input of unit variance per input
   /// sample: sum_n h[n] h[n + lag] over the designed filter's impulse response h (1 at lag 0 without a filter).
   double noiseAutocovariance(int lag) const;
+  /// The same at the lags 0, step, 2 step, ... up to where the impulse response has decayed (at least lags 0-2).
+  std::vector<double> noiseAutocovariances(int step) const;
 
  private:
+  /// The designed filter's impulse response, long enough to have decayed (plus `extra` samples).
+  std::vector<double> impulseResponse(int extra) const;
   using Vec6 = Eigen::Matrix<double, 6, 1>;
   struct Biquad {
     double b0 = 1, b1 = 0, b2 = 0, a1 = 0, a2 = 0;  // normalised (a0 = 1)

@@ -91,8 +91,7 @@ struct Estimator::Impl {
     }
     results.clear();
     const int decimation = std::max(1, p.imu.decimation_factor);
-    imu.setFilterNoise(imu_pre.noiseAutocovariance(0), imu_pre.noiseAutocovariance(decimation),
-                       imu_pre.noiseAutocovariance(2 * decimation));
+    imu.setFilterNoise(imu_pre.noiseAutocovariances(decimation));
     // Rolling shutter (docs/algorithm.md section 3.7): the stamp at the middle raw row.
     const double line_delay_raw_s = p.line_delay_s > 0.0 ? p.line_delay_s : cam.line_delay_s;
     configured_readout_s = line_delay_raw_s * std::max(0, cam.K.height - 1);

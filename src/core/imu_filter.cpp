@@ -85,13 +85,12 @@ double ImuPreprocessor::magnitudeResponse(double f_hz) const {
   return std::abs(h);
 }
 
-double ImuPreprocessor::noiseAutocovariance(int lag) const {
-  if (lag < 0) lag = -lag;
+std::vector<double> ImuPreprocessor::impulseResponse(int extra) const {
   // The impulse response through the cascaded sections (transposed direct form II, as filter()), until it has
   // decayed: long enough for any cutoff the constructor accepts (the slowest pole's time constant is below
   // fs / (2 pi fc) samples).
-  const int n = 64 + lag + static_cast<int>(std::ceil(40.0 * params_.input_rate_hz /
-                                                      (2.0 * M_PI * std::max(1e-9, params_.lowpass_cutoff_hz))));
+  const int n = 64 + extra + static_cast<int>(std::ceil(40.0 * params_.input_rate_hz /
+                                                        (2.0 * M_PI * std::max(1e-9, params_.lowpass_cutoff_hz))));
   std::vector<double> h(static_cast<size_t>(sections_.empty() ? 1 : n), 0.0);
   h[0] = 1.0;
   for (const Biquad& s : sections_) {
@@ -103,9 +102,29 @@ double ImuPreprocessor::noiseAutocovariance(int lag) const {
       z2 = s.b2 * in - s.a2 * v;
     }
   }
+  return h;
+}
+
+namespace {
+double autocovarianceOf(const std::vector<double>& h, size_t lag) {
   double sum = 0.0;
-  for (size_t i = 0; i + static_cast<size_t>(lag) < h.size(); ++i) sum += h[i] * h[i + static_cast<size_t>(lag)];
+  for (size_t i = 0; i + lag < h.size(); ++i) sum += h[i] * h[i + lag];
   return sum;
+}
+}  // namespace
+
+double ImuPreprocessor::noiseAutocovariance(int lag) const {
+  if (lag < 0) lag = -lag;
+  return autocovarianceOf(impulseResponse(lag), static_cast<size_t>(lag));
+}
+
+std::vector<double> ImuPreprocessor::noiseAutocovariances(int step) const {
+  step = std::max(1, step);
+  const std::vector<double> h = impulseResponse(0);
+  std::vector<double> r;
+  for (size_t lag = 0; lag < h.size() || r.size() < 3; lag += static_cast<size_t>(step))
+    r.push_back(autocovarianceOf(h, lag));
+  return r;
 }
 
 void ImuPreprocessor::reset() {

@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <vector>
 
 #include "diekf/prediction.h"
 #include "expected_value.h"
@@ -15,37 +16,65 @@ constexpr size_t kImuBufferCapacity = 1024;  // filtered samples (about 10 s at 
 }  // namespace
 
 ImuPropagator::ImuPropagator(const EstimatorParams& params) : params_(params), buffer_(kImuBufferCapacity) {
-  setFilterNoise(1.0, 0.0, 0.0);  // no low-pass until told
+  setFilterNoise({1.0});  // no low-pass until told
 }
 
-void ImuPropagator::setFilterNoise(double autocov0, double autocov1, double autocov2) {
-  if (!(autocov0 > 0.0)) return;
+void ImuPropagator::setFilterNoise(const std::vector<double>& autocov) {
+  if (autocov.empty() || !(autocov[0] > 0.0)) return;
   // White input of density s has the variance s^2 f_in per input sample; through the filter one output sample
-  // has s^2 f_in autocov0, and (w_(k-1) + w_(k+1)) / 2 - w_k, with the samples' correlations rho1, rho2 one and two
-  // filtered periods apart, (3/2 - 2 rho1 + rho2 / 2) of that.
-  const double rho1 = autocov1 / autocov0, rho2 = autocov2 / autocov0;
-  sample_rho1_ = rho1;
-  sample_rho2_ = rho2;
+  // has s^2 f_in autocov0, and (w_(k-L) + w_(k+L)) / 2 - w_k, with the samples' correlations rho_L, rho_2L L and 2 L
+  // filtered periods apart, (3/2 - 2 rho_L + rho_2L / 2) of that. L: the samples about 10 ms apart (1 at 100 Hz,
+  // 5 at 500 Hz): the low-pass correlates neighbouring samples at 500 Hz so closely (rho_1 = 0.975 for 20 Hz) that
+  // their second difference keeps 0.3 % of the noise, and the motion's own curvature would dominate it.
+  const double autocov0 = autocov[0];
+  auto rho = [&](size_t m) { return m < autocov.size() ? autocov[m] / autocov0 : 0.0; };
+  diff_lag_ = std::max(1, static_cast<int>(std::lround(kNoiseDiffSpacingS / filteredPeriod())));
+  const size_t L = static_cast<size_t>(diff_lag_);
   sample_var_per_density_sq_ = std::max(1e-12, params_.imu.input_rate_hz * autocov0);
-  second_diff_var_per_density_sq_ = std::max(1e-12, sample_var_per_density_sq_ * (1.5 - 2.0 * rho1 + 0.5 * rho2));
+  second_diff_var_per_density_sq_ =
+      std::max(1e-12, sample_var_per_density_sq_ * (1.5 - 2.0 * rho(L) + 0.5 * rho(2 * L)));
+  // The smoothed acceleration's level (holdColumnAccel) weighs the samples k periods back by c_k = w b^k (2 - w (k +
+  // 1)), b = 1 - w, in the steady state: its variance is sum_k sum_l c_k c_l R((k - l) D), i.e. the white samples'
+  // sum_k c_k^2 R(0) times 1 + 2 sum_m rho_m S_m / S_0 with S_m = sum_k c_k c_(k+m). The correlation reaches over
+  // about the low-pass's time constant: one or two periods at 100 Hz, ten and more at 500 Hz (20 Hz low-pass).
+  const double tau_s = params_.imu.jacobian_accel_smoothing_s;
+  const double w = tau_s > 0.0 ? -std::expm1(-filteredPeriod() / tau_s) : 1.0;
+  correlation_factor_ = 1.0;
+  if (w < 1.0 && autocov.size() > 1) {
+    const double b = 1.0 - w;
+    const int n = static_cast<int>(std::min(1e6, std::ceil(50.0 / w)));  // b^n below 1e-21
+    std::vector<double> c(static_cast<size_t>(n));  // once, at set-up
+    double bk = 1.0;
+    for (int k = 0; k < n; ++k, bk *= b) c[static_cast<size_t>(k)] = w * bk * (2.0 - w * (k + 1));
+    auto S = [&](size_t m) {
+      double sum = 0.0;
+      for (size_t k = 0; k + m < c.size(); ++k) sum += c[k] * c[k + m];
+      return sum;
+    };
+    const double S0 = S(0);
+    double sum = 0.0;
+    for (size_t m = 1; m < autocov.size(); ++m) sum += rho(m) * S(m);
+    correlation_factor_ = std::max(1e-3, 1.0 + 2.0 * sum / S0);
+  }
 }
 
 bool ImuPropagator::push(const ImuSample& filtered) {
   if (!buffer_.empty() && filtered.t_s <= buffer_.back().t_s) return false;
-  // The second difference of three consecutive samples at the nominal spacing: over two periods (20 ms) the
+  // The second difference of three samples L nominal periods apart (setFilterNoise): over 2 L periods (20 ms) the
   // motion's own curvature is small against the noise.
-  if (buffer_.size() >= 2) {
-    const ImuSample& a = buffer_[buffer_.size() - 2];
-    const ImuSample& b = buffer_.back();
-    const double period = filteredPeriod();
+  const size_t L = static_cast<size_t>(diff_lag_);
+  if (buffer_.size() >= 2 * L) {
+    const ImuSample& a = buffer_[buffer_.size() - 2 * L];
+    const ImuSample& b = buffer_[buffer_.size() - L];
+    const double period = L * filteredPeriod();
     const Vec3 e = 0.5 * (a.gyro_radps + filtered.gyro_radps) - b.gyro_radps;
     const Vec3 ea = 0.5 * (a.accel_mps2 + filtered.accel_mps2) - b.accel_mps2;
     if (std::abs(b.t_s - a.t_s - period) < 0.1 * period && std::abs(filtered.t_s - b.t_s - period) < 0.1 * period &&
         e.allFinite() && ea.allFinite()) {
-      // Smoothed over 2 s; the plain mean of the first ones (no start from zero).
+      // Smoothed over 2 s (one difference per sample); the plain mean of the first ones (no start from zero).
       constexpr double kTimeConstantS = 2.0;
       second_diffs_ = std::min(second_diffs_ + 1, 1 << 20);
-      const double beta = std::max(1.0 - std::exp(-period / kTimeConstantS), 1.0 / second_diffs_);
+      const double beta = std::max(1.0 - std::exp(-filteredPeriod() / kTimeConstantS), 1.0 / second_diffs_);
       gyro_second_diff_var_ += beta * (e.cwiseAbs2() - gyro_second_diff_var_);
       accel_second_diff_var_ += beta * (ea.cwiseAbs2() - accel_second_diff_var_);
     }
@@ -199,13 +228,12 @@ void ImuPropagator::holdColumnAccel() {
   const Vec3 trend = w < 1.0 ? Vec3((w / ((1.0 - w) * h)) * (smooth1_C_ - smooth2_C_)) : Vec3::Zero();
   // Held as its expected value given the samples' noise through the smoothing: one sample's variance times the
   // level's variance factor 4 v11 - 4 v12 + v22 (tracked from the first sample: 1 then, w (1 + 4b + 5b^2) /
-  // (1 + b)^3 with b = 1 - w in the steady state), times 1 + 2 (rho1 + rho2) for the filtered samples' correlation
-  // one and two periods apart. Where the noise explains the level (at rest), the column shows no acceleration, and
+  // (1 + b)^3 with b = 1 - w in the steady state), times the factor of the filtered samples' correlation over
+  // every lag (sampleCorrelationFactor). Where the noise explains the level (at rest), the column shows no acceleration, and
   // the images' "vartheta did not change" is no information about the distance. (The gravity direction's and the
   // bias's uncertainty are not counted: they are states whose first-order effect F models, and counted here they
   // hold the distance back until the tilt is known: docs/algorithm.md 2.1.)
-  const double noise_factor = std::max(0.0, levelVarianceFactor()) *
-                              std::max(1.0, 1.0 + 2.0 * (sample_rho1_ + sample_rho2_));
+  const double noise_factor = std::max(0.0, levelVarianceFactor()) * correlation_factor_;
   const Vec3 var = noise_factor * accelSampleVariance();
   column_accel_C_ = expectedGivenReading(level, var);
   for (int i = 0; i < 3; ++i)  // the trend shrunk alike

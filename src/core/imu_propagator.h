@@ -47,6 +47,10 @@ class ImuPropagator {
   /// shrinks by. For tests.
   Vec3 smoothedAccelLevel() const { return 2.0 * smooth1_C_ - smooth2_C_; }
   double levelVarianceFactor() const;
+  /// The level's variance with the filtered samples' correlation over every lag, per its variance for white
+  /// samples of the same variance (steady-state smoothing coefficients c_k: 1 + 2 sum_m rho_m sum_k c_k c_(k+m) /
+  /// sum_k c_k^2). holdColumnAccel multiplies levelVarianceFactor by it.
+  double sampleCorrelationFactor() const { return correlation_factor_; }
 
   // --- The image interval (reference image -> current image) ---
   /// A new reference image at t_s: the interval's gyro integral restarts, the rate at t_s is remembered.
@@ -66,9 +70,11 @@ class ImuPropagator {
   /// outside the buffer's span).
   ImuSample imuAt(double t_s) const;
   // --- The gyro's noise (docs/noise_model.md section 6) ---
-  /// The low-pass's response to white noise (ImuPreprocessor::noiseAutocovariance at lags 0, one and two
-  /// filtered periods, in input samples), which relates the filtered samples' spread to a noise density.
-  void setFilterNoise(double autocov0, double autocov1, double autocov2);
+  /// The low-pass's response to white noise: autocov[m] = ImuPreprocessor::noiseAutocovariance(m D), the filtered
+  /// samples' autocovariance m filtered periods apart (D the decimation; in input samples), for m = 0 up to where it
+  /// has decayed. It relates the filtered samples' spread to a noise density (lags 0-2) and the smoothed
+  /// acceleration's variance to one sample's (every lag: sampleCorrelationFactor).
+  void setFilterNoise(const std::vector<double>& autocov);
   /// The gyro's white-noise density, (rad/s)^2/Hz: its angle over an interval dt is uncertain by this times dt.
   /// The calibration's gyro_noise_density^2, or less where the filtered samples show less (the second
   /// differences of three consecutive samples, smoothed over 2 s, their noisiest axis; from 1 s of samples on):
@@ -110,7 +116,9 @@ class ImuPropagator {
   Vec3 accel_second_diff_var_ = Vec3::Zero();    // the same of the specific force, (m/s^2)^2
   int second_diffs_ = 0;                         // second differences seen (capped)
   static constexpr double kMaxColumnAccelAgeS = 0.1;  // s, the held value is renewed when older
-  double sample_rho1_ = 0.0, sample_rho2_ = 0.0;  // correlation of the filtered samples 1 and 2 periods apart
+  double correlation_factor_ = 1.0;  // sampleCorrelationFactor()
+  static constexpr double kNoiseDiffSpacingS = 0.01;  // s, the noise's second differences take samples this far apart
+  int diff_lag_ = 1;                                  // ... i.e. this many filtered periods
   Vec3 smooth1_C_ = Vec3::Zero();         // propagated acceleration (a - b_a + g0 g), smoothed once, in C now
   Vec3 smooth2_C_ = Vec3::Zero();         // ... and twice (Brown), m/s^2
   // Their variances and covariance per unit sample variance, v11 = closed11_ + prev_c1_^2 + next_c1_^2 etc.

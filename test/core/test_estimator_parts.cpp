@@ -315,7 +315,7 @@ TEST(ImuPropagator, GyroNoiseDensityIsMeasuredFromTheSamples) {
     ImuPreprocessor pre(Eigen::Isometry3d::Identity(), params.imu);
     ImuPropagator imu(params);
     const int D = params.imu.decimation_factor;
-    imu.setFilterNoise(pre.noiseAutocovariance(0), pre.noiseAutocovariance(D), pre.noiseAutocovariance(2 * D));
+    imu.setFilterNoise(pre.noiseAutocovariances(D));
     std::mt19937 rng(11);
     std::normal_distribution<double> n01(0.0, 1.0);
     const double rate = params.imu.input_rate_hz, sd = density * std::sqrt(rate);
@@ -350,6 +350,47 @@ TEST(ImuPropagator, GyroNoiseDensityIsMeasuredFromTheSamples) {
   EXPECT_NEAR(turning, density, 0.15 * density) << "a turn of 0.5 rad/s at 0.2-0.3 Hz is not noise";
   EXPECT_GT(vibrating, 1.5 * density) << "the samples' spread includes the vibration...";
   EXPECT_EQ(vibrating_calibrated, density) << "...which does not raise the density above the calibration";
+}
+
+// The filtered samples' noise is measured from second differences of samples 10 ms apart whatever the prediction
+// rate (ImuPropagator::setFilterNoise): at 500 Hz (decimation 1) neighbouring samples of the 20 Hz low-pass are so
+// closely correlated that their second difference keeps 0.3 % of the noise, and what the low-pass leaves of a
+// propeller's vibration was taken for 300 times that much noise (the distance's column was then shrunk to nothing
+// and the distance was found 7 % high for 10 s on clean flight 2). White noise alone and with vibration, at 100 and
+// 500 Hz: one filtered sample's variance (the same quantity at both rates) measured alike, and as it is for the
+// white noise.
+TEST(ImuPropagator, MeasuredSampleNoiseDoesNotDependOnThePredictionRate) {
+  const double density = 2e-2;  // m/s^2/sqrt(Hz)
+  auto measure = [&](int D, double vibration_mps2) {
+    EstimatorParams params;
+    params.imu.decimation_factor = D;
+    ImuPreprocessor pre(Eigen::Isometry3d::Identity(), params.imu);
+    ImuPropagator imu(params);
+    imu.setFilterNoise(pre.noiseAutocovariances(D));
+    std::mt19937 rng(21);
+    std::normal_distribution<double> n01(0.0, 1.0);
+    const double rate = params.imu.input_rate_hz, sd = density * std::sqrt(rate);
+    for (int k = 0; k < static_cast<int>(20.0 * rate); ++k) {
+      const double t = k / rate;
+      ImuSample s, o;
+      s.t_s = t;
+      s.gyro_radps = Vec3::Zero();
+      s.accel_mps2 = Vec3(sd * n01(rng) + vibration_mps2 * std::sin(2.0 * M_PI * 137.0 * t) +
+                              0.5 * std::sin(2.0 * M_PI * 0.3 * t),
+                          0.0, 9.81);
+      if (pre.push(s, &o)) imu.push(o);
+    }
+    return imu.accelSampleVariance().x();
+  };
+  EstimatorParams params;
+  const ImuPreprocessor pre(Eigen::Isometry3d::Identity(), params.imu);
+  const double white = density * density * params.imu.input_rate_hz * pre.noiseAutocovariance(0);
+  const double w100 = measure(5, 0.0), w500 = measure(1, 0.0), v100 = measure(5, 2.0), v500 = measure(1, 2.0);
+  std::printf("one filtered sample's variance: white noise %.3g; measured at 100 / 500 Hz %.3g / %.3g, with "
+              "vibration %.3g / %.3g (m/s^2)^2\n", white, w100, w500, v100, v500);
+  EXPECT_NEAR(w100, white, 0.15 * white);
+  EXPECT_NEAR(w500, white, 0.15 * white);
+  EXPECT_NEAR(v500 / v100, 1.0, 0.2) << "the prediction rate does not change what the samples show";
 }
 
 // The distance's column of the prediction Jacobian (docs/algorithm.md section 2.1, "The distance's column"). A
@@ -403,6 +444,56 @@ TEST(ImuPropagator, LevelVarianceCountsEachSampleOnceHoweverThePiecesAreCut) {
   std::printf("level variance over %d runs / reported factor x sample variance: %.3f (factor %.4f)\n", runs, ratio,
               factor);
   EXPECT_NEAR(ratio, 1.0, 0.06);  // the variance's own standard error: sqrt(2 / runs) = 2.6 %
+}
+
+// The same level with the samples of the real preprocessing: white noise at 500 Hz through the 20 Hz low-pass,
+// decimated to 100 Hz (D = 5) or not (D = 1). The filtered samples are correlated over about the low-pass's time
+// constant: one or two periods at 100 Hz, ten and more at 500 Hz. The level's spread over many runs is the reported
+// factor times the correlation factor times one sample's variance; with the correlation one and two periods apart
+// only (before) it was 0.86 of that at 100 Hz and 2.2 times it at 500 Hz, where the distance's column then kept
+// the noise's share of the acceleration (clean flight 2 at 500 Hz: the distance 7 % high for 10 s).
+TEST(ImuPropagator, LevelVarianceCountsTheFilteredSamplesCorrelation) {
+  const double seconds = 1.5, sd = 0.05;  // per raw sample, m/s^2
+  const int runs = 1200;
+  for (const int D : {5, 1}) {
+    double sum = 0.0, sum_sq = 0.0, factor = 0.0, correlation = 0.0, sample_var = 0.0;
+    for (int r = 0; r < runs; ++r) {
+      EstimatorParams params;
+      params.imu.decimation_factor = D;
+      ImuPreprocessor pre(Eigen::Isometry3d::Identity(), params.imu);
+      ImuPropagator imu(params);
+      imu.setFilterNoise(pre.noiseAutocovariances(D));
+      std::mt19937 rng(900 + r);
+      std::normal_distribution<double> n01(0.0, 1.0);
+      const double rate = params.imu.input_rate_hz;
+      double t_last = 0.0;
+      for (int k = 0; k < static_cast<int>(seconds * rate); ++k) {
+        ImuSample s, o;
+        s.t_s = k / rate;
+        s.accel_mps2 = Vec3(sd * n01(rng), 0.0, 9.81);  // at rest, noise on x
+        if (pre.push(s, &o) && imu.push(o)) t_last = o.t_s;
+      }
+      State x;
+      x.alpha = 1.0;
+      x.mu = UnitVector(Vec3(0.0, 0.0, 1.0));
+      x.g = UnitVector(Vec3(0.0, 0.0, 1.0));
+      ErrorCov P = ErrorCov::Identity() * 1e-6;
+      imu.startAt(0.2);
+      imu.propagateTo(t_last, &x, &P);
+      const double level = imu.smoothedAccelLevel().x();
+      sum += level;
+      sum_sq += level * level;
+      factor = imu.levelVarianceFactor();
+      correlation = imu.sampleCorrelationFactor();
+      sample_var = sd * sd * pre.noiseAutocovariance(0);
+    }
+    const double mean = sum / runs;
+    const double var = (sum_sq - runs * mean * mean) / (runs - 1);
+    const double ratio = var / (factor * correlation * sample_var);
+    std::printf("D = %d: level variance over %d runs / reported: %.3f (factor %.4f, correlation factor %.3f)\n", D,
+                runs, ratio, factor, correlation);
+    EXPECT_NEAR(ratio, 1.0, 0.12) << D;  // the variance's standard error: sqrt(2 / runs) = 4.1 %
+  }
 }
 
 TEST(ImuPropagator, HeldJacobianAccelerationCutsTheDistanceDrift) {
