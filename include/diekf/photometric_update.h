@@ -77,6 +77,8 @@ struct ImageTiming {
   /// row's mean raw row minus the middle one, over (raw rows - 1) (readoutRowWeights). Null: no rolling shutter.
   const float* row_weight = nullptr;
   int rows = 0;                       ///< length of row_weight (the working image's height)
+  /// Per pixel (readoutPixelWeights; null or another size: the row's time for every pixel of the row).
+  const cv::Mat* pixel_weight = nullptr;
   bool estimate_readout = false;      ///< the update estimates x.readout_s
   bool estimate_focal_scale = false;  ///< the update estimates x.focal_scale (its column: focalScaleMap)
 };
@@ -113,6 +115,10 @@ PinholeK scaledFocal(const PinholeK& K, double focal_scale);
 /// mean over the row's pixels of their raw (distorted) row, minus the middle raw row, over (raw rows - 1): the
 /// row's capture time per second of rolling-shutter readout (docs/algorithm.md section 3.7).
 std::vector<float> readoutRowWeights(const CameraModel& cam, const PinholeK& K_working);
+/// Per working pixel, the same for the pixel itself (its own raw row: barrel distortion bends the rows, so the raw
+/// row varies along a working row), as three planes of a CV_32FC1 Mat of 3 H rows and W columns: the pixel's
+/// weight minus its row's (readoutRowWeights), and the weight's derivatives along x and along y (per working px).
+cv::Mat readoutPixelWeights(const CameraModel& cam, const PinholeK& K_working);
 
 /// x as the warp sees it delta_s later along m (stateRateMap): vartheta + delta m_vartheta, mu [+] delta m_mu,
 /// b_w + delta m_bw.

@@ -25,6 +25,8 @@ ImageUpdate::ImageUpdate(const CameraModel& camera, const EstimatorParams& param
   photometric_.setPreprocessNoise(pre.noiseVarianceGain(), pre.noiseCorrelationAreaPx());
   // Rolling shutter (docs/algorithm.md section 3.7): each working row's mean raw row through the distortion.
   readout_row_weight_ = readoutRowWeights(camera, pre.workingK());
+  // ... and each pixel's own (the distortion bends the raw rows).
+  readout_pixel_weight_ = readoutPixelWeights(camera, pre.workingK());
 }
 
 bool ImageUpdate::usable(const cv::Mat& gray8, std::string* why) const {
@@ -81,6 +83,7 @@ ImageTiming ImageUpdate::timingFor(double t_img_s, const ImuPropagator& imu, con
   timing.estimate_offset = params_.estimate_time_offset && settled;
   timing.row_weight = readout_row_weight_.data();
   timing.rows = static_cast<int>(readout_row_weight_.size());
+  timing.pixel_weight = &readout_pixel_weight_;
   // The readout once the offset is known to a few ms (when it is estimated): early on, with both uncertain, a
   // large offset was partly taken for a readout (19 ms of readout for a 20 ms offset on a global-shutter flight,
   // the offset then 10 s late).

@@ -74,6 +74,7 @@ class ImageUpdate {
   PhotometricUpdate photometric_;
   FeatureUpdate feature_;
   std::vector<float> readout_row_weight_;  // per working row: its capture time per second of readout
+  cv::Mat readout_pixel_weight_;           // per working pixel: readoutPixelWeights
   bool last_pair_photometric_ = false;
   Vec3 last_gyro_mean_ = Vec3::Zero();
   double last_interval_s_ = 0.0;

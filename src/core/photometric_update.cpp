@@ -158,6 +158,30 @@ std::vector<float> readoutRowWeights(const CameraModel& cam, const PinholeK& K_w
   return w;
 }
 
+cv::Mat readoutPixelWeights(const CameraModel& cam, const PinholeK& K_working) {
+  const int W = std::max(0, K_working.width), H = std::max(0, K_working.height);
+  cv::Mat out(3 * H, W, CV_32FC1, cv::Scalar(0.0f));
+  if (cam.K.height < 2 || W < 2 || H < 2 || !(K_working.fx > 0.0) || !(K_working.fy > 0.0)) return out;
+  const std::vector<float> rows = readoutRowWeights(cam, K_working);
+  const double v_mid = 0.5 * (cam.K.height - 1), span = cam.K.height - 1;
+  cv::Mat w(H, W, CV_64FC1);
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x) {
+      const Vec2 xn((x - K_working.cx) / K_working.fx, (y - K_working.cy) / K_working.fy);
+      const double v = cam.K.fy * cam.distort(xn).y() + cam.K.cy;  // raw row of the working pixel
+      w.at<double>(y, x) = std::isfinite(v) ? (v - v_mid) / span : static_cast<double>(rows[static_cast<size_t>(y)]);
+    }
+  // Central differences inside, one-sided at the edges.
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x) {
+      const int x0 = std::max(0, x - 1), x1 = std::min(W - 1, x + 1), y0 = std::max(0, y - 1), y1 = std::min(H - 1, y + 1);
+      out.at<float>(y, x) = static_cast<float>(w.at<double>(y, x) - rows[static_cast<size_t>(y)]);
+      out.at<float>(H + y, x) = static_cast<float>((w.at<double>(y, x1) - w.at<double>(y, x0)) / (x1 - x0));
+      out.at<float>(2 * H + y, x) = static_cast<float>((w.at<double>(y1, x) - w.at<double>(y0, x)) / (y1 - y0));
+    }
+  return out;
+}
+
 State shiftedAlong(const State& x, const ObservedVec& m, double delta_s) {
   State out = x;
   if (delta_s == 0.0) return out;
@@ -350,6 +374,9 @@ struct SweepConfig {
   // Rolling shutter (docs/algorithm.md section 3.7): row y of the current image is captured readout_s
   // row_weight[y] after the image's time; null = global shutter.
   const float* row_weight = nullptr;
+  // Per pixel (ImageTiming::pixel_weight, pixel_stride 1 only): the pixel's weight less its row's, and the weight's
+  // derivatives along x and y; null: every pixel of a row at the row's time.
+  const cv::Mat* pixel_weight = nullptr;
   float readout_s = 0.0f;
   float readout_over_dt = 0.0f;  // readout / dt: the pair's interval grows by this times w(y) - w(y_r)
   bool row_moments = false;      // also accumulate SweepSums::G1, G2 (the readout's information)
@@ -609,6 +636,18 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
     const float slope = rolling ? 0.5f * (cfg.row_weight[std::min(y + 1, H - 1)] - cfg.row_weight[std::max(y - 1, 0)])
                                 : 0.0f;
     const v_float32x4 rs_k = v_setall_f32(cfg.readout_over_dt * slope), yv = v_setall_f32(yf);
+    // Per pixel (barrel distortion bends the raw rows): the pixel's time less its row's, tau_p - tau = readout dw,
+    // moves its reference ray along Hm q; the reference pixel's own time from the weight's gradient there.
+    const bool per_pixel = rolling && cfg.pixel_weight != nullptr;
+    const float* pw_d = per_pixel ? cfg.pixel_weight->ptr<float>(y) + cfg.border : nullptr;
+    const float* pw_x = per_pixel ? cfg.pixel_weight->ptr<float>(H + y) + cfg.border : nullptr;
+    const float* pw_y = per_pixel ? cfg.pixel_weight->ptr<float>(2 * H + y) + cfg.border : nullptr;
+    const v_float32x4 v_readout = v_setall_f32(cfg.readout_s), v_rs_over_dt = v_setall_f32(cfg.readout_over_dt);
+    const v_float32x4 Hm00 = v_setall_f32(wp.Hm[0][0]), Hm10 = v_setall_f32(wp.Hm[1][0]),
+                      Hm20 = v_setall_f32(wp.Hm[2][0]);
+    const v_float32x4 hm0 = v_setall_f32(wp.Hm[0][1] * qy_s + wp.Hm[0][2]);
+    const v_float32x4 hm1 = v_setall_f32(wp.Hm[1][1] * qy_s + wp.Hm[1][2]);
+    const v_float32x4 hm2 = v_setall_f32(wp.Hm[2][1] * qy_s + wp.Hm[2][2]);
     const v_float32x4 e0 = v_setall_f32(wp.E[0][1] * qy_s + wp.E[0][2]);
     const v_float32x4 e1 = v_setall_f32(wp.E[1][1] * qy_s + wp.E[1][2]);
     const v_float32x4 e2 = v_setall_f32(wp.E[2][1] * qy_s + wp.E[2][2]);
@@ -624,9 +663,15 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
     v_float32x4 xv = v_load(xs_init);
     for (int k = 0; k < n_pad; k += 4, xv += x_step) {
       const v_float32x4 qx = (xv - cx) * ifx;
-      const v_float32x4 Qx = v_muladd(H00, qx, h0);
-      const v_float32x4 Qy = v_muladd(H10, qx, h1);
-      const v_float32x4 Qz = v_muladd(H20, qx, h2);
+      v_float32x4 Qx = v_muladd(H00, qx, h0);
+      v_float32x4 Qy = v_muladd(H10, qx, h1);
+      v_float32x4 Qz = v_muladd(H20, qx, h2);
+      if (per_pixel) {
+        const v_float32x4 dtau = v_readout * v_load(pw_d + k);
+        Qx = v_muladd(dtau, v_muladd(Hm00, qx, hm0), Qx);
+        Qy = v_muladd(dtau, v_muladd(Hm10, qx, hm1), Qy);
+        Qz = v_muladd(dtau, v_muladd(Hm20, qx, hm2), Qz);
+      }
       const v_float32x4 in_front = Qz > min_depth;
       const v_float32x4 iz = one / v_select(in_front, Qz, one);
       v_float32x4 rx = v_muladd(fx, Qx * iz, cx);
@@ -634,7 +679,9 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
       if (rolling) {
         // The reference pixel's row was read out line_delay (y - y_r) earlier than row y: the pair's
         // interval is longer by that, and the flow p_r - p with it (first order).
-        const v_float32x4 eps = rs_k * (yv - ry);
+        const v_float32x4 eps =
+            per_pixel ? v_rs_over_dt * v_muladd(v_load(pw_x + k), xv - rx, v_load(pw_y + k) * (yv - ry))
+                      : rs_k * (yv - ry);
         rx = v_muladd(eps, rx - xv, rx);
         ry = v_muladd(eps, ry - yv, ry);
       }
@@ -942,6 +989,10 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
                        (readout_s != 0.0 || timing->estimate_readout);
   if (rolling) {
     cfg.row_weight = timing->row_weight;
+    if (timing->pixel_weight != nullptr && timing->pixel_weight->type() == CV_32FC1 &&
+        timing->pixel_weight->rows == 3 * cur.intensity.rows && timing->pixel_weight->cols == cur.intensity.cols &&
+        cfg.stride == 1)
+      cfg.pixel_weight = timing->pixel_weight;
     cfg.readout_s = static_cast<float>(readout_s);
     cfg.readout_over_dt = static_cast<float>(readout_s / dt_s);
     cfg.row_moments = timing->estimate_readout;

@@ -65,21 +65,26 @@ inline double flightTexture(double X, double Y) {
 }
 
 /// Renders the level plane seen by a pinhole camera with pose (R_WC, p_WC), 2x2 supersampled.
+/// Row v of the camera's view (through its lens distortion, if any).
+inline void renderLevelPlaneRow(const CameraModel& cam, const Mat3& R_WC, const Vec3& p_WC, int v, uint8_t* row) {
+  for (int u = 0; u < cam.K.width; ++u) {
+    double sum = 0.0;
+    for (int s = 0; s < 4; ++s) {
+      const double uu = u - 0.25 + 0.5 * (s & 1), vv = v - 0.25 + 0.5 * (s >> 1);
+      Vec2 xn((uu - cam.K.cx) / cam.K.fx, (vv - cam.K.cy) / cam.K.fy);
+      if (cam.distortion != DistortionModel::kNone) cam.undistort(Vec2(xn), &xn);
+      const Vec3 ray = R_WC * Vec3(xn.x(), xn.y(), 1.0);
+      const double lambda = -p_WC.z() / ray.z();
+      const Vec3 X = p_WC + lambda * ray;
+      sum += flightTexture(X.x(), X.y());
+    }
+    row[u] = static_cast<uint8_t>(std::lround(sum / 4.0));
+  }
+}
+
 inline void renderLevelPlane(const CameraModel& cam, const Mat3& R_WC, const Vec3& p_WC, cv::Mat* out) {
   out->create(cam.K.height, cam.K.width, CV_8UC1);
-  for (int v = 0; v < cam.K.height; ++v) {
-    for (int u = 0; u < cam.K.width; ++u) {
-      double sum = 0.0;
-      for (int s = 0; s < 4; ++s) {
-        const double uu = u - 0.25 + 0.5 * (s & 1), vv = v - 0.25 + 0.5 * (s >> 1);
-        const Vec3 ray = R_WC * Vec3((uu - cam.K.cx) / cam.K.fx, (vv - cam.K.cy) / cam.K.fy, 1.0);
-        const double lambda = -p_WC.z() / ray.z();
-        const Vec3 X = p_WC + lambda * ray;
-        sum += flightTexture(X.x(), X.y());
-      }
-      out->at<uint8_t>(v, u) = static_cast<uint8_t>(std::lround(sum / 4.0));
-    }
-  }
+  for (int v = 0; v < cam.K.height; ++v) renderLevelPlaneRow(cam, R_WC, p_WC, v, out->ptr<uint8_t>(v));
 }
 
 /// A downward camera (quarter of the MYNT EYE resolution at scale 1, no distortion) rotated 90 deg about its
@@ -118,16 +123,10 @@ inline void renderFlightImageRollingShutter(const SyntheticFlight& f, const Came
   const Mat3 R_IC = cam.R_CI().transpose();
   const Vec3 r_I = -R_IC * cam.t_CI();
   out->create(cam.K.height, cam.K.width, CV_8UC1);
-  cv::Mat row_image;
-  CameraModel row_cam = cam;
   for (int v = 0; v < cam.K.height; ++v) {
     const double tv = t + line_delay_s * (v - 0.5 * (cam.K.height - 1));
     const Mat3 R_WI = f.R_WI(tv);
-    // Render only row v: a one-row camera whose principal point is shifted by v.
-    row_cam.K.height = 1;
-    row_cam.K.cy = cam.K.cy - v;
-    renderLevelPlane(row_cam, R_WI * R_IC, f.position(tv) + R_WI * r_I, &row_image);
-    row_image.copyTo(out->row(v));
+    renderLevelPlaneRow(cam, R_WI * R_IC, f.position(tv) + R_WI * r_I, v, out->ptr<uint8_t>(v));
   }
 }
 
