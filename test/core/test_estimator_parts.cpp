@@ -41,6 +41,15 @@ State sampleState() {
   return x;
 }
 
+// A camera at rest 1 m above level ground, looking down (the distance column's tests).
+State restingStateAt1m() {
+  State x;
+  x.alpha = 1.0;
+  x.mu = UnitVector(Vec3(0.0, 0.0, 1.0));
+  x.g = UnitVector(Vec3(0.0, 0.0, 1.0));
+  return x;
+}
+
 ErrorCov sampleCovariance() {
   ErrorCov P = ErrorCov::Identity() * 1e-4;
   P(ErrIdx::kAlpha, ErrIdx::kAlpha) = 4e-3;
@@ -423,10 +432,7 @@ TEST(ImuPropagator, LevelVarianceCountsEachSampleOnceHoweverThePiecesAreCut) {
       s.accel_mps2 = Vec3(sd * n01(rng), 0.0, -9.81);  // at rest: -g0 g, g = +z; noise on x
       if (!imu.push(s)) ADD_FAILURE();
     }
-    State x;
-    x.alpha = 1.0;
-    x.mu = UnitVector(Vec3(0.0, 0.0, 1.0));
-    x.g = UnitVector(Vec3(0.0, 0.0, 1.0));
+    State x = restingStateAt1m();
     ErrorCov P = ErrorCov::Identity() * 1e-6;
     imu.startAt(0.0);
     for (int f = 1; f * frame_s <= seconds; ++f) {
@@ -473,10 +479,7 @@ TEST(ImuPropagator, LevelVarianceCountsTheFilteredSamplesCorrelation) {
         s.accel_mps2 = Vec3(sd * n01(rng), 0.0, 9.81);  // at rest, noise on x
         if (pre.push(s, &o) && imu.push(o)) t_last = o.t_s;
       }
-      State x;
-      x.alpha = 1.0;
-      x.mu = UnitVector(Vec3(0.0, 0.0, 1.0));
-      x.g = UnitVector(Vec3(0.0, 0.0, 1.0));
+      State x = restingStateAt1m();
       ErrorCov P = ErrorCov::Identity() * 1e-6;
       imu.startAt(0.2);
       imu.propagateTo(t_last, &x, &P);
@@ -514,10 +517,7 @@ TEST(ImuPropagator, HeldJacobianAccelerationCutsTheDistanceDrift) {
       s.accel_mps2 = Vec3(sd * n01(rng), sd * n01(rng), -9.81 + sd * n01(rng));  // at rest: -g0 g, g = +z
       if (!imu.push(s)) ADD_FAILURE();
     }
-    State x;
-    x.alpha = 1.0;
-    x.mu = UnitVector(Vec3(0.0, 0.0, 1.0));
-    x.g = UnitVector(Vec3(0.0, 0.0, 1.0));
+    State x = restingStateAt1m();
     ErrorCov P = ErrorCov::Identity() * 1e-10;
     P(ErrIdx::kAlpha, ErrIdx::kAlpha) = 0.3 * 0.3;
     for (int k = 0; k < 3; ++k) P(ErrIdx::kVartheta + k, ErrIdx::kVartheta + k) = 0.1 * 0.1;
