@@ -180,6 +180,10 @@ class PhotometricUpdate {
     weight_map_has_outliers_ = false;  // without a map the parallax sums are not carried over either
   }
 
+  /// The smoothed relief (UpdateStats::relief_var) starts again from the next update's value: while the state has
+  /// not converged the parallax statistics measure its error, not the scene (docs/noise_model.md section 13).
+  void forgetRelief() { noise_.relief_valid = false; }
+
   /// One linearisation at x (what every Gauss-Newton pass accumulates), without the solve:
   /// A = sum w_p S_p^T S_p (full symmetric 8x8) and b = sum w_p S_p^T r_p over the observed columns
   /// [d_vartheta, d_mu, d_b_w]. Returns the number of valid pixels; `candidates` (optional) receives the number

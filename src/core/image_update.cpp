@@ -179,6 +179,8 @@ UpdateStats ImageUpdate::apply(const PreprocessedFrame& ref, const PreprocessedF
       health->noteDegraded(t_img_s, why);
     }
     if (stats.applied && std::isfinite(stats.nis)) health->noteInnovation(t_img_s, dt, stats.nis);
+    // Before convergence this frame's relief is reported as it is, but not remembered.
+    if (!health->converged()) photometric_.forgetRelief();
   }
   if (skip_reason->empty() && !stats.applied) *skip_reason = "update skipped: too few valid pixels or non-finite system";
   return stats;

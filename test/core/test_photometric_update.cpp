@@ -1085,6 +1085,65 @@ TEST(PhotometricOutliers, ARaisedBoxIsFoundOverTheImagesAndDownWeighted) {
   EXPECT_LT(clean_parallax.removed, clean.removed + 0.1);
 }
 
+TEST(PhotometricOutliers, ForgottenReliefRestartsFromTheNextUpdate) {
+  // The smoothed relief (UpdateStats::relief_var) follows each update's own value slowly (noise_time_constant_s).
+  // ImageUpdate calls forgetRelief() after every update until the filter has converged, because before that the
+  // parallax statistics measure the state's error rather than the scene (docs/noise_model.md section 13; a start
+  // from d0 = 0.33 m at 0.94 m carried a relief of 480 % into the converged frames, decaying for 10 s). Here a
+  // scene with relief (a box kept in the estimate by a wide tolerance: 0.057) is followed by one plane (a later,
+  // unrelated stretch of images: nothing carried over along the warp): remembered, the box's relief is still
+  // reported over the plane; forgotten, the plane's first update reports its own.
+  const int W = 180, H = 116;
+  const double dt = 1.0 / 30.0;
+  const PinholeK K = test_util::makeK(W, H);
+  const Vec3 v_W(0.10, 0.02, 0.0), w_C(0.0, 0.0, 0.0);
+  const test_util::Plane ground;
+  const test_util::PlaneTexture ground_texture(7);
+  const int frames = 12;
+  const test_util::CameraPose last = test_util::lookDownPose(Vec3(0.25, 0.0, 1.0), 0.2, 0.0);
+  std::vector<PreprocessedFrame> box, plane;
+  for (int j = 0; j < frames; ++j) {
+    const double t = (j - (frames - 1)) * dt;
+    const test_util::CameraPose pose = test_util::propagate(last, v_W, w_C, t);
+    box.push_back(test_util::makeFrame(
+        test_util::toGray8(renderGroundWithBox(ground_texture, ground_texture, Vec2(0.05, 0.0), Vec2(0.25, 0.2), 0.15, K, pose)), t));
+    plane.push_back(test_util::makeFrame(test_util::toGray8(test_util::renderPlane(ground_texture, ground, K, pose, 3)),
+                                         t + 100.0));
+  }
+  auto run = [&](bool forget) {
+    PhotometricParams params;
+    params.parallax_tolerance = 10.0;
+    PhotometricUpdate update(params, PreprocessParams{});
+    double box_relief = 0.0, plane_relief = 0.0;
+    for (int scene = 0; scene < 2; ++scene) {
+      const std::vector<PreprocessedFrame>& f = scene == 0 ? box : plane;
+      for (int j = 0; j + 1 < frames; ++j) {
+        const test_util::CameraPose pose = test_util::propagate(last, v_W, w_C, (j + 1 - (frames - 1)) * dt);
+        const test_util::PlaneTruth tj = test_util::planeTruth(ground, pose, v_W);
+        State x;
+        x.alpha = 1.0 / tj.d_m;
+        x.vartheta = 0.8 * tj.vartheta_inv_s;  // (as in ARaisedBoxIsFoundOverTheImagesAndDownWeighted)
+        x.mu = UnitVector(tj.mu).boxplus(Vec2(0.0005, -0.0003));
+        ErrorCov P = priorCov();
+        P.block<2, 2>(ErrIdx::kMu, ErrIdx::kMu) = 1e-4 * Mat2::Identity();
+        const UpdateStats st = update.update(f[j], f[j + 1], K, w_C, dt, &x, &P);
+        EXPECT_TRUE(st.applied);
+        if (scene == 0) box_relief = std::sqrt(st.relief_var);
+        if (scene == 1 && j == 0) plane_relief = std::sqrt(st.relief_var);
+      }
+      if (scene == 0 && forget) update.forgetRelief();
+    }
+    return std::make_pair(box_relief, plane_relief);
+  };
+  const auto remembered = run(false), forgotten = run(true);
+  std::printf("relief (relative 1-sigma) over the box / at the plane's first update: remembered %.4f / %.4f, "
+              "forgotten %.4f / %.4f\n", remembered.first, remembered.second, forgotten.first, forgotten.second);
+  EXPECT_GT(remembered.first, 0.04);
+  EXPECT_EQ(remembered.first, forgotten.first);
+  EXPECT_GT(remembered.second, 0.04);  // the box's relief, decaying over noise_time_constant_s
+  EXPECT_LT(forgotten.second, 0.01);   // one plane
+}
+
 TEST(OutlierWindowSums, EqualTheTruncatedWindowsAtEveryWidth) {
   // The running window sum of the outlier weights' neighbourhoods (internal::windowSumRow) against the direct sum
   // over [i - half, i + half] truncated at the edges, including windows wider than the row.
