@@ -172,12 +172,17 @@ class PhotometricUpdate {
   void setPixelConfidence(const cv::Mat* confidence) { confidence_ = confidence; }
   /// Whether update() also computes UpdateStats::vartheta_image (the batch start-up needs it; off by default).
   void setReportImageVartheta(bool on) { report_image_vartheta_ = on; }
-  /// Forgets the smoothed noise estimates (the next update starts from its own residuals).
+  /// Forgets the smoothed noise estimates (the next update starts from its own residuals). The outlier weights
+  /// stay: they describe an image (where its content did not move with the plane), not the state, and apply
+  /// only to the pair whose reference they were drawn for (docs/noise_model.md section 10).
   void resetNoiseModel() {
     noise_ = NoiseEstimate();
     last_rate_valid_ = false;
+  }
+  /// Forgets the outlier weights (and with them the parallax sums they carry over).
+  void forgetWeights() {
     weight_map_.release();
-    weight_map_has_outliers_ = false;  // without a map the parallax sums are not carried over either
+    weight_map_has_outliers_ = false;
   }
 
   /// The smoothed relief (UpdateStats::relief_var) starts again from the next update's value: while the state has

@@ -442,7 +442,9 @@ struct Estimator::Impl {
     }
     if (!reason.empty()) {
       restartAtImage(img.t_s, reason);
-      // Restart from this image: it becomes the new reference (if it has texture).
+      // Restart from this image: it becomes the new reference (if it has texture). Its outlier weights, drawn
+      // in its own update just now, stay for the new run's first pair (docs/noise_model.md section 10): without
+      // them that pair had no protection, and objects moving on their own set vartheta after every restart.
       if (usable) startAt(img.t_s);
       have_reference = usable;
     }
@@ -544,6 +546,7 @@ struct Estimator::Impl {
     warn((automatic ? "filter reset: " : "reset: ") + reason);
     restarts.noteRestart(reason);
     resetFilter();
+    update.forgetWeights();  // the images are dropped: the next reference is a new image
     if (warm) {
       applyWarmPrior(t_now_s);
     } else {

@@ -56,8 +56,10 @@ class ImageUpdate {
   const Vec3& lastGyroMean() const { return last_gyro_mean_; }
   double lastInterval() const { return last_interval_s_; }
 
-  /// Forgets the photometric noise estimates (a new run).
+  /// Forgets the photometric noise estimates (a new run); the outlier weights stay (PhotometricUpdate).
   void resetNoiseModel() { photometric_.resetNoiseModel(); }
+  /// Forgets the outlier weights (a new run without the last image).
+  void forgetWeights() { photometric_.forgetWeights(); }
   /// Residual image of the last photometric update.
   const cv::Mat& residualImage() const { return photometric_.residualImage(); }
   /// Outlier weights drawn from the last photometric update's residual (PhotometricUpdate::outlierWeights).

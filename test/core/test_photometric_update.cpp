@@ -919,7 +919,11 @@ TEST(PhotometricOutliers, AnObjectMovingOnItsOwnIsDownWeighted) {
     return x;
   };
   // Error of the second pair's update (the first builds the weights; both start from the same prior).
-  auto second_update_error = [&](const std::vector<PreprocessedFrame>& f, double k, UpdateStats* st) {
+  // With `between` the filter restarts between the two updates (Estimator: the noise model reset, the weights
+  // kept; or forgotten too).
+  enum class Between { kNothing, kNoiseReset, kWeightsForgotten };
+  auto second_update_error = [&](const std::vector<PreprocessedFrame>& f, double k, UpdateStats* st,
+                                 Between between = Between::kNothing) {
     PhotometricParams params;
     params.outlier_threshold_sigma = k;
     params.noise_time_constant_s = 0.0;  // each update's noise scale its own
@@ -930,23 +934,33 @@ TEST(PhotometricOutliers, AnObjectMovingOnItsOwnIsDownWeighted) {
       *st = update.update(f[i], f[i + 1], K, w_C, dt, &x, &P);
       EXPECT_TRUE(st->applied);
       if (i == 1) return (x.vartheta - truth.vartheta_inv_s).norm();
+      if (between != Between::kNothing) update.resetNoiseModel();
+      if (between == Between::kWeightsForgotten) update.forgetWeights();
     }
     return 0.0;
   };
-  UpdateStats st_clean, st_plain, st_robust, st_clean_robust;
+  UpdateStats st_clean, st_plain, st_robust, st_clean_robust, st_reset, st_forgotten;
   const double e_clean = second_update_error(clean, 0.0, &st_clean);
   const double e_clean_robust = second_update_error(clean, 3.0, &st_clean_robust);
   const double e_plain = second_update_error(cluttered, 0.0, &st_plain);
   const double e_robust = second_update_error(cluttered, 3.0, &st_robust);
+  const double e_reset = second_update_error(cluttered, 3.0, &st_reset, Between::kNoiseReset);
+  const double e_forgotten = second_update_error(cluttered, 3.0, &st_forgotten, Between::kWeightsForgotten);
   std::printf("vartheta error, 1/s: no object %.4f (with weights %.4f, %.1f %% removed); object %.4f, with the "
-              "outlier weights %.4f (%.1f %% of the weight removed)\n",
+              "outlier weights %.4f (%.1f %% of the weight removed); after a restart of the noise model %.4f "
+              "(%.1f %%), with the weights forgotten too %.4f\n",
               e_clean, e_clean_robust, 100.0 * st_clean_robust.outlier_fraction, e_plain, e_robust,
-              100.0 * st_robust.outlier_fraction);
+              100.0 * st_robust.outlier_fraction, e_reset, 100.0 * st_reset.outlier_fraction, e_forgotten);
   EXPECT_GT(e_plain, 3.0 * e_clean) << "the object must matter without the weights";
   EXPECT_LT(e_robust, 0.5 * e_plain);
   EXPECT_GT(st_robust.outlier_fraction, 0.05);
   EXPECT_LT(st_robust.outlier_fraction, 0.4);
   EXPECT_EQ(st_plain.outlier_fraction, 0.0);
+  // The weights describe the image, not the state: a restart of the filter keeps them for the next pair.
+  // (Not bit for bit: the reset also forgets the last gyro rate of the rotation model.)
+  EXPECT_NEAR(e_reset, e_robust, 0.05 * e_robust);
+  EXPECT_NEAR(st_reset.outlier_fraction, st_robust.outlier_fraction, 1e-3);
+  EXPECT_NEAR(e_forgotten, e_plain, 0.05 * e_plain);
   // No object: the weights change little.
   EXPECT_LT(st_clean_robust.outlier_fraction, 0.05);
   EXPECT_LT(e_clean_robust, e_clean + 0.01);
