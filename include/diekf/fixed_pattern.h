@@ -23,6 +23,8 @@
 // in the constructor: no allocation per frame.
 #pragma once
 
+#include <cmath>
+
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -39,9 +41,16 @@ namespace diekf {
 /// half diagonal r dt (|vartheta_z| + |w_z|). An upper estimate (the terms are added, not vector-summed).
 double imageMotionPx(const Vec3& vartheta_inv_s, const Vec3& rate_radps, const PinholeK& K, double dt_s);
 
-/// The ground's translation through the working image over dt_s at the image centre (working px), -f dt
-/// (vartheta_x, vartheta_y): what FixedPattern accumulates to know how far the ground under its mean has moved.
-Vec2 groundShiftPx(const Vec3& vartheta_inv_s, const PinholeK& K, double dt_s);
+/// The ground's shift through the working image over dt_s at the image centre (working px): the translation's
+/// -f dt (vartheta_x, vartheta_y) plus the tilting's f dt (-w_y, w_x) (w: the rotation rate, rad/s, bias
+/// removed); with groundTurnRad what FixedPattern accumulates to know how far the ground under its mean has moved.
+Vec2 groundShiftPx(const Vec3& vartheta_inv_s, const Vec3& rate_radps, const PinholeK& K, double dt_s);
+/// The ground's turn (rad) and change of scale (log) in the working image over dt_s: -w_z dt about the optical axis,
+/// vartheta_z dt toward the ground (the image grows); zero where unknown.
+inline Vec2 groundTurnScale(const Vec3& vartheta_inv_s, const Vec3& rate_radps, double dt_s) {
+  const Vec2 out(-dt_s * rate_radps.z(), dt_s * vartheta_inv_s.z());
+  return dt_s > 0.0 && out.allFinite() ? out : Vec2::Zero();
+}
 
 /// A lower bound of vartheta for the two functions above while the filter has not converged: vartheta shrunk
 /// toward zero by twice its 1-sigma, sqrt(trace cov) (cov: its 3 x 3 covariance), and zero where it is not
@@ -66,11 +75,21 @@ class FixedPattern {
 
   /// Learns from the image of the last apply(): `motion_px` is how far the ground moved in the working image since
   /// the previous image (imageMotionPx). Frames that moved less count as a fraction of a sample.
-  /// `ground_shift_px`: the ground's net translation through the image since the previous image (groundShiftPx;
-  /// zero when unknown), which tells whether the mean now and an earlier snapshot of it are of different ground.
+  /// `ground_shift_px` and `ground_turn_scale`: the ground's net shift, turn and change of scale in the image
+  /// since the previous image (groundShiftPx, groundTurnScale), which tell how many different pieces of ground the
+  /// mean holds and whether the mean now and an earlier snapshot of it are of different ground. The fields are
+  /// computed only while the mean holds at least `min_ground_patches` different patches of ground
+  /// (independentPatches: a camera hovering or holding its position sees one patch again and again, which the
+  /// mean cannot tell from a fixed pattern): before, nothing is corrected; after, the last fields stay.
   /// Returns true when the fields changed (the image just learned from should then be corrected again,
   /// ImagePreprocessor::reapplyPattern, so that it and the next image share one correction).
-  bool learn(double motion_px, const Vec2& ground_shift_px = Vec2::Zero());
+  bool learn(double motion_px, const Vec2& ground_shift_px, const Vec2& ground_turn_scale = Vec2::Zero());
+  /// How many different pieces of ground the mean holds: 1 / its variance per unit sample variance, counted over
+  /// the cells of the ground's track (0 before the first sample).
+  double independentGround() const { return var_factor_ > 0.0 ? 1.0 / var_factor_ : 0.0; }
+  /// The same over cells of the local mean's window: how many different patches of ground (each a window of the
+  /// coarser scale) the mean holds.
+  double independentPatches() const { return coarse_var_factor_ > 0.0 ? 1.0 / coarse_var_factor_ : 0.0; }
   /// Writes the image of the last apply() corrected with the current fields into I (grey levels), with its sum
   /// and sum of squares; false (I untouched) when there is none or the model is inactive.
   bool reapply(float* I, double* sum, double* sum_sq) const;
@@ -138,8 +157,14 @@ class FixedPattern {
     double scale = 1.0;
     double at(int i) const { return cell[static_cast<size_t>(i)] * scale; }
   };
-  /// The ground cell of the ground position (working px).
-  int groundCell(const Vec2& position_px) const;
+  /// The ground cell of the ground's position (working px), turn (rad) and log scale: the turn and the scale in
+  /// steps that move the image's RMS radius by one cell, each step offsetting the cells (a hash: the cells only
+  /// count the ground).
+  int groundCell(const Vec2& position_px, const Vec2& turn_scale, double cell_px) const;
+  /// Decays the weights g by kp, adds l to cell c and updates its variance factor (sum of the squared weights).
+  static void addWeight(GroundWeights* g, double* var_factor, int c, double l, double kp);
+  /// Side (working px) of the coarse cells: the local mean's window (the coarser of the two scales tested).
+  double coarseCellPx() const { return 2.0 * std::max(1L, std::lround(0.05 * width_)) + 1.0; }
 
   struct Snapshot {
     cv::Mat detail;             // the detail at the snapshot
@@ -170,8 +195,11 @@ class FixedPattern {
   double var_factor_ = 0.0;      // variance of the mean m1 per unit sample variance (sum over the ground cells of
                                  // their squared weights)
   GroundWeights ground_;         // the mean's weight of each ground cell
+  GroundWeights coarse_;         // ... and of each coarse cell (coarseCellPx)
+  double coarse_var_factor_ = 0.0;  // the mean's variance per unit sample variance counted over the coarse cells
   double detail_noise_per_sample_ = 0.0;  // the detail's noise per unit sample variance, last measured (0: never)
-  Vec2 position_ = Vec2::Zero(); // the ground's accumulated translation through the image (working px)
+  Vec2 position_ = Vec2::Zero(); // the ground's accumulated shift through the image (working px)
+  Vec2 turn_scale_ = Vec2::Zero(); // and its accumulated turn about the optical axis (rad) and log scale
   double samples_ = 0.0;
   int frames_since_refresh_ = 0;
   bool last_valid_ = false;   // last_u_ not learned from yet

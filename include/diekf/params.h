@@ -142,6 +142,9 @@ struct FixedPatternParams {
   double decorrelation_px = 2.0;                ///< ground motion in the working image giving a new sample, px
   double memory_samples = 150.0;                ///< forgetting time constant, in independent samples
   double startup_samples = 30.0;                ///< samples gathered before anything is corrected
+  /// Different patches of ground (cells of the local mean's window, 10 % of the width, along the ground's track:
+  /// FixedPattern::independentPatches) the mean must hold for the fields to be computed; 0: no such condition.
+  double min_ground_patches = 4.0;
   double significance_sigma = 3.0;              ///< a pixel's gain/offset is kept only this many sigmas above noise
   double min_gain = 0.3;                        ///< confidence (g / min_gain)^2 below this relative gain, unitless
   int refresh_frames = 8;                       ///< learning frames between recomputations of the fields

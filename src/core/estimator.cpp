@@ -371,9 +371,11 @@ struct Estimator::Impl {
         const Vec3 vartheta = !accepted            ? Vec3::Zero()
                               : health.converged() ? x.vartheta
                                                    : lowerBoundVartheta(x.vartheta, cov_vartheta);
-        if (fixed_pattern.learn(
-                imageMotionPx(vartheta, update.lastGyroMean() - x.b_w, img_pre.workingK(), update.lastInterval()),
-                groundShiftPx(vartheta, img_pre.workingK(), update.lastInterval()))) {
+        const Vec3 rate = update.lastGyroMean() - x.b_w;
+        const double interval_s = update.lastInterval();
+        if (fixed_pattern.learn(imageMotionPx(vartheta, rate, img_pre.workingK(), interval_s),
+                                groundShiftPx(vartheta, rate, img_pre.workingK(), interval_s),
+                                groundTurnScale(vartheta, rate, interval_s))) {
           img_pre.reapplyPattern(&fixed_pattern, &cur);  // the next pair: one correction in both images
           discountPatternBiasedInformation(img.t_s);
           switchOnDotRemovalIfDominant(img.t_s);

@@ -21,9 +21,9 @@ double imageMotionPx(const Vec3& vartheta_inv_s, const Vec3& rate_radps, const P
   return dt_s * (centre + rim);
 }
 
-Vec2 groundShiftPx(const Vec3& vartheta_inv_s, const PinholeK& K, double dt_s) {
-  if (!(dt_s > 0.0) || !vartheta_inv_s.allFinite()) return Vec2::Zero();
-  return -dt_s * Vec2(K.fx * vartheta_inv_s.x(), K.fy * vartheta_inv_s.y());
+Vec2 groundShiftPx(const Vec3& vartheta_inv_s, const Vec3& rate_radps, const PinholeK& K, double dt_s) {
+  if (!(dt_s > 0.0) || !vartheta_inv_s.allFinite() || !rate_radps.allFinite()) return Vec2::Zero();
+  return dt_s * Vec2(-K.fx * (vartheta_inv_s.x() + rate_radps.y()), K.fy * (rate_radps.x() - vartheta_inv_s.y()));
 }
 
 Vec3 lowerBoundVartheta(const Vec3& vartheta_inv_s, const Mat3& cov) {
@@ -133,6 +133,7 @@ FixedPattern::FixedPattern(const FixedPatternParams& params, int width, int heig
   scratch_.create(height, width, CV_32FC1);
   const size_t cells = static_cast<size_t>(kGroundSide) * kGroundSide;
   ground_.cell.assign(cells, 0.0);
+  coarse_.cell.assign(cells, 0.0);
   for (Snapshot& s : snapshots_) {
     s.detail.create(height, width, CV_32FC1);
     s.ground.cell.assign(cells, 0.0);
@@ -155,8 +156,12 @@ void FixedPattern::reset() {
   for (Snapshot& s : snapshots_) s.valid = false;
   newest_ = 0;
   position_ = Vec2::Zero();
+  turn_scale_ = Vec2::Zero();
   std::fill(ground_.cell.begin(), ground_.cell.end(), 0.0);
   ground_.scale = 1.0;
+  std::fill(coarse_.cell.begin(), coarse_.cell.end(), 0.0);
+  coarse_.scale = 1.0;
+  coarse_var_factor_ = 0.0;
   frames_since_refresh_ = 0;
   last_valid_ = false;
   last_kept_ = false;
@@ -242,9 +247,13 @@ bool FixedPattern::reapply(float* I, double* sum, double* sum_sq) const {
   return true;
 }
 
-bool FixedPattern::learn(double motion_px, const Vec2& ground_shift_px) {
+bool FixedPattern::learn(double motion_px, const Vec2& ground_shift_px, const Vec2& ground_turn_scale) {
   if (!last_valid_ || !params_.enabled) return false;
   if (ground_shift_px.allFinite()) position_ += ground_shift_px;
+  if (ground_turn_scale.allFinite()) {
+    turn_scale_ += ground_turn_scale;
+    turn_scale_.x() = std::remainder(turn_scale_.x(), 2.0 * M_PI);
+  }
   last_valid_ = false;  // each image is learned from once
   const double w = std::min(1.0, motion_px / params_.decorrelation_px);
   if (!(w > 0.0) || !std::isfinite(w)) return false;
@@ -267,18 +276,12 @@ bool FixedPattern::learn(double motion_px, const Vec2& ground_shift_px) {
   // mean's weights decay by keep and the current cell gains lambda.
   {
     const double l = lambda, kp = keep;
-    const int c = groundCell(position_);
-    const double w_c = kp * ground_.at(c);  // the cell's weight after the decay
-    var_factor_ = kp * kp * var_factor_ + 2.0 * l * w_c + l * l;
+    const double cell_px = kGroundCellSamples * (params_.decorrelation_px > 0.0 ? params_.decorrelation_px : 1.0);
+    const int c = groundCell(position_, turn_scale_, cell_px);
     for (Snapshot& s : snapshots_)
       s.cov_factor = kp * s.cov_factor + (s.valid ? l * s.ground.at(c) : 0.0);
-    if (kp * ground_.scale < 1e-200) {  // the first sample (keep 0), or the scale about to underflow
-      for (double& v : ground_.cell) v *= ground_.scale * kp;
-      ground_.scale = 1.0;
-    } else {
-      ground_.scale *= kp;
-    }
-    ground_.cell[static_cast<size_t>(c)] += l / ground_.scale;
+    addWeight(&ground_, &var_factor_, c, l, kp);
+    addWeight(&coarse_, &coarse_var_factor_, groundCell(position_, turn_scale_, coarseCellPx()), l, kp);
   }
   ++frames_since_refresh_;
   if (!snapshots_[newest_].valid && samples_ >= 0.5 * params_.startup_samples) {
@@ -288,6 +291,10 @@ bool FixedPattern::learn(double motion_px, const Vec2& ground_shift_px) {
     gain_.setTo(1.f);  // (used as scratch)
   }
   if (samples_ >= params_.startup_samples && (frames_since_refresh_ >= params_.refresh_frames || !active_)) {
+    // Only from enough different ground: the mean of one patch of ground seen again and again (hovering, holding
+    // a position) is fixed in the image like a pattern, and its structure stands out of its own spread. Counted
+    // over cells of the local mean's window, the coarser scale tested (docs/noise_model.md section 11).
+    if (independentPatches() < params_.min_ground_patches) return false;
     refresh();
     frames_since_refresh_ = 0;
     active_ = true;
@@ -316,15 +323,34 @@ void FixedPattern::computeDetail(float* dt, float* sm, float* tmp, float level) 
   for (int i = 0; i < n; ++i) dt[i] = dt[i] / std::max(sm[i], 1e-6f) - 1.f;
 }
 
-int FixedPattern::groundCell(const Vec2& position_px) const {
-  const double cell_px = kGroundCellSamples * (params_.decorrelation_px > 0.0 ? params_.decorrelation_px : 1.0);
+void FixedPattern::addWeight(GroundWeights* g, double* var_factor, int c, double l, double kp) {
+  // All weights decay by kp (through the common scale) and cell c gains l: the variance factor sum w^2 follows.
+  const double w_c = kp * g->at(c);  // the cell's weight after the decay
+  *var_factor = kp * kp * *var_factor + 2.0 * l * w_c + l * l;
+  if (kp * g->scale < 1e-200) {  // the first sample (keep 0), or the scale about to underflow
+    for (double& v : g->cell) v *= g->scale * kp;
+    g->scale = 1.0;
+  } else {
+    g->scale *= kp;
+  }
+  g->cell[static_cast<size_t>(c)] += l / g->scale;
+}
+
+int FixedPattern::groundCell(const Vec2& position_px, const Vec2& turn_scale, double cell_px) const {
+  // A turn or a change of scale moves the pixels at the image's RMS radius sqrt((W^2 + H^2) / 12) by one cell
+  // per step.
+  const double rms_radius_px =
+      std::sqrt((static_cast<double>(width_) * width_ + static_cast<double>(height_) * height_) / 12.0);
+  Vec2 step = (turn_scale * (rms_radius_px / cell_px)).array().floor();
+  if (!step.allFinite()) step.setZero();
+  const double kx = 97.0 * step.x() + 29.0 * step.y(), ky = 61.0 * step.x() + 113.0 * step.y();
   auto wrap = [](double v) {
     const double k = std::floor(v);
     if (!std::isfinite(k)) return 0;
     const long long i = static_cast<long long>(std::fmod(k, static_cast<double>(kGroundSide)));
     return static_cast<int>(i < 0 ? i + kGroundSide : i);
   };
-  return wrap(position_px.y() / cell_px) * kGroundSide + wrap(position_px.x() / cell_px);
+  return wrap(position_px.y() / cell_px + ky) * kGroundSide + wrap(position_px.x() / cell_px + kx);
 }
 
 void FixedPattern::takeSnapshot() {

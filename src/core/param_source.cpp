@@ -389,6 +389,8 @@ const std::vector<Entry>& table() {
                      between(1.0, 1e6)));
     t.push_back(real("fixed_pattern/startup_samples", DIEKF_FIELD(double, fixed_pattern.startup_samples),
                      between(1.0, 1e6)));
+    t.push_back(real("fixed_pattern/min_ground_patches", DIEKF_FIELD(double, fixed_pattern.min_ground_patches),
+                     between(0.0, 1e6)));
     t.push_back(real("fixed_pattern/significance_sigma", DIEKF_FIELD(double, fixed_pattern.significance_sigma),
                      between(0.0, 100.0)));
     t.push_back(real("fixed_pattern/min_gain", DIEKF_FIELD(double, fixed_pattern.min_gain), between(0.0, 1.0)));

@@ -187,6 +187,7 @@ TEST(NoAllocationFixedPattern, LearningAndCorrectingAfterWarmUp) {
   EstimatorParams params;
   params.init.alpha0_inv_m = 1.0;
   params.fixed_pattern.startup_samples = 1.0;
+  params.fixed_pattern.min_ground_patches = 0.0;  // the periodic flight holds its position: no patches counted
   params.fixed_pattern.refresh_frames = 1;
   params.fixed_pattern.significance_sigma = 0.0;  // every deviation is corrected: the correction really runs
   // (so the learned pattern holds the whole contrast: the projector-dot opening is switched on as well and runs

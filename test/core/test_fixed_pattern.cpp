@@ -6,6 +6,7 @@
 #include <algorithm>
 #include <cmath>
 #include <cstdio>
+#include <utility>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -53,6 +54,9 @@ double correlation(const cv::Mat& a, const cv::Mat& b) {
   return cv::mean((a - ma[0]).mul(b - mb[0]))[0] / (sa[0] * sb[0]);
 }
 
+/// The ground's shift of a camera flying on (working px per image): every image of new ground.
+const Vec2 kFlyingOn(10.0, 0.0);
+
 FixedPatternParams params() {
   FixedPatternParams p;
   p.refresh_frames = 4;
@@ -69,7 +73,7 @@ TEST(FixedPattern, LearnsAShadowAndDotsAndRemovesThem) {
     const double exposure = 0.7 + 0.6 * rng.uniform(0.0, 1.0);  // auto-exposure: every frame its own gain
     cv::Mat img = exposure * (ground(&rng).mul(gain) + offset);
     fp.apply(img.ptr<float>(), &s, &s2);
-    fp.learn(10.0);  // the ground moved by much more than decorrelation_px
+    fp.learn(10.0, kFlyingOn);  // the ground moved by much more than decorrelation_px, every image new ground
   }
   ASSERT_TRUE(fp.active());
   EXPECT_NEAR(fp.samples(), 150.0, 1e-9);  // capped at memory_samples
@@ -186,6 +190,49 @@ TEST(FixedPattern, HoveringOverTheSameGroundIsNotAPattern) {
   EXPECT_GT(flying_on, 3.0 * hovering + 0.05);
 }
 
+TEST(FixedPattern, HoldingAPositionIsNotAPattern) {
+  // A camera holding its position wobbles over one spot: each image is the same ground shifted by a few pixels
+  // (here up to 6 px, 1 s period at 30 Hz), so the ground moves by decorrelation_px and more per image and the
+  // samples add up, but the mean never holds more than two patches of ground (cells of the local mean's window). Its structure is
+  // fixed in the image like a pattern; the fields are not computed from it. The same images with a slow drift
+  // (the camera flying on) hold new ground and the model starts.
+  cv::RNG rng(23);
+  cv::Mat big(kH + 200, kW + 400, CV_32FC1);
+  rng.fill(big, cv::RNG::NORMAL, 0.0, 1.0);
+  cv::GaussianBlur(big, big, cv::Size(0, 0), 1.5);
+  cv::Scalar m, sd;
+  cv::meanStdDev(big, m, sd);
+  big = (big - m[0]) * (25.0 / sd[0]) + 100.0;
+  const auto run = [&](double drift_px) {
+    FixedPattern fp(params(), kW, kH);
+    double s = 0, s2 = 0;
+    Vec2 previous(0.0, 0.0);
+    bool ever_active = false;
+    for (int i = 0; i < 600; ++i) {
+      const double phase = 2.0 * M_PI * i / 30.0;
+      const Vec2 at(6.0 * std::sin(phase) + drift_px * i, 4.0 * std::sin(phase + 0.5));
+      const cv::Rect crop(static_cast<int>(std::lround(100.0 + at.x())), static_cast<int>(std::lround(100.0 + at.y())), kW, kH);
+      cv::Mat img = big(crop).clone();
+      fp.apply(img.ptr<float>(), &s, &s2);
+      const Vec2 shift = -(at - previous);  // the camera moves by at: the ground the other way
+      fp.learn(shift.norm(), shift);
+      previous = at;
+      ever_active = ever_active || fp.active();
+    }
+    std::printf("[position hold] drift %.2f px per image: %.1f samples, %.1f different pieces and %.1f patches of "
+                "ground, active %d, contrast share %.3f\n",
+                drift_px, fp.samples(), fp.independentGround(), fp.independentPatches(), ever_active ? 1 : 0,
+                fp.contrastShare());
+    return std::make_pair(ever_active, fp.independentPatches());
+  };
+  const auto holding = run(0.0);
+  EXPECT_FALSE(holding.first);
+  EXPECT_LT(holding.second, params().min_ground_patches);
+  const auto flying_on = run(0.5);
+  EXPECT_TRUE(flying_on.first);
+  EXPECT_GE(flying_on.second, params().min_ground_patches);
+}
+
 TEST(FixedPattern, NothingIsCorrectedBeforeTheStartUpOrWithoutMotion) {
   cv::RNG rng(5);
   cv::Mat gain, offset;
@@ -195,7 +242,7 @@ TEST(FixedPattern, NothingIsCorrectedBeforeTheStartUpOrWithoutMotion) {
   for (int i = 0; i < 100; ++i) {  // a hovering camera: the same ground every frame, no motion
     cv::Mat img = ground(&rng).mul(gain) + offset;
     fp.apply(img.ptr<float>(), &s, &s2);
-    fp.learn(0.0);
+    fp.learn(0.0, Vec2::Zero());
   }
   EXPECT_FALSE(fp.active());
   EXPECT_EQ(fp.samples(), 0.0);
@@ -206,12 +253,12 @@ TEST(FixedPattern, NothingIsCorrectedBeforeTheStartUpOrWithoutMotion) {
     const cv::Mat copy = img.clone();
     fp.apply(img.ptr<float>(), &s, &s2);
     EXPECT_EQ(cv::norm(img, copy, cv::NORM_INF), 0.0);  // inactive: the image is left as it is
-    fp.learn(0.25 * params().decorrelation_px);
+    fp.learn(0.25 * params().decorrelation_px, Vec2(0.25 * params().decorrelation_px, 0.0));
   }
   EXPECT_NEAR(fp.samples(), 7.0, 1e-9);
   EXPECT_FALSE(fp.active());
   // Without a new apply() there is nothing to learn from.
-  fp.learn(100.0);
+  fp.learn(100.0, kFlyingOn);
   EXPECT_NEAR(fp.samples(), 7.0, 1e-9);
 }
 
@@ -222,7 +269,7 @@ TEST(FixedPattern, CleanImagesAreLeftAlone) {
   for (int i = 0; i < 300; ++i) {
     cv::Mat img = ground(&rng);
     fp.apply(img.ptr<float>(), &s, &s2);
-    fp.learn(5.0);
+    fp.learn(5.0, Vec2(5.0, 0.0));
   }
   ASSERT_TRUE(fp.active());
   // The statistics' own noise is shrunk away: almost every pixel keeps gain 1 and offset 0.
@@ -290,9 +337,9 @@ TEST(FixedPattern, RadialVignettingIsFittedAsOneSmoothField) {
     const cv::Mat img = (0.7 + 0.6 * rng.uniform(0.0, 1.0)) * ground(&rng).mul(vig);
     cv::Mat a = img.clone(), b = img.clone();
     fp.apply(a.ptr<float>(), &s, &s2);
-    fp.learn(10.0);
+    fp.learn(10.0, kFlyingOn);
     per_pixel.apply(b.ptr<float>(), &s, &s2);
-    per_pixel.learn(10.0);
+    per_pixel.learn(10.0, kFlyingOn);
   }
   ASSERT_TRUE(fp.active());
   // The field is the lens's, everywhere (the per-pixel model leaves the weak parts uncorrected and steps where its
@@ -322,7 +369,7 @@ TEST(FixedPattern, RadialVignettingIsFittedAsOneSmoothField) {
   for (int i = 0; i < 200; ++i) {
     cv::Mat img2 = ground(&rng);
     flat.apply(img2.ptr<float>(), &s, &s2);
-    flat.learn(10.0);
+    flat.learn(10.0, kFlyingOn);
   }
   ASSERT_TRUE(flat.active());
   EXPECT_NEAR(flat.vignettingAtCorner(), 1.0, 0.01);
@@ -338,7 +385,7 @@ TEST(FixedPattern, SaturatedPixelsLoseTheirWeight) {
     cv::Mat img = ground(&rng);
     img(blob).setTo(255.f);  // a saturated projector dot
     fp.apply(img.ptr<float>(), &s, &s2);
-    fp.learn(5.0);
+    fp.learn(5.0, Vec2(5.0, 0.0));
   }
   ASSERT_TRUE(fp.active());
   ASSERT_NE(fp.confidence(), nullptr);
@@ -360,7 +407,7 @@ TEST(FixedPattern, AShadowThatMovesIsFollowed) {
   for (int i = 0; i < 300; ++i) {
     cv::Mat img = ground(&rng).mul(gain);
     fp.apply(img.ptr<float>(), &s, &s2);
-    fp.learn(10.0);
+    fp.learn(10.0, kFlyingOn);
   }
   EXPECT_NEAR(fp.gain().at<float>(40, 25), 0.45, 0.06);
   cv::Mat moved;
@@ -370,7 +417,7 @@ TEST(FixedPattern, AShadowThatMovesIsFollowed) {
   for (int i = 0; i < 900; ++i) {
     cv::Mat img = ground(&rng).mul(moved);
     fp.apply(img.ptr<float>(), &s, &s2);
-    fp.learn(10.0);
+    fp.learn(10.0, kFlyingOn);
   }
   EXPECT_NEAR(fp.gain().at<float>(40, kW - 1 - 25), 0.45, 0.08);
   EXPECT_NEAR(fp.gain().at<float>(40, 25), 1.0, 0.08);
@@ -386,10 +433,16 @@ TEST(FixedPattern, ImageMotionFromTheState) {
   EXPECT_NEAR(imageMotionPx(Vec3(0.0, 0.0, 0.1), Vec3(0.0, 0.0, 0.2), K, 0.1), 0.03 * r, 1e-12);
   EXPECT_EQ(imageMotionPx(Vec3(0.3, 0.0, 0.0), Vec3::Zero(), K, 0.0), 0.0);
   EXPECT_EQ(imageMotionPx(Vec3(NAN, 0.0, 0.0), Vec3::Zero(), K, 0.1), 0.0);
-  // The ground's net translation through the image: against the camera's motion, the divergence and rates left out.
-  EXPECT_TRUE(groundShiftPx(Vec3(0.3, -0.2, 0.5), K, 0.1).isApprox(Vec2(-3.0, 2.0), 1e-12));
-  EXPECT_TRUE(groundShiftPx(Vec3(NAN, 0.0, 0.0), K, 0.1).isZero());
-  EXPECT_TRUE(groundShiftPx(Vec3(0.3, 0.0, 0.0), K, 0.0).isZero());
+  // The ground's net shift through the image at its centre: against the camera's motion, the divergence left out;
+  // tilting about x at 0.2 rad/s moves it by +2 px in y, about y by -2 px in x (a world-fixed direction seen from
+  // the camera turns by -w x q); the turn about the optical axis apart.
+  EXPECT_TRUE(groundShiftPx(Vec3(0.3, -0.2, 0.5), Vec3::Zero(), K, 0.1).isApprox(Vec2(-3.0, 2.0), 1e-12));
+  EXPECT_TRUE(groundShiftPx(Vec3::Zero(), Vec3(0.2, 0.0, 0.7), K, 0.1).isApprox(Vec2(0.0, 2.0), 1e-12));
+  EXPECT_TRUE(groundShiftPx(Vec3::Zero(), Vec3(0.0, 0.2, 0.0), K, 0.1).isApprox(Vec2(-2.0, 0.0), 1e-12));
+  EXPECT_TRUE(groundTurnScale(Vec3(0.0, 0.0, 0.5), Vec3(0.2, 0.0, 0.7), 0.1).isApprox(Vec2(-0.07, 0.05), 1e-15));
+  EXPECT_TRUE(groundShiftPx(Vec3(NAN, 0.0, 0.0), Vec3::Zero(), K, 0.1).isZero());
+  EXPECT_TRUE(groundShiftPx(Vec3(0.3, 0.0, 0.0), Vec3::Zero(), K, 0.0).isZero());
+  EXPECT_TRUE(groundTurnScale(Vec3::Zero(), Vec3(0.0, 0.0, NAN), 0.1).isZero());
   // Before convergence, vartheta shrunk by twice its 1-sigma (sqrt of the covariance's trace): 0.5 1/s with a
   // 1-sigma of 0.1 counts as 0.3; not larger than twice its 1-sigma, as no motion.
   const Vec3 v(0.3, 0.4, 0.0);

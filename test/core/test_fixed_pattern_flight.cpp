@@ -5,6 +5,7 @@
 // the status, and the truth is inside the reported band again.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
@@ -14,6 +15,7 @@
 #include <opencv2/core.hpp>
 
 #include "diekf/estimator.h"
+#include "periodic_flight.h"
 #include "synthetic_flight.h"
 
 namespace diekf {
@@ -134,10 +136,12 @@ TEST(FixedPatternFlight, ProjectorDotsAreFoundAndTheBiasedStartIsDiscounted) {
   const PatternRun with = flyOverProjectorDots(true);  // (auto_dot_removal_px 0: the discount alone)
   EXPECT_GT(with.found_at_s, 0.0);
   EXPECT_TRUE(with.reported);
-  // 71 % of the frames within 2 sigma (d RMSE 33 cm at 90 px over this strong pattern). With bilinear interpolation
-  // of the reference it was 100 % (17 cm): the spline reproduces the dots' sharp structure in the reference, so
-  // they pull harder toward "no motion" until the model removes them (docs/results.md, "Spline interpolation").
-  EXPECT_GT(with.coverage_d, 0.6);
+  // 56 % of the frames within 2 sigma (d RMSE 21 cm at 90 px over this strong pattern; 71 % and 33 cm before the
+  // ground's track counted the camera's tilt, turn and scale, docs/noise_model.md section 11). With bilinear
+  // interpolation of the reference it was 100 % (17 cm): the spline reproduces the dots' sharp structure in the
+  // reference, so they pull harder toward "no motion" until the model removes them (docs/results.md, "Spline
+  // interpolation").
+  EXPECT_GT(with.coverage_d, 0.5);
   // Without the discount the filter keeps what the uncorrected images said, with the same confidence.
   const PatternRun without = flyOverProjectorDots(false);
   EXPECT_GT(without.found_at_s, 0.0);  // named all the same
@@ -240,6 +244,47 @@ TEST(FixedPatternFlight, TheRawImageTestFindsProjectorDotsInTheFirstSeconds) {
   EXPECT_LT(none.share, EstimatorParams{}.fixed_pattern.dot_detect_share);
   EXPECT_LT(none.opened_at_s, 0.0);
   EXPECT_FALSE(none.named);
+}
+
+// A camera holding its position over one spot (the benchmark's periodic flight: 1 m above a textured plane, a
+// closed curve of a few cm, 1 s period, images repeating every 30 frames) sees the same patch of ground again and
+// again: its temporal mean is fixed in the image like a pattern. Counted by the samples alone (the path flown) the
+// statistics held 150 independent samples; the ground's structure was then taken for a pattern (16 % of the
+// contrast at 2 s, 43 % at 8 s: the raw images opened as if a projector were on; the distance 2.4 % low at 20 s
+// at 180 px). The fields are computed only from enough different patches of ground (fixed_pattern/min_ground_patches).
+TEST(FixedPatternFlight, HoldingAPositionIsNotAPattern) {
+  const test_util::PeriodicFlight flight(30);
+  EstimatorParams params;
+  params.preprocess.working_width_px = 180;
+  params.init.alpha0_inv_m = 1.0;
+  Estimator est(flight.camera(), params);
+  long imu = 0;
+  FrameResult r;
+  double max_share = 0.0, max_error = 0.0;
+  int active = 0, opened = 0, results = 0;
+  for (long frame = 0; frame < 20 * 30; ++frame) {
+    const double t_img = frame / test_util::PeriodicFlight::kCameraRateHz;
+    while (imu / test_util::PeriodicFlight::kImuRateHz <= t_img + 0.05) {
+      est.addImu(flight.imu(imu / test_util::PeriodicFlight::kImuRateHz));
+      ++imu;
+    }
+    est.addImage(t_img, flight.image(frame));
+    while (est.popResult(&r)) {
+      ++results;
+      max_share = std::max(max_share, r.fixed_pattern_contrast_share);
+      active += r.fixed_pattern_active ? 1 : 0;
+      opened += r.dot_removal_px > 0 ? 1 : 0;
+      if (r.t_s > 5.0) max_error = std::max(max_error, std::abs(r.distance_m() - flight.position(r.t_s).z()));
+    }
+  }
+  std::printf("[position hold] %d results: pattern active on %d, raw images opened on %d, largest contrast share "
+              "%.3f, largest distance error after 5 s %.2f cm, status at the end %s\n",
+              results, active, opened, max_share, 100.0 * max_error, toString(r.status));
+  EXPECT_GT(results, 550);
+  EXPECT_EQ(active, 0);
+  EXPECT_EQ(opened, 0);
+  EXPECT_LT(max_error, 0.01);
+  EXPECT_EQ(r.status, FilterStatus::kTracking);
 }
 
 }  // namespace

@@ -128,6 +128,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          a.fixed_pattern.decorrelation_px == b.fixed_pattern.decorrelation_px &&
          a.fixed_pattern.memory_samples == b.fixed_pattern.memory_samples &&
          a.fixed_pattern.startup_samples == b.fixed_pattern.startup_samples &&
+         a.fixed_pattern.min_ground_patches == b.fixed_pattern.min_ground_patches &&
          a.fixed_pattern.significance_sigma == b.fixed_pattern.significance_sigma &&
          a.fixed_pattern.min_gain == b.fixed_pattern.min_gain &&
          a.fixed_pattern.refresh_frames == b.fixed_pattern.refresh_frames &&
