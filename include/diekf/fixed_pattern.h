@@ -23,8 +23,8 @@
 // in the constructor: no allocation per frame.
 #pragma once
 
+#include <algorithm>
 #include <cmath>
-
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -43,7 +43,8 @@ double imageMotionPx(const Vec3& vartheta_inv_s, const Vec3& rate_radps, const P
 
 /// The ground's shift through the working image over dt_s at the image centre (working px): the translation's
 /// -f dt (vartheta_x, vartheta_y) plus the tilting's f dt (-w_y, w_x) (w: the rotation rate, rad/s, bias
-/// removed); with groundTurnRad what FixedPattern accumulates to know how far the ground under its mean has moved.
+/// removed); with groundTurnScale what FixedPattern accumulates to know how far the ground under its mean has
+/// moved.
 Vec2 groundShiftPx(const Vec3& vartheta_inv_s, const Vec3& rate_radps, const PinholeK& K, double dt_s);
 /// The ground's turn (rad) and change of scale (log) in the working image over dt_s: -w_z dt about the optical axis,
 /// vartheta_z dt toward the ground (the image grows); zero where unknown.
