@@ -193,9 +193,9 @@ TEST(FixedPattern, HoveringOverTheSameGroundIsNotAPattern) {
 TEST(FixedPattern, HoldingAPositionIsNotAPattern) {
   // A camera holding its position wobbles over one spot: each image is the same ground shifted by a few pixels
   // (here up to 6 px, 1 s period at 30 Hz), so the ground moves by decorrelation_px and more per image and the
-  // samples add up, but the mean never holds more than two patches of ground (cells of the local mean's window). Its structure is
-  // fixed in the image like a pattern; the fields are not computed from it. The same images with a slow drift
-  // (the camera flying on) hold new ground and the model starts.
+  // samples add up, but the mean holds only a few patches of ground (cells of the local mean's window; 3.3). Its
+  // structure is fixed in the image like a pattern; the fields are not computed from it. The same images with a
+  // slow drift (the camera flying on) hold new ground and the model starts.
   cv::RNG rng(23);
   cv::Mat big(kH + 200, kW + 400, CV_32FC1);
   rng.fill(big, cv::RNG::NORMAL, 0.0, 1.0);
@@ -211,7 +211,8 @@ TEST(FixedPattern, HoldingAPositionIsNotAPattern) {
     for (int i = 0; i < 600; ++i) {
       const double phase = 2.0 * M_PI * i / 30.0;
       const Vec2 at(6.0 * std::sin(phase) + drift_px * i, 4.0 * std::sin(phase + 0.5));
-      const cv::Rect crop(static_cast<int>(std::lround(100.0 + at.x())), static_cast<int>(std::lround(100.0 + at.y())), kW, kH);
+      const cv::Rect crop(static_cast<int>(std::lround(100.0 + at.x())), static_cast<int>(std::lround(100.0 + at.y())),
+                          kW, kH);
       cv::Mat img = big(crop).clone();
       fp.apply(img.ptr<float>(), &s, &s2);
       const Vec2 shift = -(at - previous);  // the camera moves by at: the ground the other way
