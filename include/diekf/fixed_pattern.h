@@ -164,8 +164,10 @@ class FixedPattern {
   int groundCell(const Vec2& position_px, const Vec2& turn_scale, double cell_px) const;
   /// Decays the weights g by kp, adds l to cell c and updates its variance factor (sum of the squared weights).
   static void addWeight(GroundWeights* g, double* var_factor, int c, double l, double kp);
+  /// Half side (working px) of the local mean's window (computeDetail): 5 % of the width.
+  int localMeanHalfPx() const { return std::max(1, static_cast<int>(std::lround(0.05 * width_))); }
   /// Side (working px) of the coarse cells: the local mean's window (the coarser of the two scales tested).
-  double coarseCellPx() const { return 2.0 * std::max(1L, std::lround(0.05 * width_)) + 1.0; }
+  double coarseCellPx() const { return 2.0 * localMeanHalfPx() + 1.0; }
 
   struct Snapshot {
     cv::Mat detail;             // the detail at the snapshot

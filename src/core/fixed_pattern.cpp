@@ -318,8 +318,7 @@ void FixedPattern::computeDetail(float* dt, float* sm, float* tmp, float level) 
   if (!(level > 0.f)) level = std::max(sampleMedian([&](int i) { return m1[i] * iv[i]; }), 1e-6f);
   const float inv_level = 1.f / level;
   for (int i = 0; i < n; ++i) dt[i] = m1[i] * iv[i] * inv_level;
-  const int half = std::max(1, static_cast<int>(std::lround(0.05 * width_)));
-  boxMean(dt, sm, tmp, colsum_.data(), width_, height_, half);
+  boxMean(dt, sm, tmp, colsum_.data(), width_, height_, localMeanHalfPx());
   for (int i = 0; i < n; ++i) dt[i] = dt[i] / std::max(sm[i], 1e-6f) - 1.f;
 }
 
