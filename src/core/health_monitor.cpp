@@ -18,11 +18,13 @@ void HealthMonitor::startRun(int bad_frames) {
   converged_since_s_ = HUGE_VAL;
   nis_smoothed_ = 0.0;
   degraded_until_s_ = -HUGE_VAL;
+  degraded_at_s_ = -HUGE_VAL;
   degraded_reason_[0] = '\0';
 }
 
 void HealthMonitor::noteDegraded(double t_s, const char* why) {
   degraded_until_s_ = t_s + params_.divergence.degraded_hold_s;
+  degraded_at_s_ = t_s;
   std::snprintf(degraded_reason_, sizeof(degraded_reason_), "%s", why);
 }
 
@@ -128,7 +130,14 @@ FilterStatus HealthMonitor::frameStatus(const FrameFacts& f, const State& x, con
     }
   } else if (f.t_s <= degraded_until_s_) {
     s = FilterStatus::kDegraded;
-    std::snprintf(msg, msg_size, "%s", degraded_reason_);
+    // The failed check may be an earlier frame's (the status holds for degraded_hold_s): say how long ago, so
+    // that the reason is not read as this frame's (a rejected update's RMS next to an applied one's).
+    const double age_s = f.t_s - degraded_at_s_;
+    if (age_s >= 0.05) {
+      std::snprintf(msg, msg_size, "%s (%.1f s ago)", degraded_reason_, age_s);
+    } else {
+      std::snprintf(msg, msg_size, "%s", degraded_reason_);
+    }
   } else {
     s = FilterStatus::kTracking;
     std::snprintf(msg, msg_size, "%s", f.skip_reason->c_str());

@@ -98,6 +98,7 @@ class HealthMonitor {
   double converged_since_s_ = HUGE_VAL;
   double nis_smoothed_ = 0.0;               // NIS smoothed over about 1 s (0: none yet)
   double degraded_until_s_ = -HUGE_VAL;       // status degraded up to this image time (IMU clock), s
+  double degraded_at_s_ = -HUGE_VAL;          // time of the last failed check (IMU clock), s
   char degraded_reason_[kMessageCapacity] = "";  // the last failed consistency check (no allocation per frame)
   std::string pending_reset_reason_;        // the next frame reports status reset with this reason
 };

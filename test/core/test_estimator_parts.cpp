@@ -157,6 +157,10 @@ TEST(HealthMonitor, StatusTransitions) {
   m.noteDegraded(1.0, "update gated: test");
   EXPECT_EQ(frame(&m, 1.0, x, P_tight, &msg), FilterStatus::kDegraded);
   EXPECT_EQ(msg, "update gated: test");
+  // A later frame in the hold names the check with its age: not this frame's.
+  ASSERT_GT(params.divergence.degraded_hold_s, 0.5);
+  EXPECT_EQ(frame(&m, 1.5, x, P_tight, &msg), FilterStatus::kDegraded);
+  EXPECT_EQ(msg, "update gated: test (0.5 s ago)");
   EXPECT_EQ(frame(&m, 1.0 + params.divergence.degraded_hold_s, x, P_tight, &msg), FilterStatus::kDegraded);
   EXPECT_EQ(frame(&m, 1.01 + params.divergence.degraded_hold_s, x, P_tight, &msg), FilterStatus::kTracking);
   EXPECT_EQ(m.status(), FilterStatus::kTracking);
