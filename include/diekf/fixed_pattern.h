@@ -85,6 +85,9 @@ class FixedPattern {
   /// Returns true when the fields changed (the image just learned from should then be corrected again,
   /// ImagePreprocessor::reapplyPattern, so that it and the next image share one correction).
   bool learn(double motion_px, const Vec2& ground_shift_px, const Vec2& ground_turn_scale = Vec2::Zero());
+  /// Waives (true) or restores the min_ground_patches condition of learn(): the estimator waives it while the
+  /// images deny the motion the IMU measures (FixedPatternParams::scale_losses_waive_patches).
+  void waivePatchCondition(bool waived) { patches_waived_ = waived; }
   /// How many different pieces of ground the mean holds: 1 / its variance per unit sample variance, counted over
   /// the cells of the ground's track (0 before the first sample).
   double independentGround() const { return var_factor_ > 0.0 ? 1.0 / var_factor_ : 0.0; }
@@ -209,6 +212,7 @@ class FixedPattern {
   bool last_kept_ = false;    // last_u_ holds the last applied image
   double last_mean_ = 0.0;    // its mean (grey levels)
   bool active_ = false;
+  bool patches_waived_ = false;     // learn() without the min_ground_patches condition (waivePatchCondition)
   bool has_low_confidence_ = false;
   double strong_fraction_ = 0.0;
   double contrast_share_ = 0.0;

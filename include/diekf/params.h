@@ -145,6 +145,11 @@ struct FixedPatternParams {
   /// Different patches of ground (cells of the local mean's window, 10 % of the width, along the ground's track:
   /// FixedPattern::independentPatches) the mean must hold for the fields to be computed; 0: no such condition.
   double min_ground_patches = 4.0;
+  /// The min_ground_patches condition is waived while the distance's 1-sigma has run away before convergence (a
+  /// restart) this many times within scale_loss_window_s: images that deny the motion the IMU measures (a pattern
+  /// holding the state still), not a camera holding its position, whose images and IMU agree; 0: never.
+  int scale_losses_waive_patches = 3;
+  double scale_loss_window_s = 10.0;            ///< s, window of those restarts
   double significance_sigma = 3.0;              ///< a pixel's gain/offset is kept only this many sigmas above noise
   double min_gain = 0.3;                        ///< confidence (g / min_gain)^2 below this relative gain, unitless
   int refresh_frames = 8;                       ///< learning frames between recomputations of the fields

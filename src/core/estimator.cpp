@@ -82,7 +82,8 @@ struct Estimator::Impl {
         health(params),
         restarts(params),
         images(static_cast<size_t>(std::max(1, p.max_queued_images))),
-        results(kResultCapacity) {
+        results(kResultCapacity),
+        scale_losses_s(static_cast<size_t>(std::max(1, p.fixed_pattern.scale_losses_waive_patches))) {
     // Result slots keep their message buffers: no allocation per frame for the usual messages.
     for (size_t i = 0; i < kResultCapacity; ++i) {
       FrameResult& slot = results.emplaceSlot();
@@ -117,6 +118,14 @@ struct Estimator::Impl {
                      p.fixed_pattern.dot_detect_share);
     }
     resetFilter();
+  }
+
+  /// The fixed pattern's patch condition is waived while the last fixed_pattern.scale_losses_waive_patches
+  /// restarts without scale before convergence (HealthMonitor::scaleLost) all fall within scale_loss_window_s of
+  /// t_s (docs/noise_model.md section 11, "Holding a position").
+  bool patchConditionWaived(double t_s) const {
+    const int n = params.fixed_pattern.scale_losses_waive_patches;
+    return n > 0 && scale_losses_s.full() && t_s - scale_losses_s[0] <= params.fixed_pattern.scale_loss_window_s;
   }
 
   static PreprocessParams preprocessParamsFor(const EstimatorParams& p) {
@@ -373,6 +382,7 @@ struct Estimator::Impl {
                                                    : lowerBoundVartheta(x.vartheta, cov_vartheta);
         const Vec3 rate = update.lastGyroMean() - x.b_w;
         const double interval_s = update.lastInterval();
+        fixed_pattern.waivePatchCondition(patchConditionWaived(img.t_s));
         if (fixed_pattern.learn(imageMotionPx(vartheta, rate, img_pre.workingK(), interval_s),
                                 groundShiftPx(vartheta, rate, img_pre.workingK(), interval_s),
                                 groundTurnScale(vartheta, rate, interval_s))) {
@@ -427,6 +437,7 @@ struct Estimator::Impl {
     // Health checks and restarts.
     std::string reason;
     health.checkDivergence(x, P, stats.applied, usable, skip_reason, &reason);
+    if (health.scaleLost()) scale_losses_s.push(img.t_s);
     if (reason.empty() && had_reference && state_initialized && !stats.applied && health.updatesSinceReset() == 0) {
       // No update has succeeded since the (re)start: do not dead-reckon the prior on the IMU alone; start the
       // run again at this image instead (its covariance would only grow, and the first real update would
@@ -582,6 +593,7 @@ struct Estimator::Impl {
 
   Ring<PendingImage> images;  // images waiting for IMU coverage
   Ring<FrameResult> results;  // unread results
+  Ring<double> scale_losses_s;  // times of the last restarts without scale (patchConditionWaived), s
   PreprocessedFrame frames[2];
   int ref_index = 0;
   double img_t_d_s = 0.0;  // time offset estimate (beyond the calibration's) the image in process was placed with, s

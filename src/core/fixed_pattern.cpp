@@ -294,7 +294,8 @@ bool FixedPattern::learn(double motion_px, const Vec2& ground_shift_px, const Ve
     // Only from enough different ground: the mean of one patch of ground seen again and again (hovering, holding
     // a position) is fixed in the image like a pattern, and its structure stands out of its own spread. Counted
     // over cells of the local mean's window, the coarser scale tested (docs/noise_model.md section 11).
-    if (independentPatches() < params_.min_ground_patches) return false;
+    // The estimator waives it while the images deny the motion the IMU measures (waivePatchCondition).
+    if (!patches_waived_ && independentPatches() < params_.min_ground_patches) return false;
     refresh();
     frames_since_refresh_ = 0;
     active_ = true;

@@ -41,6 +41,7 @@ void HealthMonitor::noteInnovation(double t_s, double dt_s, double nis) {
 void HealthMonitor::checkDivergence(const State& x, const ErrorCov& P, bool applied, bool image_usable,
                                     const std::string& skip_reason, std::string* reason) {
   const DivergenceParams& dv = params_.divergence;
+  scale_lost_ = false;
   if (!x.allFinite() || !P.allFinite()) {
     *reason = "non-finite state or covariance";
     return;
@@ -63,6 +64,7 @@ void HealthMonitor::checkDivergence(const State& x, const ErrorCov& P, bool appl
     // Before the first convergence this is the usual way a still or hovering camera ends a run: nothing tells
     // the distance until the camera accelerates (docs/results.md, "Start-up").
     if (!converged_) os << " before convergence (no scale until the camera accelerates)";
+    scale_lost_ = !converged_;
     *reason = os.str();
     return;
   }

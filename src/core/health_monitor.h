@@ -70,6 +70,8 @@ class HealthMonitor {
   /// Fills *reason when the filter must restart.
   void checkDivergence(const State& x, const ErrorCov& P, bool applied, bool image_usable,
                        const std::string& skip_reason, std::string* reason);
+  /// The last checkDivergence's restart was the distance's 1-sigma running away before convergence (no scale).
+  bool scaleLost() const { return scale_lost_; }
 
   // --- Status ---
   /// The filter restarted because of the input since the last image: the next frame reports reset with `reason`.
@@ -98,6 +100,7 @@ class HealthMonitor {
   double converged_since_s_ = HUGE_VAL;
   double nis_smoothed_ = 0.0;               // NIS smoothed over about 1 s (0: none yet)
   double degraded_until_s_ = -HUGE_VAL;       // status degraded up to this image time (IMU clock), s
+  bool scale_lost_ = false;                   // the last divergence check: no scale before convergence
   double degraded_at_s_ = -HUGE_VAL;          // time of the last failed check (IMU clock), s
   char degraded_reason_[kMessageCapacity] = "";  // the last failed consistency check (no allocation per frame)
   std::string pending_reset_reason_;        // the next frame reports status reset with this reason

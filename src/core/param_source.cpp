@@ -391,6 +391,10 @@ const std::vector<Entry>& table() {
                      between(1.0, 1e6)));
     t.push_back(real("fixed_pattern/min_ground_patches", DIEKF_FIELD(double, fixed_pattern.min_ground_patches),
                      between(0.0, 1e6)));
+    t.push_back(integer("fixed_pattern/scale_losses_waive_patches",
+                        DIEKF_FIELD(int, fixed_pattern.scale_losses_waive_patches), between(0, 1000)));
+    t.push_back(real("fixed_pattern/scale_loss_window_s", DIEKF_FIELD(double, fixed_pattern.scale_loss_window_s),
+                     between(0.0, 1e6)));
     t.push_back(real("fixed_pattern/significance_sigma", DIEKF_FIELD(double, fixed_pattern.significance_sigma),
                      between(0.0, 100.0)));
     t.push_back(real("fixed_pattern/min_gain", DIEKF_FIELD(double, fixed_pattern.min_gain), between(0.0, 1.0)));

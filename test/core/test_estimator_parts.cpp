@@ -200,7 +200,18 @@ TEST(HealthMonitor, DivergenceChecks) {
   far.alpha = 1.0 / 80.0;
   m.checkDivergence(far, P, true, true, "", &reason);
   EXPECT_NE(reason.find("distance 80 m outside"), std::string::npos) << reason;
+  EXPECT_FALSE(m.scaleLost());
   reason.clear();
+  // The distance's 1-sigma running away: before convergence a loss of the scale (counted by the estimator for the
+  // fixed pattern's patch condition), after it not.
+  ErrorCov P_wide = P;
+  P_wide(ErrIdx::kAlpha, ErrIdx::kAlpha) = 1e6;
+  m.checkDivergence(good, P_wide, true, true, "", &reason);
+  EXPECT_NE(reason.find("before convergence"), std::string::npos) << reason;
+  EXPECT_TRUE(m.scaleLost());
+  reason.clear();
+  m.checkDivergence(good, P, true, true, "", &reason);
+  EXPECT_FALSE(m.scaleLost());
   ErrorCov P_bad = P;
   P_bad(2, 2) = -1.0;
   m.checkDivergence(good, P_bad, true, true, "", &reason);

@@ -129,6 +129,8 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          a.fixed_pattern.memory_samples == b.fixed_pattern.memory_samples &&
          a.fixed_pattern.startup_samples == b.fixed_pattern.startup_samples &&
          a.fixed_pattern.min_ground_patches == b.fixed_pattern.min_ground_patches &&
+         a.fixed_pattern.scale_losses_waive_patches == b.fixed_pattern.scale_losses_waive_patches &&
+         a.fixed_pattern.scale_loss_window_s == b.fixed_pattern.scale_loss_window_s &&
          a.fixed_pattern.significance_sigma == b.fixed_pattern.significance_sigma &&
          a.fixed_pattern.min_gain == b.fixed_pattern.min_gain &&
          a.fixed_pattern.refresh_frames == b.fixed_pattern.refresh_frames &&
