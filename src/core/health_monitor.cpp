@@ -94,6 +94,19 @@ void HealthMonitor::checkDivergence(const State& x, const ErrorCov& P, bool appl
   }
 }
 
+void HealthMonitor::appendDegradedReason(double t_s, char* msg, size_t msg_size) const {
+  // The failed check may be an earlier frame's (the status holds for degraded_hold_s): its age then, so that the
+  // reason is not read as this frame's (a rejected update's RMS next to an applied one's). The checks are noted
+  // at the image's time: 0 for this frame's own.
+  const size_t used = std::strlen(msg);
+  const double age_s = t_s - degraded_at_s_;
+  if (age_s > 0.0) {
+    std::snprintf(msg + used, msg_size - used, "%s (%.1f s ago)", degraded_reason_, age_s);
+  } else {
+    std::snprintf(msg + used, msg_size - used, "%s", degraded_reason_);
+  }
+}
+
 FilterStatus HealthMonitor::frameStatus(const FrameFacts& f, const State& x, const ErrorCov& P, char* msg,
                                         size_t msg_size) {
   FilterStatus s;
@@ -123,7 +136,8 @@ FilterStatus HealthMonitor::frameStatus(const FrameFacts& f, const State& x, con
     if (!converged_ && f.t_s <= degraded_until_s_) {
       // A note of the hold (a pattern found, projector dots, large innovations): said while converging too.
       const size_t used = std::strlen(msg);
-      std::snprintf(msg + used, msg_size - used, "%s%s", used > 0 ? "; " : "", degraded_reason_);
+      if (used > 0) std::snprintf(msg + used, msg_size - used, "; ");
+      appendDegradedReason(f.t_s, msg, msg_size);
     }
     if (!converged_ && !f.last_reset_reason->empty()) {
       const size_t used = std::strlen(msg);
@@ -132,14 +146,8 @@ FilterStatus HealthMonitor::frameStatus(const FrameFacts& f, const State& x, con
     }
   } else if (f.t_s <= degraded_until_s_) {
     s = FilterStatus::kDegraded;
-    // The failed check may be an earlier frame's (the status holds for degraded_hold_s): say how long ago, so
-    // that the reason is not read as this frame's (a rejected update's RMS next to an applied one's).
-    const double age_s = f.t_s - degraded_at_s_;
-    if (age_s >= 0.05) {
-      std::snprintf(msg, msg_size, "%s (%.1f s ago)", degraded_reason_, age_s);
-    } else {
-      std::snprintf(msg, msg_size, "%s", degraded_reason_);
-    }
+    msg[0] = '\0';
+    appendDegradedReason(f.t_s, msg, msg_size);
   } else {
     s = FilterStatus::kTracking;
     std::snprintf(msg, msg_size, "%s", f.skip_reason->c_str());

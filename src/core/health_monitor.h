@@ -92,6 +92,9 @@ class HealthMonitor {
   static constexpr double kReportOutlierFraction = 0.05;  // outlier weight share named in the status message
 
  private:
+  /// Appends the last failed check's reason to msg, with its age when it was an earlier frame's.
+  void appendDegradedReason(double t_s, char* msg, size_t msg_size) const;
+
   const EstimatorParams& params_;
   FilterStatus status_ = FilterStatus::kInitializing;
   int bad_frames_ = 0;

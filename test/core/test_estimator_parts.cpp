@@ -168,6 +168,12 @@ TEST(HealthMonitor, StatusTransitions) {
   m.startRun();
   EXPECT_FALSE(m.converged());
   EXPECT_EQ(frame(&m, 3.0, x, P_tight, &msg), FilterStatus::kInitializing);
+  // A note held while converging is said too, with its age once it is an earlier frame's.
+  m.noteDegraded(3.0, "pattern found");
+  EXPECT_EQ(frame(&m, 3.0, x, P_wide, &msg), FilterStatus::kInitializing);
+  EXPECT_EQ(msg, "waiting for a valid image update; pattern found") << msg;
+  EXPECT_EQ(frame(&m, 3.3, x, P_wide, &msg), FilterStatus::kInitializing);
+  EXPECT_EQ(msg, "waiting for a valid image update; pattern found (0.3 s ago)") << msg;
 }
 
 TEST(HealthMonitor, SmoothedNisDegrades) {
