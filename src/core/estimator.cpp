@@ -382,7 +382,17 @@ struct Estimator::Impl {
                                                    : lowerBoundVartheta(x.vartheta, cov_vartheta);
         const Vec3 rate = update.lastGyroMean() - x.b_w;
         const double interval_s = update.lastInterval();
-        fixed_pattern.waivePatchCondition(patchConditionWaived(img.t_s));
+        const bool waived = patchConditionWaived(img.t_s);
+        if (waived) {
+          // Said while it lasts: a user learns that something holds the image still (a projector left on).
+          char why[kMessageCapacity];
+          std::snprintf(why, sizeof(why),
+                        "images deny the IMU's motion (no scale %dx in %.0f s): camera-fixed pattern? learned "
+                        "without the hold test",
+                        params.fixed_pattern.scale_losses_waive_patches, params.fixed_pattern.scale_loss_window_s);
+          health.noteDegraded(img.t_s, why);
+        }
+        fixed_pattern.waivePatchCondition(waived);
         if (fixed_pattern.learn(imageMotionPx(vartheta, rate, img_pre.workingK(), interval_s),
                                 groundShiftPx(vartheta, rate, img_pre.workingK(), interval_s),
                                 groundTurnScale(vartheta, rate, interval_s))) {

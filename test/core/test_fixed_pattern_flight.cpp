@@ -287,5 +287,44 @@ TEST(FixedPatternFlight, HoldingAPositionIsNotAPattern) {
   EXPECT_EQ(r.status, FilterStatus::kTracking);
 }
 
+// The same IMU with one image repeated: the images deny the motion the IMU measures (as a camera-fixed pattern
+// that holds the image still does), the distance loses its scale again and again, and after
+// fixed_pattern/scale_losses_waive_patches such restarts within scale_loss_window_s the status says so and the
+// pattern is learned without the position-hold condition (docs/noise_model.md section 11).
+TEST(FixedPatternFlight, ImagesDenyingTheImuWaiveTheHoldCondition) {
+  const test_util::PeriodicFlight flight(30);
+  EstimatorParams params;
+  params.preprocess.working_width_px = 180;
+  params.init.alpha0_inv_m = 1.0;
+  Estimator est(flight.camera(), params);
+  const cv::Mat still = flight.image(0);
+  long imu = 0;
+  FrameResult r;
+  int scale_losses = 0, said = 0, active_before = 0, active_after = 0;
+  double first_said_s = -1.0;
+  for (long frame = 0; frame < 20 * 30; ++frame) {
+    const double t_img = frame / test_util::PeriodicFlight::kCameraRateHz;
+    while (imu / test_util::PeriodicFlight::kImuRateHz <= t_img + 0.05) {
+      est.addImu(flight.imu(imu / test_util::PeriodicFlight::kImuRateHz));
+      ++imu;
+    }
+    est.addImage(t_img, still);
+    while (est.popResult(&r)) {
+      if (r.status == FilterStatus::kReset && r.message.find("before convergence") != std::string::npos) ++scale_losses;
+      const bool says = r.message.find("images deny the IMU's motion") != std::string::npos;
+      if (says && first_said_s < 0.0) first_said_s = r.t_s;
+      said += says ? 1 : 0;
+      (first_said_s < 0.0 ? active_before : active_after) += r.fixed_pattern_active ? 1 : 0;
+    }
+  }
+  std::printf("[still images] %d restarts without scale, the waiver said on %d results from %.2f s, pattern active "
+              "on %d results before and %d after\n",
+              scale_losses, said, first_said_s, active_before, active_after);
+  EXPECT_GE(scale_losses, params.fixed_pattern.scale_losses_waive_patches);
+  EXPECT_GT(said, 0);
+  EXPECT_EQ(active_before, 0);
+  EXPECT_GT(active_after, 0);
+}
+
 }  // namespace
 }  // namespace diekf
