@@ -246,6 +246,33 @@ TEST(FixedPatternFlight, TheRawImageTestFindsProjectorDotsInTheFirstSeconds) {
   EXPECT_FALSE(none.named);
 }
 
+/// Flies the benchmark's position hold (periodic_flight.h) for 20 s through an Estimator at 180 px: the IMU of the
+/// flight, the image of frame k from image(k), every result to on_result; returns the last result.
+template <class ImageOf, class OnResult>
+FrameResult flyPositionHold(const test_util::PeriodicFlight& flight, const EstimatorParams& params, ImageOf image,
+                            OnResult on_result) {
+  Estimator est(flight.camera(), params);
+  long imu = 0;
+  FrameResult r;
+  for (long frame = 0; frame < 20 * 30; ++frame) {
+    const double t_img = frame / test_util::PeriodicFlight::kCameraRateHz;
+    while (imu / test_util::PeriodicFlight::kImuRateHz <= t_img + 0.05) {
+      est.addImu(flight.imu(imu / test_util::PeriodicFlight::kImuRateHz));
+      ++imu;
+    }
+    est.addImage(t_img, image(frame));
+    while (est.popResult(&r)) on_result(r);
+  }
+  return r;
+}
+
+EstimatorParams positionHoldParams() {
+  EstimatorParams params;
+  params.preprocess.working_width_px = 180;
+  params.init.alpha0_inv_m = 1.0;
+  return params;
+}
+
 // A camera holding its position over one spot (the benchmark's periodic flight: 1 m above a textured plane, a
 // closed curve of a few cm, 1 s period, images repeating every 30 frames) sees the same patch of ground again and
 // again: its temporal mean is fixed in the image like a pattern. Counted by the samples alone (the path flown) the
@@ -254,29 +281,17 @@ TEST(FixedPatternFlight, TheRawImageTestFindsProjectorDotsInTheFirstSeconds) {
 // at 180 px). The fields are computed only from enough different patches of ground (fixed_pattern/min_ground_patches).
 TEST(FixedPatternFlight, HoldingAPositionIsNotAPattern) {
   const test_util::PeriodicFlight flight(30);
-  EstimatorParams params;
-  params.preprocess.working_width_px = 180;
-  params.init.alpha0_inv_m = 1.0;
-  Estimator est(flight.camera(), params);
-  long imu = 0;
-  FrameResult r;
   double max_share = 0.0, max_error = 0.0;
   int active = 0, opened = 0, results = 0;
-  for (long frame = 0; frame < 20 * 30; ++frame) {
-    const double t_img = frame / test_util::PeriodicFlight::kCameraRateHz;
-    while (imu / test_util::PeriodicFlight::kImuRateHz <= t_img + 0.05) {
-      est.addImu(flight.imu(imu / test_util::PeriodicFlight::kImuRateHz));
-      ++imu;
-    }
-    est.addImage(t_img, flight.image(frame));
-    while (est.popResult(&r)) {
-      ++results;
-      max_share = std::max(max_share, r.fixed_pattern_contrast_share);
-      active += r.fixed_pattern_active ? 1 : 0;
-      opened += r.dot_removal_px > 0 ? 1 : 0;
-      if (r.t_s > 5.0) max_error = std::max(max_error, std::abs(r.distance_m() - flight.position(r.t_s).z()));
-    }
-  }
+  const FrameResult r = flyPositionHold(
+      flight, positionHoldParams(), [&](long frame) { return flight.image(frame); },
+      [&](const FrameResult& r) {
+        ++results;
+        max_share = std::max(max_share, r.fixed_pattern_contrast_share);
+        active += r.fixed_pattern_active ? 1 : 0;
+        opened += r.dot_removal_px > 0 ? 1 : 0;
+        if (r.t_s > 5.0) max_error = std::max(max_error, std::abs(r.distance_m() - flight.position(r.t_s).z()));
+      });
   std::printf("[position hold] %d results: pattern active on %d, raw images opened on %d, largest contrast share "
               "%.3f, largest distance error after 5 s %.2f cm, status at the end %s\n",
               results, active, opened, max_share, 100.0 * max_error, toString(r.status));
@@ -293,30 +308,21 @@ TEST(FixedPatternFlight, HoldingAPositionIsNotAPattern) {
 // pattern is learned without the position-hold condition (docs/noise_model.md section 11).
 TEST(FixedPatternFlight, ImagesDenyingTheImuWaiveTheHoldCondition) {
   const test_util::PeriodicFlight flight(30);
-  EstimatorParams params;
-  params.preprocess.working_width_px = 180;
-  params.init.alpha0_inv_m = 1.0;
-  Estimator est(flight.camera(), params);
+  const EstimatorParams params = positionHoldParams();
   const cv::Mat still = flight.image(0);
-  long imu = 0;
-  FrameResult r;
   int scale_losses = 0, said = 0, active_before = 0, active_after = 0;
   double first_said_s = -1.0;
-  for (long frame = 0; frame < 20 * 30; ++frame) {
-    const double t_img = frame / test_util::PeriodicFlight::kCameraRateHz;
-    while (imu / test_util::PeriodicFlight::kImuRateHz <= t_img + 0.05) {
-      est.addImu(flight.imu(imu / test_util::PeriodicFlight::kImuRateHz));
-      ++imu;
-    }
-    est.addImage(t_img, still);
-    while (est.popResult(&r)) {
-      if (r.status == FilterStatus::kReset && r.message.find("before convergence") != std::string::npos) ++scale_losses;
-      const bool says = r.message.find("images deny the IMU's motion") != std::string::npos;
-      if (says && first_said_s < 0.0) first_said_s = r.t_s;
-      said += says ? 1 : 0;
-      (first_said_s < 0.0 ? active_before : active_after) += r.fixed_pattern_active ? 1 : 0;
-    }
-  }
+  flyPositionHold(
+      flight, params, [&](long) { return still; },
+      [&](const FrameResult& r) {
+        if (r.status == FilterStatus::kReset && r.message.find("before convergence") != std::string::npos) {
+          ++scale_losses;
+        }
+        const bool says = r.message.find("images deny the IMU's motion") != std::string::npos;
+        if (says && first_said_s < 0.0) first_said_s = r.t_s;
+        said += says ? 1 : 0;
+        (first_said_s < 0.0 ? active_before : active_after) += r.fixed_pattern_active ? 1 : 0;
+      });
   std::printf("[still images] %d restarts without scale, the waiver said on %d results from %.2f s, pattern active "
               "on %d results before and %d after\n",
               scale_losses, said, first_said_s, active_before, active_after);
