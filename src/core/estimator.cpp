@@ -383,11 +383,13 @@ struct Estimator::Impl {
         const Vec3 rate = update.lastGyroMean() - x.b_w;
         const double interval_s = update.lastInterval();
         const bool waived = patchConditionWaived(img.t_s);
-        if (waived) {
-          // Said while it lasts: a user learns that something holds the image still (a projector left on).
+        if (waived && !health.converged()) {
+          // Said while it lasts and the filter converges again: a user learns that something holds the image still
+          // (a projector left on). Not a degraded status once converged: an IMU fault loses the scale the same
+          // way, and the filter that has recovered from it is tracking.
           char why[kMessageCapacity];
           std::snprintf(why, sizeof(why),
-                        "images deny the IMU's motion (no scale %dx in %.0f s): camera-fixed pattern? learned "
+                        "images and IMU disagree (no scale %dx in %.0f s): camera-fixed pattern? learned "
                         "without the hold test",
                         params.fixed_pattern.scale_losses_waive_patches, params.fixed_pattern.scale_loss_window_s);
           health.noteDegraded(img.t_s, why);
