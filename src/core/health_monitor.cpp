@@ -17,13 +17,11 @@ void HealthMonitor::startRun(int bad_frames) {
   converged_ = false;
   converged_since_s_ = HUGE_VAL;
   nis_smoothed_ = 0.0;
-  degraded_until_s_ = -HUGE_VAL;
   degraded_at_s_ = -HUGE_VAL;
   degraded_reason_[0] = '\0';
 }
 
 void HealthMonitor::noteDegraded(double t_s, const char* why) {
-  degraded_until_s_ = t_s + params_.divergence.degraded_hold_s;
   degraded_at_s_ = t_s;
   std::snprintf(degraded_reason_, sizeof(degraded_reason_), "%s", why);
 }
@@ -133,7 +131,7 @@ FilterStatus HealthMonitor::frameStatus(const FrameFacts& f, const State& x, con
       std::snprintf(msg, msg_size, "converging: sigma_d/d = %g (tracking below %g)", relative_sigma_d,
                     params_.init.tracking_max_relative_sigma_d);
     }
-    if (!converged_ && f.t_s <= degraded_until_s_) {
+    if (!converged_ && degradedHeld(f.t_s)) {
       // A note of the hold (a pattern found, projector dots, large innovations): said while converging too.
       const size_t used = std::strlen(msg);
       if (used > 0) std::snprintf(msg + used, msg_size - used, "; ");
@@ -144,7 +142,7 @@ FilterStatus HealthMonitor::frameStatus(const FrameFacts& f, const State& x, con
       std::snprintf(msg + used, msg_size - used, " (last reset: %s%s", f.last_reset_reason->c_str(),
                     f.warm_started ? "; restarted from the last good distance)" : ")");
     }
-  } else if (f.t_s <= degraded_until_s_) {
+  } else if (degradedHeld(f.t_s)) {
     s = FilterStatus::kDegraded;
     msg[0] = '\0';
     appendDegradedReason(f.t_s, msg, msg_size);

@@ -94,6 +94,8 @@ class HealthMonitor {
  private:
   /// Appends the last failed check's reason to msg, with its age when it was an earlier frame's.
   void appendDegradedReason(double t_s, char* msg, size_t msg_size) const;
+  /// A check failed within the last divergence.degraded_hold_s before image time t_s.
+  bool degradedHeld(double t_s) const { return t_s <= degraded_at_s_ + params_.divergence.degraded_hold_s; }
 
   const EstimatorParams& params_;
   FilterStatus status_ = FilterStatus::kInitializing;
@@ -102,7 +104,6 @@ class HealthMonitor {
   bool converged_ = false;                  // sigma_d / d has fallen below the tracking threshold in this run
   double converged_since_s_ = HUGE_VAL;
   double nis_smoothed_ = 0.0;               // NIS smoothed over about 1 s (0: none yet)
-  double degraded_until_s_ = -HUGE_VAL;       // status degraded up to this image time (IMU clock), s
   bool scale_lost_ = false;                   // the last divergence check: no scale before convergence
   double degraded_at_s_ = -HUGE_VAL;          // time of the last failed check (IMU clock), s
   char degraded_reason_[kMessageCapacity] = "";  // the last failed consistency check (no allocation per frame)
