@@ -485,6 +485,7 @@ struct Estimator::Impl {
     facts.last_reset_reason = &restarts.lastReason();
     facts.warm_started = restarts.warmStarted();
     facts.outlier_fraction = r.outlier_fraction;
+    facts.accel_mps2 = imu.smoothedAccelLevel().norm();
     r.status = health.frameStatus(facts, x, P, msg, sizeof(msg));
     if (patternReported(params.fixed_pattern, r.fixed_pattern_fraction, r.fixed_pattern_contrast_share)) {
       // A strong camera-fixed pattern (docs/noise_model.md section 11): an IR projector, the drone's shadow, dirt.

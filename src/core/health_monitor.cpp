@@ -19,6 +19,23 @@ void HealthMonitor::startRun(int bad_frames) {
   nis_smoothed_ = 0.0;
   degraded_at_s_ = -HUGE_VAL;
   degraded_reason_[0] = '\0';
+  stall_ref_t_s_ = HUGE_VAL;
+  stalled_ = false;
+}
+
+void HealthMonitor::trackStall(double t_s, double relative_sigma_d, double accel_mps2) {
+  if (!(stall_ref_t_s_ <= t_s)) {
+    stalled_ = false;
+  } else if (t_s - stall_ref_t_s_ < kStallWindowS) {
+    stall_max_accel_mps2_ = std::max(stall_max_accel_mps2_, accel_mps2);
+    return;
+  } else {
+    stalled_ = relative_sigma_d > (1.0 - kStallMinFall) * stall_ref_relative_sigma_d_ &&
+               std::max(stall_max_accel_mps2_, accel_mps2) < kStallMaxAccelMps2;
+  }
+  stall_ref_t_s_ = t_s;
+  stall_ref_relative_sigma_d_ = relative_sigma_d;
+  stall_max_accel_mps2_ = accel_mps2;
 }
 
 void HealthMonitor::noteDegraded(double t_s, const char* why) {
@@ -128,8 +145,14 @@ FilterStatus HealthMonitor::frameStatus(const FrameFacts& f, const State& x, con
       std::snprintf(msg, msg_size, "%s",
                     f.skip_reason->empty() ? "waiting for a valid image update" : f.skip_reason->c_str());
     } else if (!converged_) {
-      std::snprintf(msg, msg_size, "converging: sigma_d/d = %g (tracking below %g)", relative_sigma_d,
-                    params_.init.tracking_max_relative_sigma_d);
+      trackStall(f.t_s, relative_sigma_d, f.accel_mps2);
+      const int used = std::snprintf(msg, msg_size, "converging: sigma_d/d = %g (tracking below %g)",
+                                     relative_sigma_d, params_.init.tracking_max_relative_sigma_d);
+      if (stalled_ && used > 0 && static_cast<size_t>(used) < msg_size) {
+        std::snprintf(msg + used, msg_size - used,
+                      "; no acceleration to scale the images (sigma_d/d down < %.0f %% in %.0f s)",
+                      100.0 * kStallMinFall, kStallWindowS);
+      }
     }
     if (!converged_ && degradedHeld(f.t_s)) {
       // A note of the hold (a pattern found, projector dots, large innovations): said while converging too.

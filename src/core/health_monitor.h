@@ -31,6 +31,15 @@ namespace diekf {
 namespace internal {
 
 constexpr size_t kMessageCapacity = 160;  // chars reserved per result message (formatted without allocation)
+/// While converging, the status says the distance is not being observed when, over the last kStallWindowS,
+/// sigma_d / d fell by less than kStallMinFall and the camera's acceleration stayed below kStallMaxAccelMps2: a
+/// camera holding still or flying at constant velocity gives the images nothing to scale (docs/noise_model.md
+/// section 5). 0.1 m/s^2 changes the velocity by 0.2 m/s over the window; the smoothed level of a resting IMU's
+/// noise reaches 0.02-0.03 m/s^2 in 2 s (the simulator's IMU, 500 Hz, 20 Hz low-pass), a noisier one may hide the
+/// note but not make it appear.
+constexpr double kStallWindowS = 2.0;
+constexpr double kStallMinFall = 0.05;
+constexpr double kStallMaxAccelMps2 = 0.1;
 
 /// What the status of a frame depends on besides the monitor's own memory.
 struct FrameFacts {
@@ -43,6 +52,7 @@ struct FrameFacts {
   const std::string* last_reset_reason = nullptr;  ///< reason of the last restart (empty: never)
   bool warm_started = false;                 ///< the run started from a remembered state
   double outlier_fraction = 0.0;             ///< share of the pixels' weight down-weighted as outliers
+  double accel_mps2 = 0.0;                   ///< magnitude of the camera's acceleration (IMU, smoothed), m/s^2
 };
 
 class HealthMonitor {
@@ -94,6 +104,8 @@ class HealthMonitor {
  private:
   /// Appends the last failed check's reason to msg, with its age when it was an earlier frame's.
   void appendDegradedReason(double t_s, char* msg, size_t msg_size) const;
+  /// While converging: renews the stall window (kStallWindowS) with this frame's sigma_d / d and acceleration.
+  void trackStall(double t_s, double relative_sigma_d, double accel_mps2);
   /// A check failed within the last divergence.degraded_hold_s before image time t_s.
   bool degradedHeld(double t_s) const { return t_s <= degraded_at_s_ + params_.divergence.degraded_hold_s; }
 
@@ -108,6 +120,10 @@ class HealthMonitor {
   double degraded_at_s_ = -HUGE_VAL;          // time of the last failed check (IMU clock), s
   char degraded_reason_[kMessageCapacity] = "";  // the last failed consistency check (no allocation per frame)
   std::string pending_reset_reason_;        // the next frame reports status reset with this reason
+  double stall_ref_t_s_ = HUGE_VAL;         // start of the current kStallWindowS while converging (HUGE_VAL: none)
+  double stall_ref_relative_sigma_d_ = 0.0;  // sigma_d / d at that start
+  double stall_max_accel_mps2_ = 0.0;       // largest acceleration seen in the current window, m/s^2
+  bool stalled_ = false;                    // over the last window: sigma_d / d fell little, no acceleration
 };
 
 }  // namespace internal

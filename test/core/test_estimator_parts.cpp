@@ -107,10 +107,11 @@ TEST(DerivedUncertainty, ScaleAmbiguityWidensTheDistanceNotTheVelocity) {
 }
 
 FilterStatus frame(HealthMonitor* m, double t_s, const State& x, const ErrorCov& P, std::string* msg,
-                   const std::string& reset_here = "") {
+                   const std::string& reset_here = "", double accel_mps2 = 0.0) {
   static const std::string empty;
   FrameFacts f;
   f.t_s = t_s;
+  f.accel_mps2 = accel_mps2;
   f.reset_here = &reset_here;
   f.usable = true;
   f.usable_why = &empty;
@@ -174,6 +175,45 @@ TEST(HealthMonitor, StatusTransitions) {
   EXPECT_EQ(msg, "waiting for a valid image update; pattern found") << msg;
   EXPECT_EQ(frame(&m, 3.3, x, P_wide, &msg), FilterStatus::kInitializing);
   EXPECT_EQ(msg, "waiting for a valid image update; pattern found (0.3 s ago)") << msg;
+}
+
+TEST(HealthMonitor, SaysWhenTheDistanceIsNotObserved) {
+  // While converging, a sigma_d / d that does not fall over kStallWindowS (a hover, constant velocity) is named.
+  EstimatorParams params;
+  HealthMonitor m(params);
+  m.startRun();
+  m.countUpdate(true);
+  const State x = sampleState();
+  const ErrorCov P_wide = ErrorCov::Identity();
+  std::string msg;
+  const char* kStall = "no acceleration to scale the images";
+  for (int i = 0; i <= 90; ++i) {  // 3 s at 30 Hz, sigma_d / d constant
+    EXPECT_EQ(frame(&m, i / 30.0, x, P_wide, &msg), FilterStatus::kInitializing);
+    if (i / 30.0 < internal::kStallWindowS) {
+      EXPECT_EQ(msg.find(kStall), std::string::npos) << i << ": " << msg;
+    }
+  }
+  EXPECT_NE(msg.find(kStall), std::string::npos) << msg;
+  EXPECT_NE(msg.find("converging"), std::string::npos) << msg;
+  // The variance falling by 40 % per second: the distance is being observed, the note goes at the next window.
+  ErrorCov P = P_wide;
+  for (int i = 91; i <= 240; ++i) {
+    P *= std::pow(0.6, 1.0 / 30.0);
+    EXPECT_EQ(frame(&m, i / 30.0, x, P, &msg), FilterStatus::kInitializing);
+  }
+  EXPECT_EQ(msg.find(kStall), std::string::npos) << msg;
+  // sigma_d / d constant again, but the camera accelerates (the updates are held back for another reason: gated,
+  // outliers): not said.
+  for (int i = 241; i <= 420; ++i) {
+    const double accel_mps2 = 2.0 * internal::kStallMaxAccelMps2 * (i % 30 == 0);  // a short push each second
+    EXPECT_EQ(frame(&m, i / 30.0, x, P, &msg, "", accel_mps2), FilterStatus::kInitializing);
+    EXPECT_EQ(msg.find(kStall), std::string::npos) << i << ": " << msg;
+  }
+  // A new run forgets the window.
+  m.startRun();
+  m.countUpdate(true);
+  EXPECT_EQ(frame(&m, 10.0, x, P_wide, &msg), FilterStatus::kInitializing);
+  EXPECT_EQ(msg.find(kStall), std::string::npos) << msg;
 }
 
 TEST(HealthMonitor, SmoothedNisDegrades) {

@@ -179,6 +179,37 @@ TEST(Robustness, CleanRunTracksWithinThreeSeconds) {
   EXPECT_EQ(countStatus(h.results, FilterStatus::kReset), 0);
 }
 
+// A camera at rest (the flight stopped at its start: one image, the IMU reading gravity only) gives the images no
+// motion to scale: the distance is not observable, the filter stays initializing, and after the first windows of
+// HealthMonitor's stall test the status says why (docs/noise_model.md section 5).
+TEST(Robustness, ACameraAtRestSaysTheDistanceNeedsAcceleration) {
+  Harness h;
+  h.flight.rate = 0.0;
+  cv::Mat still;
+  test_util::renderFlightImage(h.flight, testCamera(), 0.0, &still);
+  h.run(0.0, 6.0, [&](int, cv::Mat* image) {
+    *image = still;
+    return true;
+  });
+  expectAllFinite(h.results);
+  ASSERT_GT(h.results.size(), 150u);
+  EXPECT_EQ(h.est.resetCount(), 0);
+  int said = 0;
+  double first_said_s = -1.0;
+  for (const FrameResult& r : h.results) {
+    EXPECT_EQ(r.status, FilterStatus::kInitializing) << "t " << r.t_s << ": " << r.message;
+    if (contains(r.message, "no acceleration to scale the images")) {
+      ++said;
+      if (first_said_s < 0.0) first_said_s = r.t_s;
+    }
+  }
+  std::printf("[at rest] %zu results, the stall said on %d from %.2f s; the last: %s\n", h.results.size(), said,
+              first_said_s, h.results.back().message.c_str());
+  EXPECT_GT(first_said_s, 0.0);
+  EXPECT_LT(first_said_s, 4.5);
+  EXPECT_TRUE(contains(h.results.back().message, "no acceleration to scale the images")) << h.results.back().message;
+}
+
 // ---------------------------------------------------------------------------------------------------------
 // IMU input
 // ---------------------------------------------------------------------------------------------------------
