@@ -13,7 +13,7 @@
 // preprocessing's own normalisation and the image checks are unchanged), and the pixels the model cannot
 // restore (g below min_gain: saturated dots, opaque dirt) get the weight (g / min_gain)^2.
 //
-// Optionally (fixed_pattern/radial_vignetting) the smooth radial part of g is first fitted as one field
+// By default (fixed_pattern/radial_vignetting) the smooth radial part of g is first fitted as one field
 // V(r) = 1 + v1 r^2 + v2 r^4 about the principal point (the medians of m over rings, shrunk as a whole), and the
 // per-pixel model above works on m / V and s / V; g then includes V.
 //

@@ -155,7 +155,7 @@ struct FixedPatternParams {
   int refresh_frames = 8;                       ///< learning frames between recomputations of the fields
   /// Fit the smooth part of the gain as a radial vignetting 1 + v1 r^2 + v2 r^4 about the principal point (one
   /// field for the whole image, shrunk as a whole) before the per-pixel model looks at what is left.
-  bool radial_vignetting = false;
+  bool radial_vignetting = true;
   double report_fraction = 0.05;                ///< image share of strong pattern reported in the status (0..1)
   /// Allow for the bias of the updates made before the pattern was learned: its share s of the image's contrast
   /// (FixedPattern::contrastShare) voted for "no motion", so s^2 alpha^2 and s^2 |vartheta|^2 are added to their

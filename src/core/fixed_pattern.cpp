@@ -365,8 +365,10 @@ void FixedPattern::takeSnapshot() {
 }
 
 void FixedPattern::clearVignetting() {
-  vig_.setTo(1.f);
-  inv_vig_.setTo(1.f);
+  // (std::fill, not cv::Mat::setTo: that allocates a buffer for its scalar on every call.)
+  const size_t n = static_cast<size_t>(width_) * static_cast<size_t>(height_);
+  std::fill(vig_.ptr<float>(), vig_.ptr<float>() + n, 1.f);
+  std::fill(inv_vig_.ptr<float>(), inv_vig_.ptr<float>() + n, 1.f);
   vig_corner_ = 1.0;
 }
 

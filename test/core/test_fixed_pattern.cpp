@@ -335,7 +335,9 @@ TEST(FixedPattern, RadialVignettingIsFittedAsOneSmoothField) {
   FixedPatternParams p = params();
   p.radial_vignetting = true;
   FixedPattern fp(p, kW, kH, cv::Mat(), Vec2(cx, cy));
-  FixedPattern per_pixel(params(), kW, kH, cv::Mat(), Vec2(cx, cy));  // the per-pixel model alone
+  FixedPatternParams p_per_pixel = params();
+  p_per_pixel.radial_vignetting = false;
+  FixedPattern per_pixel(p_per_pixel, kW, kH, cv::Mat(), Vec2(cx, cy));  // the per-pixel model alone
   cv::RNG rng(13);
   double s = 0, s2 = 0;
   for (int i = 0; i < 200; ++i) {
