@@ -61,6 +61,9 @@ struct ProcessNoiseParams {
   double alpha_inv_m_per_sqrt_s = 0.01;         ///< random-walk density on alpha, (1/m)/sqrt(s)
   double alpha_rate_noise_sqrt_s = 0.1;         ///< plus k alpha |mu . vartheta| (relative, with the vertical rate), sqrt(s)
   double vartheta_inv_s_per_sqrt_s = 0.05;      ///< random-walk density on vartheta, (1/s)/sqrt(s)
+  /// The product of the distance's and the acceleration's errors in d vartheta / dt = alpha a + ..., which the
+  /// linearisation drops, added to vartheta's process noise as if white over this time, s (0: off).
+  double bilinear_accel_time_s = 0.0;
   double mu_rad_per_sqrt_s = 0.005;             ///< random-walk density on the normal, rad/sqrt(s)
   double g_rad_per_sqrt_s = 0.001;              ///< random-walk density on gravity, rad/sqrt(s)
   double time_offset_s_per_sqrt_s = 1.0e-4;     ///< random-walk density on the camera-IMU time offset, s/sqrt(s)

@@ -185,6 +185,21 @@ void predict(const Vec3& accel_C, const Vec3& gyro_C, double dt_s, const ImuPara
   const double rate_sigma = process.alpha_rate_noise_sqrt_s * x->alpha *
                             std::abs(x->mu.vector().dot(x->vartheta)) * std::sqrt(dt_s);  // 1/m
   sigma(NoiseIdx::kAlpha) = std::hypot(sigma(NoiseIdx::kAlpha), rate_sigma);
+  Mat3 bilinear = Mat3::Zero();
+  if (process.bilinear_accel_time_s > 0.0) {
+    // d vartheta/dt = alpha a + ...: the linearisation keeps alpha da and a dalpha, not dalpha da, whose variance
+    // var(alpha) Cov(a) matters while both are wide (a start at rest: the tilt not yet known, the distance not at
+    // all). a = f - b_a + g0 g: da = -db_a + g0 M_g dg.
+    Eigen::Matrix<double, 3, 5> J;
+    J.leftCols<3>() = -Mat3::Identity();
+    J.rightCols<2>() = imu.gravity_mps2 * x->g.M();
+    Eigen::Matrix<double, 5, 5> S;
+    constexpr int idx[5] = {ErrIdx::kBa, ErrIdx::kBa + 1, ErrIdx::kBa + 2, ErrIdx::kG, ErrIdx::kG + 1};
+    for (int i = 0; i < 5; ++i)
+      for (int j = 0; j < 5; ++j) S(i, j) = (*P)(idx[i], idx[j]);
+    bilinear = (process.bilinear_accel_time_s * dt_s * std::max(0.0, (*P)(ErrIdx::kAlpha, ErrIdx::kAlpha))) *
+               (J * S * J.transpose());
+  }
   *x = out;
   // Exploit the structure: the bias and time-offset rows of F are [0 I] and the bias rows of G only hold the random-walk
   // identities (whose columns are zero in the other rows). With F_top the first 8 rows of F and X = F_top P:
@@ -198,6 +213,7 @@ void predict(const Vec3& accel_C, const Vec3& gyro_C, double dt_s, const ImuPara
   ErrorCov Pn;
   Pn.topLeftCorner<kTop, kTop>().noalias() = X * F_top.transpose();
   Pn.topLeftCorner<kTop, kTop>().noalias() += Gs_top * Gs_top.transpose();
+  Pn.block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta) += bilinear;
   Pn.topRightCorner<kTop, kBias>() = X.rightCols<kBias>();
   Pn.bottomLeftCorner<kBias, kTop>() = X.rightCols<kBias>().transpose();
   Pn.bottomRightCorner<kBias, kBias>() = P->bottomRightCorner<kBias, kBias>();

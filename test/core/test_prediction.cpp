@@ -257,12 +257,22 @@ TEST(Prediction, NoiseGrowthIndependentOfStepSize) {
   EXPECT_DOUBLE_EQ(x.alpha, State().alpha);
 }
 
+/// The second-order term of d vartheta/dt = alpha a (ProcessNoiseParams::bilinear_accel_time_s), written out:
+/// T dt var(alpha) Cov(a), a = f - b_a + g0 g over the errors of b_a and g (dense, for the tests).
+Mat3 bilinearTerm(const State& x, const ErrorCov& P, const ProcessNoiseParams& proc, double dt_s) {
+  Eigen::Matrix<double, 3, kErrorDim> J = Eigen::Matrix<double, 3, kErrorDim>::Zero();
+  J.block<3, 3>(0, ErrIdx::kBa) = -Mat3::Identity();
+  J.block<3, 2>(0, ErrIdx::kG) = kG0 * x.g.M();
+  return proc.bilinear_accel_time_s * dt_s * P(ErrIdx::kAlpha, ErrIdx::kAlpha) * (J * P * J.transpose());
+}
+
 TEST(Prediction, CovarianceStepEqualsDenseFormula) {
   // predict() exploits the structure of F and G; it must equal F P F^T + G Q G^T computed densely.
   std::mt19937 rng(13);
   ImuParams imu;
   imu.gravity_mps2 = kG0;
   ProcessNoiseParams proc;
+  proc.bilinear_accel_time_s = 0.01;  // the optional second-order term too
   for (int trial = 0; trial < 5; ++trial) {
     const Case c = randomCase(rng, 0.01, 1.0);
     const ErrorCov P0 = randomCovariance(rng);
@@ -279,12 +289,54 @@ TEST(Prediction, CovarianceStepEqualsDenseFormula) {
     expected(ErrIdx::kTd, ErrIdx::kTd) += proc.time_offset_s_per_sqrt_s * proc.time_offset_s_per_sqrt_s * c.dt_s;
     expected(ErrIdx::kRo, ErrIdx::kRo) += proc.readout_s_per_sqrt_s * proc.readout_s_per_sqrt_s * c.dt_s;
     expected(ErrIdx::kFs, ErrIdx::kFs) += proc.focal_scale_per_sqrt_s * proc.focal_scale_per_sqrt_s * c.dt_s;
+    expected.block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta) += bilinearTerm(c.x, P0, proc, c.dt_s);
     State x = c.x;
     ErrorCov P = P0;
     predict(c.accel_C, c.gyro_C, c.dt_s, imu, proc, &x, &P);
     EXPECT_LT((P - expected).cwiseAbs().maxCoeff(), 1e-12 * expected.cwiseAbs().maxCoeff());
     EXPECT_LT(x.boxminus(predictState(c.x, c.accel_C, c.gyro_C, c.dt_s, kG0)).norm(), 1e-15);
   }
+}
+
+// The product of the distance's and the acceleration's errors (dropped by the linearisation of alpha a;
+// process/bilinear_accel_time_s, off by default) widens vartheta only while both are uncertain: at a start, the
+// distance unknown and the tilt (gravity) and the accelerometer bias not yet learned. Without it the images'
+// precise "no change of vartheta" at rest meets the column's small acceleration (noise, the tilt's error) and takes
+// information on alpha that is not there (docs/algorithm.md section 2.1).
+TEST(Prediction, BilinearTermNeedsBothTheDistanceAndTheAccelerationUncertain) {
+  std::mt19937 rng(5);
+  ImuParams imu;
+  imu.gravity_mps2 = kG0;
+  ProcessNoiseParams proc;
+  proc.bilinear_accel_time_s = 0.01;  // (off by default)
+  const Case c = randomCase(rng, 0.01, 1.0);
+  auto varthetaBlock = [&](const ErrorCov& P0, const ProcessNoiseParams& pr) {
+    State x = c.x;
+    ErrorCov P = P0;
+    predict(c.accel_C, c.gyro_C, c.dt_s, imu, pr, &x, &P);
+    return Mat3(P.block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta));
+  };
+  ProcessNoiseParams off = proc;
+  off.bilinear_accel_time_s = 0.0;
+  // A start: alpha 3 +- 3 1/m, gravity +- 0.1 rad, accelerometer bias +- 0.1 m/s^2.
+  ErrorCov P0 = ErrorCov::Identity() * 1e-6;
+  P0(ErrIdx::kAlpha, ErrIdx::kAlpha) = 9.0;
+  P0.block<2, 2>(ErrIdx::kG, ErrIdx::kG) = Eigen::Matrix2d::Identity() * 0.01;
+  P0.block<3, 3>(ErrIdx::kBa, ErrIdx::kBa) = Mat3::Identity() * 0.01;
+  const Mat3 added = varthetaBlock(P0, proc) - varthetaBlock(P0, off);
+  EXPECT_LT((added - bilinearTerm(c.x, P0, proc, c.dt_s)).cwiseAbs().maxCoeff(), 1e-12);
+  // T 0.01 s x dt 0.01 s x 9 (1/m)^2 x (2 x (9.81 x 0.1)^2 + 3 x 0.1^2) (m/s^2)^2: 0.0018 (1/s)^2 in the trace.
+  ASSERT_NEAR(c.dt_s, 0.01, 1e-12);
+  EXPECT_NEAR(added.trace(), 0.0018 * proc.bilinear_accel_time_s / 0.01, 0.0001);
+  // The distance known: nothing.
+  ErrorCov P1 = P0;
+  P1(ErrIdx::kAlpha, ErrIdx::kAlpha) = 0.0;
+  EXPECT_LT((varthetaBlock(P1, proc) - varthetaBlock(P1, off)).cwiseAbs().maxCoeff(), 1e-15);
+  // The acceleration known (gravity and bias): nothing.
+  ErrorCov P2 = P0;
+  P2.block<2, 2>(ErrIdx::kG, ErrIdx::kG).setZero();
+  P2.block<3, 3>(ErrIdx::kBa, ErrIdx::kBa).setZero();
+  EXPECT_LT((varthetaBlock(P2, proc) - varthetaBlock(P2, off)).cwiseAbs().maxCoeff(), 1e-15);
 }
 
 TEST(Prediction, DistanceRateNoiseGrowsWithVerticalMotionOnly) {
