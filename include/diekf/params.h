@@ -62,7 +62,8 @@ struct ProcessNoiseParams {
   double alpha_rate_noise_sqrt_s = 0.1;         ///< plus k alpha |mu . vartheta| (relative, with the vertical rate), sqrt(s)
   double vartheta_inv_s_per_sqrt_s = 0.05;      ///< random-walk density on vartheta, (1/s)/sqrt(s)
   /// The product of the distance's and the acceleration's errors in d vartheta / dt = alpha a + ..., which the
-  /// linearisation drops, added to vartheta's process noise as if white over this time, s (0: off).
+  /// linearisation drops, added to vartheta's process noise as if coherent over this time, s (0: off, the
+  /// default; docs/algorithm.md section 2.1).
   double bilinear_accel_time_s = 0.0;
   double mu_rad_per_sqrt_s = 0.005;             ///< random-walk density on the normal, rad/sqrt(s)
   double g_rad_per_sqrt_s = 0.001;              ///< random-walk density on gravity, rad/sqrt(s)
