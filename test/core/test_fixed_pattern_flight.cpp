@@ -55,11 +55,9 @@ struct PatternRun {
 
 constexpr double kDurationS = 16.0, kImuRateHz = 500.0, kCamRateHz = 30.0;
 
-/// The flight's images with the dots, rendered once for both runs.
-const std::vector<cv::Mat>& litImages(const SyntheticFlight& flight, const CameraModel& cam) {
-  static std::vector<cv::Mat> images;
-  if (!images.empty()) return images;
-  const cv::Mat gain = projectorGain(cam.K.width, cam.K.height);
+/// The flight's images over kDurationS, each multiplied by the same gain field (CV_32FC1 of the camera's size).
+std::vector<cv::Mat> imagesWithGain(const SyntheticFlight& flight, const CameraModel& cam, const cv::Mat& gain) {
+  std::vector<cv::Mat> images;
   cv::Mat image, lit;
   for (int j = 0; j / kCamRateHz < kDurationS; ++j) {
     renderFlightImage(flight, cam, j / kCamRateHz, &image);
@@ -69,6 +67,31 @@ const std::vector<cv::Mat>& litImages(const SyntheticFlight& flight, const Camer
     lit.convertTo(images.back(), CV_8UC1);  // saturating, as a sensor does
   }
   return images;
+}
+
+/// The flight's images with the dots, rendered once for both runs.
+const std::vector<cv::Mat>& litImages(const SyntheticFlight& flight, const CameraModel& cam) {
+  static const std::vector<cv::Mat> images =
+      imagesWithGain(flight, cam, projectorGain(cam.K.width, cam.K.height));
+  return images;
+}
+
+/// Feeds the flight's 500 Hz IMU and `images` (30 Hz) to the estimator over kDurationS, in time order, and every
+/// result to on_result.
+template <class OnResult>
+void fly(const SyntheticFlight& flight, const std::vector<cv::Mat>& images, Estimator* estimator,
+         OnResult on_result) {
+  size_t j = 0;
+  for (int k = 0; k < static_cast<int>(kDurationS * kImuRateHz); ++k) {
+    const double t = k / kImuRateHz;
+    estimator->addImu({t, flight.accel_I(t), flight.gyro_I(t)});
+    if (j < images.size() && j / kCamRateHz <= t) {
+      estimator->addImage(j / kCamRateHz, images[j]);
+      ++j;
+    }
+    FrameResult r;
+    while (estimator->popResult(&r)) on_result(r);
+  }
 }
 
 PatternRun flyOverProjectorDots(bool discount, int auto_dot_removal_px = 0) {
@@ -83,38 +106,28 @@ PatternRun flyOverProjectorDots(bool discount, int auto_dot_removal_px = 0) {
   PatternRun run;
   int n = 0, inside = 0, n_open = 0, inside_open = 0;
   double sq = 0.0, sq_open = 0.0, active_since = -1.0;
-  size_t j = 0;
-  for (int k = 0; k < static_cast<int>(kDurationS * kImuRateHz); ++k) {
-    const double t = k / kImuRateHz;
-    estimator.addImu({t, flight.accel_I(t), flight.gyro_I(t)});
-    if (j < images.size() && j / kCamRateHz <= t) {
-      estimator.addImage(j / kCamRateHz, images[j]);
-      ++j;
-    }
-    FrameResult r;
-    while (estimator.popResult(&r)) {
-      if (run.found_at_s < 0.0 && r.message.find("camera-fixed pattern found") != std::string::npos)
-        run.found_at_s = r.t_s;
-      if (run.opened_at_s < 0.0 && r.message.find("taken for projector dots") != std::string::npos)
-        run.opened_at_s = r.t_s;
-      run.dot_removal_px = r.dot_removal_px;
-      if (run.opened_at_s >= 0.0 && r.t_s >= run.opened_at_s + 2.0) {
-        const double e = r.distance_m() - flightTruth(flight, cam, r.t_s).d_m;
-        sq_open += e * e;
-        if (std::abs(e) < 2.0 * r.sigma_distance_m()) ++inside_open;
-        ++n_open;
-      }
-      if (std::getenv("DIEKF_PATTERN_TRACE")) std::printf("t %.2f d %.3f/%.3f sd %.3f share %.3f frac %.3f %s %s\n", r.t_s, r.distance_m(), flightTruth(flight, cam, r.t_s).d_m, r.sigma_distance_m(), r.fixed_pattern_contrast_share, r.fixed_pattern_fraction, toString(r.status), r.message.c_str());
-      if (!r.fixed_pattern_active) continue;
-      if (active_since < 0.0) active_since = r.t_s;
-      if (r.message.find("fixed pattern") != std::string::npos) run.reported = true;
-      if (r.t_s < active_since + 1.0) continue;  // the corrected pairs settle
+  fly(flight, images, &estimator, [&](const FrameResult& r) {
+    if (run.found_at_s < 0.0 && r.message.find("camera-fixed pattern found") != std::string::npos)
+      run.found_at_s = r.t_s;
+    if (run.opened_at_s < 0.0 && r.message.find("taken for projector dots") != std::string::npos)
+      run.opened_at_s = r.t_s;
+    run.dot_removal_px = r.dot_removal_px;
+    if (run.opened_at_s >= 0.0 && r.t_s >= run.opened_at_s + 2.0) {
       const double e = r.distance_m() - flightTruth(flight, cam, r.t_s).d_m;
-      sq += e * e;
-      if (std::abs(e) < 2.0 * r.sigma_distance_m()) ++inside;
-      ++n;
+      sq_open += e * e;
+      if (std::abs(e) < 2.0 * r.sigma_distance_m()) ++inside_open;
+      ++n_open;
     }
-  }
+    if (std::getenv("DIEKF_PATTERN_TRACE")) std::printf("t %.2f d %.3f/%.3f sd %.3f share %.3f frac %.3f %s %s\n", r.t_s, r.distance_m(), flightTruth(flight, cam, r.t_s).d_m, r.sigma_distance_m(), r.fixed_pattern_contrast_share, r.fixed_pattern_fraction, toString(r.status), r.message.c_str());
+    if (!r.fixed_pattern_active) return;
+    if (active_since < 0.0) active_since = r.t_s;
+    if (r.message.find("fixed pattern") != std::string::npos) run.reported = true;
+    if (r.t_s < active_since + 1.0) return;  // the corrected pairs settle
+    const double e = r.distance_m() - flightTruth(flight, cam, r.t_s).d_m;
+    sq += e * e;
+    if (std::abs(e) < 2.0 * r.sigma_distance_m()) ++inside;
+    ++n;
+  });
   if (n > 0) {
     run.coverage_d = static_cast<double>(inside) / n;
     run.rmse_d_m = std::sqrt(sq / n);
@@ -178,8 +191,7 @@ struct VignettedRun {
 VignettedRun flyVignetted(bool radial) {
   const SyntheticFlight flight;
   const CameraModel cam = syntheticCamera();
-  static std::vector<cv::Mat> images;  // rendered once for both runs
-  if (images.empty()) {
+  static const std::vector<cv::Mat> images = [&] {  // rendered once for both runs
     const double cx = cam.K.cx, cy = cam.K.cy;
     const double dx = std::max(cx, cam.K.width - 1 - cx), dy = std::max(cy, cam.K.height - 1 - cy);
     cv::Mat gain(cam.K.height, cam.K.width, CV_32FC1);
@@ -187,14 +199,8 @@ VignettedRun flyVignetted(bool radial) {
       for (int x = 0; x < gain.cols; ++x)
         gain.at<float>(y, x) =
             static_cast<float>(1.0 - 0.45 * ((x - cx) * (x - cx) + (y - cy) * (y - cy)) / (dx * dx + dy * dy));
-    cv::Mat image, lit;
-    for (int j = 0; j / kCamRateHz < kDurationS; ++j) {
-      renderFlightImage(flight, cam, j / kCamRateHz, &image);
-      image.convertTo(lit, CV_32FC1);
-      images.emplace_back();
-      cv::Mat(lit.mul(gain)).convertTo(images.back(), CV_8UC1);
-    }
-  }
+    return imagesWithGain(flight, cam, gain);
+  }();
   EstimatorParams params;
   params.preprocess.working_width_px = 90;
   params.fixed_pattern.radial_vignetting = radial;
@@ -202,27 +208,17 @@ VignettedRun flyVignetted(bool radial) {
   VignettedRun run;
   int n = 0;
   double sq = 0.0, active_since = -1.0;
-  size_t j = 0;
-  for (int k = 0; k < static_cast<int>(kDurationS * kImuRateHz); ++k) {
-    const double t = k / kImuRateHz;
-    estimator.addImu({t, flight.accel_I(t), flight.gyro_I(t)});
-    if (j < images.size() && j / kCamRateHz <= t) {
-      estimator.addImage(j / kCamRateHz, images[j]);
-      ++j;
-    }
-    FrameResult r;
-    while (estimator.popResult(&r)) {
-      if (!r.fixed_pattern_active) continue;
-      ++run.active;
-      if (active_since < 0.0) active_since = r.t_s;
-      run.max_strong_fraction = std::max(run.max_strong_fraction, r.fixed_pattern_fraction);
-      if (r.message.find("fixed pattern") != std::string::npos) ++run.reported;
-      if (r.t_s < active_since + 1.0) continue;
-      const double e = r.distance_m() - flightTruth(flight, cam, r.t_s).d_m;
-      sq += e * e;
-      ++n;
-    }
-  }
+  fly(flight, images, &estimator, [&](const FrameResult& r) {
+    if (!r.fixed_pattern_active) return;
+    ++run.active;
+    if (active_since < 0.0) active_since = r.t_s;
+    run.max_strong_fraction = std::max(run.max_strong_fraction, r.fixed_pattern_fraction);
+    if (r.message.find("fixed pattern") != std::string::npos) ++run.reported;
+    if (r.t_s < active_since + 1.0) return;
+    const double e = r.distance_m() - flightTruth(flight, cam, r.t_s).d_m;
+    sq += e * e;
+    ++n;
+  });
   if (n > 0) run.rmse_d_m = std::sqrt(sq / n);
   std::printf("[vignetting] radial field %s: model active on %d results from %.2f s, largest strong fraction %.3f, "
               "status names a pattern on %d, then d RMSE %.2f cm over %d\n",
