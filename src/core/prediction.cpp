@@ -189,16 +189,13 @@ void predict(const Vec3& accel_C, const Vec3& gyro_C, double dt_s, const ImuPara
   if (process.bilinear_accel_time_s > 0.0) {
     // d vartheta/dt = alpha a + ...: the linearisation keeps alpha da and a dalpha, not dalpha da, whose variance
     // var(alpha) Cov(a) matters while both are wide (a start at rest: the tilt not yet known, the distance not at
-    // all). a = f - b_a + g0 g: da = -db_a + g0 M_g dg.
+    // all). a = f - b_a + g0 g: da = g0 M_g dg - db_a, over the error states g (2) and b_a (3), adjacent.
+    static_assert(ErrIdx::kBa == ErrIdx::kG + 2, "g and b_a adjacent in the error state");
     Eigen::Matrix<double, 3, 5> J;
-    J.leftCols<3>() = -Mat3::Identity();
-    J.rightCols<2>() = imu.gravity_mps2 * x->g.M();
-    Eigen::Matrix<double, 5, 5> S;
-    constexpr int idx[5] = {ErrIdx::kBa, ErrIdx::kBa + 1, ErrIdx::kBa + 2, ErrIdx::kG, ErrIdx::kG + 1};
-    for (int i = 0; i < 5; ++i)
-      for (int j = 0; j < 5; ++j) S(i, j) = (*P)(idx[i], idx[j]);
+    J.leftCols<2>() = imu.gravity_mps2 * x->g.M();
+    J.rightCols<3>() = -Mat3::Identity();
     bilinear = (process.bilinear_accel_time_s * dt_s * std::max(0.0, (*P)(ErrIdx::kAlpha, ErrIdx::kAlpha))) *
-               (J * S * J.transpose());
+               (J * P->block<5, 5>(ErrIdx::kG, ErrIdx::kG) * J.transpose());
   }
   *x = out;
   // Exploit the structure: the bias and time-offset rows of F are [0 I] and the bias rows of G only hold the random-walk
