@@ -2,7 +2,9 @@
 // defocus, exposure steps, view-dependent glossy patches and the --realism preset.
 #include <gtest/gtest.h>
 
+#include <algorithm>
 #include <cmath>
+#include <numeric>
 #include <cstring>
 #include <filesystem>
 #include <map>
@@ -433,6 +435,69 @@ TEST_F(RealismSim, ExposureStepsMakeBrightnessSteps) {
   for (double ts : steps.stepTimes()) expected += ts > 1.0 / o.fps && ts <= t_last;
   EXPECT_EQ(jumps, expected);
   EXPECT_GE(jumps, 2);
+}
+
+// Mains flicker (--mains-flicker-hz): with a rolling shutter each row integrates its own part of the light's cycle,
+// so an image's rows are banded (1.6 cycles of 100 Hz over a 16 ms readout, depth 0.2 less the 4 ms exposure's
+// averaging: sinc(0.4 pi) = 0.76) and the bands move between images; with a global shutter every row of an image
+// has the same brightness, which changes from image to image.
+TEST_F(RealismSim, MainsFlickerBandsTheRowsOfARollingShutter) {
+  auto rowRatios = [&](double readout_ms, const std::string& name) {
+    SimulationOptions o = tinyOptions((dir_->path() / name).string());
+    o.preset = "hover";
+    o.duration_s = 1.0;
+    o.sensor.noise = false;
+    o.realism.rolling_shutter_ms = readout_ms;
+    SimulationOptions steady = o;
+    steady.output_dir += "_steady";
+    o.mains_flicker_hz = 100.0;
+    o.mains_flicker_depth = 0.2;
+    const BagImages b = readBag(runSimulation(o, nullptr).bag_path);
+    const BagImages ref = readBag(runSimulation(steady, nullptr).bag_path);
+    EXPECT_EQ(b.data.size(), ref.data.size());
+    const CameraModel cam = myntEyeSimCamera(0.125);
+    const int W = cam.K.width, H = cam.K.height;
+    std::vector<std::vector<double>> ratios;  // per image, per row: flickering / steady row mean
+    for (std::size_t i = 0; i < std::min(b.data.size(), ref.data.size()); ++i) {
+      std::vector<double> rows;
+      for (int y = 0; y < H; ++y) {
+        double sb = 0, sr = 0;
+        for (int x = 0; x < W; ++x) {
+          sb += b.data[i][y * W + x];
+          sr += ref.data[i][y * W + x];
+        }
+        rows.push_back(sb / sr);
+      }
+      ratios.push_back(rows);
+    }
+    return ratios;
+  };
+  auto spread = [](const std::vector<double>& v) {
+    return *std::max_element(v.begin(), v.end()) - *std::min_element(v.begin(), v.end());
+  };
+  const auto rolling = rowRatios(16.0, "flicker_rs");
+  ASSERT_GT(rolling.size(), 20u);
+  double first_row_lo = 1e9, first_row_hi = -1e9;
+  for (const auto& rows : rolling) {
+    const double mean = std::accumulate(rows.begin(), rows.end(), 0.0) / rows.size();
+    EXPECT_GT(spread(rows), 0.2);   // about 2 x 0.2 x 0.76 peak to peak, over 1.6 cycles
+    EXPECT_LT(spread(rows), 0.34);
+    int crossings = 0;
+    for (std::size_t y = 1; y < rows.size(); ++y) crossings += (rows[y - 1] - mean) * (rows[y] - mean) < 0.0;
+    EXPECT_GE(crossings, 2);
+    EXPECT_LE(crossings, 4);
+    first_row_lo = std::min(first_row_lo, rows[0]);
+    first_row_hi = std::max(first_row_hi, rows[0]);
+  }
+  EXPECT_GT(first_row_hi - first_row_lo, 0.15) << "the bands move from image to image";
+  const auto global = rowRatios(0.0, "flicker_gs");
+  double mean_lo = 1e9, mean_hi = -1e9;
+  for (const auto& rows : global) {
+    EXPECT_LT(spread(rows), 0.01);  // one brightness per image
+    mean_lo = std::min(mean_lo, rows[0]);
+    mean_hi = std::max(mean_hi, rows[0]);
+  }
+  EXPECT_GT(mean_hi - mean_lo, 0.15);
 }
 
 TEST_F(RealismSim, RealisticPresetRunsAndRecordsItsValues) {

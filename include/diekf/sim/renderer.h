@@ -36,6 +36,9 @@ struct SensorOptions {
   /// gain ((1 - v r^2) fixed_gain[i] radiance[i] + fixed_add[i]) before noise (shadow, projector dots, lens dirt).
   const float* fixed_gain = nullptr;
   const float* fixed_add = nullptr;    ///< grey levels at gain 1
+  /// Per image row (height entries, or null): a factor on the signal of the row (the light's flicker as a
+  /// rolling-shutter row integrates it).
+  const float* row_gain = nullptr;
 };
 
 /// A band of image rows [row0, row1) rendered with its own sub-frame poses (rolling shutter: each band of

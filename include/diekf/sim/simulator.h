@@ -40,6 +40,11 @@ struct SimulationOptions {
   double flicker_prob = 0.0;        ///< probability per frame of an abrupt brightness jump
   double flicker_amplitude = 0.25;  ///< relative size of such a jump
   double drop_prob = 0.0;           ///< probability per frame of a dropped image
+  /// Mains-powered lighting whose brightness is modulated at this frequency (twice the mains frequency: 100 or
+  /// 120 Hz); with a rolling shutter each row integrates its own part of the cycle: horizontal bands that move
+  /// from one image to the next. 0: steady light.
+  double mains_flicker_hz = 0.0;
+  double mains_flicker_depth = 0.2;  ///< modulation depth of that light: 1 + depth sin(2 pi f t)
   double pose_rate_hz = 200.0;      ///< /mocap/pose rate
   bool vibration = true;            ///< propeller vibration (on for flight presets)
   bool imu_errors = true;           ///< IMU noise, biases and vibration

@@ -540,10 +540,11 @@ void Renderer::sensorRows(const float* radiance, double gain, const SensorOption
     unsigned char* row = img->ptr<unsigned char>(v);
     const float* fg = opt.fixed_gain ? opt.fixed_gain + static_cast<std::size_t>(v) * width_ : nullptr;
     const float* fa = opt.fixed_add ? opt.fixed_add + static_cast<std::size_t>(v) * width_ : nullptr;
+    const float gv = opt.row_gain ? g * opt.row_gain[v] : g;
     for (int u = 0; u < width_; ++u) {
-      float s = g * (1.0f - vig * r2[u]) * rad[u];
+      float s = gv * (1.0f - vig * r2[u]) * rad[u];
       if (fg) s *= fg[u];
-      if (fa) s += g * fa[u];
+      if (fa) s += gv * fa[u];
       if (opt.noise) s += nz[u] * std::sqrt(read2 + shot * std::max(s, 0.0f));
       row[u] = static_cast<unsigned char>(std::clamp(s + black + 0.5f, 0.0f, 255.0f));
     }

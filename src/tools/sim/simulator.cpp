@@ -81,6 +81,10 @@ std::string simulateUsage() {
         "  --flicker-prob P         per-frame probability of an abrupt brightness jump  [0]\n"
         "  --flicker-amplitude R    relative size of a jump                             [0.25]\n"
         "  --drop-prob P            per-frame probability of a dropped image            [0]\n"
+        "  --mains-flicker-hz F     lighting modulated at F (100 or 120 Hz: twice the    [0]\n"
+        "                           mains); each row integrates its part of the cycle\n"
+        "                           (bands that move between images with a rolling shutter)\n"
+        "  --mains-flicker-depth A  its modulation depth, 1 + A sin(2 pi F t), 0..1     [0.2]\n"
         "  --no-camera-info         do not write /mynteye/left/camera_info\n"
         "Realistic camera (written to DIR/realism.yaml; rendering and IMU use the true camera):\n"
         "  --realism clean|realistic  preset of the options below (explicit ones win)   [clean]\n"
@@ -184,6 +188,8 @@ ParseResult parseSimulateArgs(const std::vector<std::string>& args_in, Simulatio
       {"--flicker-prob", {&opt->flicker_prob, 0, 1}},
       {"--flicker-amplitude", {&opt->flicker_amplitude, 0, 0.9}},
       {"--drop-prob", {&opt->drop_prob, 0, 0.9}},
+      {"--mains-flicker-hz", {&opt->mains_flicker_hz, 0, 1000}},
+      {"--mains-flicker-depth", {&opt->mains_flicker_depth, 0, 1}},
       {"--pose-rate", {&opt->pose_rate_hz, 100, 10000}},
       {"--start-stamp", {&opt->start_stamp_s, 1, 4e9}},
       {"--accel-noise-density", {&opt->imu_noise.accel_noise_density, 0, 10}},
@@ -579,6 +585,11 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
   std::unique_ptr<CameraPatterns> patterns;
   if (pat_opt.any()) patterns.reset(new CameraPatterns(pat_opt, renderer, opt.scale));
   double mean_radiance = 100.0;  // grey levels at gain 1 (the last image's), scales the dirt's glare
+  // Mains flicker: the light's phase at t = 0 from the seed (its own generator: the other draws stay as they were).
+  std::vector<float> row_gain;
+  const double flicker_w = 2.0 * M_PI * opt.mains_flicker_hz;  // rad/s
+  std::mt19937 flicker_rng(static_cast<std::uint32_t>(opt.seed * 104729u + 17u));
+  const double flicker_phase = 2.0 * M_PI * std::uniform_real_distribution<double>(0.0, 1.0)(flicker_rng);
   for (int f = 0; f < n_frames; ++f) {
     const double t = (f + 1) * frame_dt;  // true mid-exposure time of the middle row (s)
     flushUntil(t + stamp_offset_s);       // the image's stamp
@@ -614,6 +625,24 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
       sum.pattern_coverage_mean += patterns->coverage();
       sum.shadow_coverage_mean += patterns->shadowCoverage();
       sum.shadow_coverage_max = std::max(sum.shadow_coverage_max, patterns->shadowCoverage());
+    }
+    if (flicker_w > 0.0) {
+      // Row v is exposed over [t_v - e/2, t_v + e/2], t_v = t + readout (v / (H - 1) - 1/2); the light's mean
+      // over that window.
+      const int H = renderer.height();
+      row_gain.resize(static_cast<std::size_t>(H));
+      const double A = opt.mains_flicker_depth;
+      for (int v = 0; v < H; ++v) {
+        const double tv = t + readout_s * (H > 1 ? static_cast<double>(v) / (H - 1) - 0.5 : 0.0);
+        const double mean =
+            exposure_s > 0.0
+                ? 1.0 + A * (std::cos(flicker_w * (tv - 0.5 * exposure_s) + flicker_phase) -
+                             std::cos(flicker_w * (tv + 0.5 * exposure_s) + flicker_phase)) /
+                            (flicker_w * exposure_s)
+                : 1.0 + A * std::sin(flicker_w * tv + flicker_phase);
+        row_gain[static_cast<std::size_t>(v)] = static_cast<float>(mean);
+      }
+      sensor.row_gain = row_gain.data();
     }
     if (!effects_render) {
       subposes.clear();
