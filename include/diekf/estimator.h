@@ -63,6 +63,13 @@ struct FrameResult {
   /// normalised units; 1 and 0 when not estimated.
   double brightness_gain = 1.0;
   double brightness_offset = 0.0;
+  /// Bands of the rows (a rolling shutter under flickering light; docs/noise_model.md section 12): the smoothed
+  /// RMS over the rows of the pair's common relative gain per row; whether such bands are found (said in
+  /// `message`), and whether this update estimated the pair's gain per row (photometric/brightness_model rows, or
+  /// auto while bands are found).
+  double row_banding = 0.0;
+  bool row_bands_found = false;
+  bool row_gains = false;
   std::string message;               ///< why initializing / reset / skipped (empty when tracking normally)
   int resets = 0;                    ///< filter restarts since construction (automatic and requested)
   std::string last_reset_reason;     ///< why the filter last restarted (empty if it never did)

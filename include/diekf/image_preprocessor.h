@@ -33,6 +33,9 @@ struct PreprocessedFrame {
   cv::Mat grad_y;         ///< CV_32FC1 (I(x,y+1) - I(x,y-1)) / 2 of `intensity`, per pixel; 0 on the border
   double grey_per_unit = 255.0;  ///< grey levels per unit of `intensity` (the working image's std when
                                  ///< normalize_brightness, else 255): converts a sensor noise in grey levels
+  /// `intensity + level_offset` is proportional to the grey levels (the working image's mean over its std when
+  /// normalize_brightness, else 0): a gain on the light acts on it as a factor (brightness model kRows).
+  double level_offset = 0.0;
   int dot_removal_px = 0;  ///< the opening the raw image went through (ImagePreprocessor::setDotRemoval; 0: none):
                            ///< two frames with different openings are not a pair
   bool valid = false;

@@ -86,8 +86,9 @@ struct PreprocessParams {
 
 /// How the photometric update models a brightness change between the two images of a pair
 /// (PhotometricParams::brightness_model).
-enum class BrightnessModel { kNormalised, kGain, kAffine };
-/// "normalised" | "gain" | "affine" -> BrightnessModel; throws std::invalid_argument naming the value otherwise.
+enum class BrightnessModel { kNormalised, kGain, kAffine, kRows, kAuto };
+/// "normalised" | "gain" | "affine" | "rows" | "auto" -> BrightnessModel; throws std::invalid_argument naming the
+/// value otherwise.
 BrightnessModel parseBrightnessModel(const std::string& name);
 const char* toString(BrightnessModel model);
 
@@ -135,7 +136,13 @@ struct PhotometricParams {
   /// (each standardised to zero mean and unit variance on its own); kGain compares the current image with g I_r and kAffine with g I_r + o, the
   /// pair's gain g (and offset o) estimated in the update's Gauss-Newton passes and marginalised from the
   /// information.
-  BrightnessModel brightness_model = BrightnessModel::kNormalised;
+  /// kRows: the pair's gain a smooth function of each pixel's capture time (a rolling shutter under flickering
+  /// light: each row integrates its own part of the light's cycle); kAuto: kNormalised, and kRows while bands of
+  /// the rows are found.
+  BrightnessModel brightness_model = BrightnessModel::kAuto;
+  /// kRows: knots of the gain's cubic B-spline, spread evenly over the capture times of the working image.
+  static constexpr int kMaxBrightnessRowKnots = 32;
+  int brightness_row_knots = 12;
 };
 
 /// Camera-fixed photometric structure (docs/noise_model.md section 11, FixedPattern): per working pixel the image

@@ -41,6 +41,17 @@ struct UpdateStats {
   /// brightness_gain I_r + brightness_offset (normalised units); 1 and 0 when not estimated.
   double brightness_gain = 1.0;
   double brightness_offset = 0.0;
+  /// Brightness model kRows: brightness_gain is the mean of the row gains, this their spread (largest less
+  /// smallest); 0 otherwise.
+  double brightness_row_spread = 0.0;
+  /// Bands of the rows (a rolling shutter under flickering light; docs/noise_model.md section 12): the RMS over
+  /// the rows of the pair's relative gain per row (what the row gains fitted plus what the residual still holds),
+  /// this frame's and smoothed; whether the bands are found (brightness model auto: the row gains are estimated
+  /// from the next update on), and whether this update estimated row gains. 0 / false when not computed.
+  double row_gain_rms = 0.0;
+  double row_banding = 0.0;
+  bool row_bands_found = false;
+  bool row_gains = false;
   /// The image pair's own measurement of vartheta, without its prior (1/s): one Gauss-Newton step from the last
   /// linearisation point on the image's information alone, with mu and b_w marginalised under their prior; and
   /// its covariance. For the batch start-up of the distance (docs/algorithm.md section 7.1). Valid when
@@ -55,6 +66,8 @@ using WarpJacobian = Eigen::Matrix<double, 2, 8>;
 /// Information block over the observed columns (8x8) and the matching information vector (8).
 using ObservedInfo = Eigen::Matrix<double, 8, 8>;
 using ObservedVec = Eigen::Matrix<double, 8, 1>;
+/// Parameters of the pair's brightness model: (gain, offset), or the gains at the row knots (kRows).
+using BrightnessVec = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, PhotometricParams::kMaxBrightnessRowKnots, 1>;
 
 /// The timing of an image pair beyond its stamps (docs/algorithm.md sections 3.6 and 3.7): what the camera-IMU
 /// time offset and the rolling shutter need.
@@ -218,7 +231,7 @@ class PhotometricUpdate {
     // Brightness model (when estimated): the step of (gain, offset) that minimises the residual at this
     // linearisation with the state held (A and b above already have its columns marginalised).
     bool has_brightness = false;
-    Eigen::Vector2d brightness_step = Eigen::Vector2d::Zero();
+    BrightnessVec brightness_step;
   };
   struct NoiseEstimate {
     bool valid = false;
@@ -229,11 +242,19 @@ class PhotometricUpdate {
     double relief_var = 0.0;   ///< the scene's relief variance (reliefVariance), smoothed like the variance
   };
   /// `m_rows` (stateRateMap), `timing` and the readout time `readout_s` only for a rolling shutter;
-  /// `brightness` = (gain, offset) of the pair's brightness model (used unless brightness_model is kNormalised).
+  /// `brightness`: (gain, offset) of the pair's brightness model, or its row knots' gains (kRows); null: gain 1,
+  /// offset 0 (used unless brightness_model is kNormalised).
   int accumulate(const PreprocessedFrame& cur, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s,
                  double state_lag_s, const State& x, double huber_sigma, PassSums* out,
                  const ObservedVec* m_rows = nullptr, const ImageTiming* timing = nullptr, double readout_s = 0.0,
-                 const Eigen::Vector2d& brightness = Eigen::Vector2d(1.0, 0.0));
+                 const BrightnessVec* brightness = nullptr);
+  /// The row gains' tables for images of `rows` rows (kRows; docs/noise_model.md section 12): per row the first
+  /// of its four knots and the spline's basis values, slopes and half curvatures there, over the capture time of
+  /// `timing` (its rows' and pixels' readout weights; null: the working rows).
+  void prepareRowKnots(int rows, const ImageTiming* timing);
+  /// The bands of the rows after an update (UpdateStats::row_gain_rms, row_banding, row_bands_found) from the last
+  /// linearisation's residual and the fitted row gains `brightness` (when estimated); dt_s: the pair's interval.
+  void rowBanding(const PreprocessedFrame& cur, const BrightnessVec& brightness, double dt_s, UpdateStats* stats);
   /// Residual image and row scratch for images of `size` (allocates only when the size changes).
   void prepareBuffers(const cv::Size& size);
   /// Outlier weights for the next image from this update's last residual (docs/noise_model.md, section 10).
@@ -260,6 +281,21 @@ class PhotometricUpdate {
   cv::Mat ref_coeff_;   ///< CV_32FC1 cubic B-spline coefficients of the reference's intensity, reused between calls
   std::vector<float> spline_scratch_;  ///< the spline prefilter's row block (4 x width), reused between calls
   cv::Mat scratch_;     ///< CV_32FC1 13 x (width rounded up to 4): row buffers of the sweep
+  // Brightness model kRows (prepareRowKnots, SweepConfig::row_gain):
+  std::vector<float> row_gain_;   ///< per row: the gain, its slope and half curvature over the spline coordinate
+  std::vector<int> row_knot_;     ///< per row: the first of its four knots
+  std::vector<float> row_basis_;  ///< per row and knot: the basis value, slope and half curvature at the row
+  float row_gain_u_to_s_ = 0.0f;  ///< spline coordinate per unit of capture time (0: no per-pixel times)
+  int row_knot_tables_knots_ = 0;                   ///< the knot count the tables were made for
+  const cv::Mat* row_knot_tables_pixel_ = nullptr;  ///< the per-pixel times they were made with (not owned)
+  const float* row_knot_tables_rows_ = nullptr;     ///< the per-row times they were made with (not owned)
+  const ImageTiming* row_timing_ = nullptr;         ///< the current update's timing (set within update())
+  /// The brightness model of the current update (params' unless auto: kRows while bands are found).
+  BrightnessModel effective_model_ = BrightnessModel::kNormalised;
+  double bands_rms_ = 0.0;    ///< smoothed row gain RMS (rowBanding)
+  bool bands_valid_ = false;
+  bool bands_found_ = false;  ///< bands of the rows found (hysteresis, rowBanding)
+  double ref_level_offset_ = 0.0;  ///< PreprocessedFrame::level_offset of the reference (ref_coeff_'s image)
   double noise_variance_gain_ = 1.0;
   double noise_correlation_floor_ = 1.0;
   NoiseEstimate noise_;

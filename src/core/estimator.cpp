@@ -503,6 +503,12 @@ struct Estimator::Impl {
                     "for it",
                     used > 0 ? "; " : "", 100.0 * r.relief_sigma);
     }
+    if (r.row_bands_found) {
+      // A rolling shutter under flickering light (docs/noise_model.md section 12): bands of the rows.
+      const size_t used = std::strlen(msg);
+      std::snprintf(msg + used, sizeof(msg) - used, "%slight flicker: rows banded by %.0f %%%s", used > 0 ? "; " : "",
+                    100.0 * r.row_banding, r.row_gains ? " (row gains estimated)" : "");
+    }
     if (r.status == FilterStatus::kTracking && stats.applied && health.badFrames() == 0)
       restarts.rememberGood(img.t_s, x);
 
@@ -537,6 +543,9 @@ struct Estimator::Impl {
     r->valid_ratio = std::isfinite(stats.valid_ratio) ? stats.valid_ratio : 0.0;
     r->brightness_gain = std::isfinite(stats.brightness_gain) ? stats.brightness_gain : 1.0;
     r->brightness_offset = std::isfinite(stats.brightness_offset) ? stats.brightness_offset : 0.0;
+    r->row_banding = std::isfinite(stats.row_banding) ? stats.row_banding : 0.0;
+    r->row_bands_found = stats.row_bands_found;
+    r->row_gains = stats.row_gains;
   }
 
   /// Processes every pending image whose stamp is covered by filtered IMU data. Before the filter has started,

@@ -685,8 +685,10 @@ void ImagePreprocessor::normalizeAndGradients(double sum, double sum_sq, float p
     scale = sd > 1e-3 ? static_cast<float>(1.0 / sd) : 0.f;
     offset = static_cast<float>(-mean) * scale;
     out->grey_per_unit = sd > 1e-3 ? sd : 0.0;
+    out->level_offset = sd > 1e-3 ? mean / sd : 0.0;
   } else {
     out->grey_per_unit = 255.0;
+    out->level_offset = 0.0;
   }
   auto normalizeRow = [&](int y) {
     float* r = I + y * W;

@@ -383,6 +383,8 @@ const std::vector<Entry>& table() {
                      DIEKF_FIELD(bool, photometric.focal_scale_in_covariance)));
     t.push_back(named("photometric/brightness_model", DIEKF_FIELD(BrightnessModel, photometric.brightness_model),
                       &parseBrightnessModel));
+    t.push_back(integer("photometric/brightness_row_knots", DIEKF_FIELD(int, photometric.brightness_row_knots),
+                        between(4, PhotometricParams::kMaxBrightnessRowKnots)));
     // camera-fixed pattern (FixedPattern)
     t.push_back(flag("fixed_pattern/enabled", DIEKF_FIELD(bool, fixed_pattern.enabled)));
     t.push_back(real("fixed_pattern/decorrelation_px", DIEKF_FIELD(double, fixed_pattern.decorrelation_px),

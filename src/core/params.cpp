@@ -27,7 +27,10 @@ BrightnessModel parseBrightnessModel(const std::string& name) {
   if (name == "normalised") return BrightnessModel::kNormalised;
   if (name == "gain") return BrightnessModel::kGain;
   if (name == "affine") return BrightnessModel::kAffine;
-  throw std::invalid_argument("unknown brightness model '" + name + "' (expected normalised, gain or affine)");
+  if (name == "rows") return BrightnessModel::kRows;
+  if (name == "auto") return BrightnessModel::kAuto;
+  throw std::invalid_argument("unknown brightness model '" + name +
+                              "' (expected normalised, gain, affine, rows or auto)");
 }
 
 const char* toString(BrightnessModel model) {
@@ -38,6 +41,10 @@ const char* toString(BrightnessModel model) {
       return "gain";
     case BrightnessModel::kAffine:
       return "affine";
+    case BrightnessModel::kRows:
+      return "rows";
+    case BrightnessModel::kAuto:
+      return "auto";
   }
   return "?";
 }

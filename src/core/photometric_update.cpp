@@ -388,6 +388,22 @@ struct SweepConfig {
   int brightness_columns = 0;
   float gain = 1.0f;
   float offset = 0.0f;
+  // Row gains (brightness model kRows, brightness_columns 3; docs/noise_model.md section 12): the pair's gain is
+  // a cubic B-spline over the capture time of the raw rows, g(s) = sum_k c_k beta(s - k), s the spline
+  // coordinate. Row y sits at s_y; a pixel of it at s_y + delta, delta = row_gain_pixel (the pixel's capture
+  // time less its row's, ImageTiming::pixel_weight) times row_gain_u_to_s, and its gain is taken to second order
+  // in delta: g = G0 + delta (G1 + delta G2) with (G0, G1, G2) = row_gain[3 y ..]. The gain acts on the light,
+  // i.e. on the images with their levels restored (intensity + level_offset, PreprocessedFrame::level_offset): the
+  // model is g (I_r + ref_level) - cur_level, its columns N, delta N, delta^2 N with N = sqrt(w) (I_r + ref_level)
+  // (T_9..T_11); per row they go to the row's four knots row_knot[y] + j with the coefficients
+  // row_basis[12 y + 3 j ..] = (beta_j, beta_j', beta_j'' / 2) at s_y (SweepSums::GR, DR). Null: no row gains.
+  const float* row_gain = nullptr;
+  const int* row_knot = nullptr;
+  const float* row_basis = nullptr;
+  const cv::Mat* row_gain_pixel = nullptr;  // CV_32FC1, rows x cols (plane 0 of ImageTiming::pixel_weight); null: 0
+  float row_gain_u_to_s = 0.0f;
+  float ref_level = 0.0f;
+  float cur_level = 0.0f;
 };
 
 /// Per-pixel outputs of a sweep (CV_32FC1, the current image's size; entries the sweep does not visit keep their
@@ -402,9 +418,10 @@ struct PixelOutputs {
 
 constexpr int kMaxTilesPerAxis = 16;
 /// Columns of the sweep's Gram sums: the 8 observed columns S', the residual t (column 8) and the brightness
-/// model's columns I_r (9) and 1 (10).
-constexpr int kGramCols = 11;
+/// model's columns I_r (9) and 1 (10), or with row gains N, delta N, delta^2 N (9-11).
+constexpr int kGramCols = 12;
 constexpr int kMaxTiles = kMaxTilesPerAxis * kMaxTilesPerAxis;
+constexpr int kMaxRowKnots = PhotometricParams::kMaxBrightnessRowKnots;
 
 /// Sums of one sweep in double: G = [A | b] (A upper triangle, i <= j < 8; b in column 8; with the brightness
 /// columns k = 9, 10 in use also G[i][k] (i < 8: their cross terms with S'), G[8][k] (their scores) and
@@ -427,6 +444,11 @@ struct SweepSums {
   // Per-tile lane sums during the sweep (score of the 8 columns, valid count), reduced into tile_b / tile_n at
   // its end; only the tiles in use are zeroed (sweep()).
   alignas(16) float tile_acc[kMaxTiles][9][4];
+  // Row gains (SweepConfig::row_gain): per knot k the sums of its column (the model's derivative by c_k) against
+  // [T_0..T_7 | t] (GR[i][k], i <= 8) and against the other knots' (DR, upper triangle; banded: four knots per
+  // row). Zeroed by the sweep when in use.
+  double GR[9][kMaxRowKnots];
+  double DR[kMaxRowKnots][kMaxRowKnots];
 };
 
 /// Row buffers of one sweep (structure of arrays, length padded to a multiple of 4):
@@ -516,6 +538,12 @@ void accumulateRow(float* const* T, const float* valid, int n_pad, const int* se
     gramBlock<0, 4, 9, 2, false>(T, n_pad, G);
     gramBlock<4, 4, 9, 2, false>(T, n_pad, G);
     gramBlock<8, 3, 8, 3, true>(T, n_pad, G);  // t t (unused), t T_9, t T_10, T_9 T_9, T_9 T_10, T_10 T_10
+  } else if (brightness_columns == 3) {
+    gramBlock<0, 4, 9, 2, false>(T, n_pad, G);
+    gramBlock<0, 4, 11, 1, false>(T, n_pad, G);
+    gramBlock<4, 4, 9, 2, false>(T, n_pad, G);
+    gramBlock<4, 4, 11, 1, false>(T, n_pad, G);
+    gramBlock<8, 4, 8, 4, true>(T, n_pad, G);  // t and T_9..T_11 against each other
   }
 }
 
@@ -549,7 +577,14 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
   const v_float32x4 min_depth = v_setall_f32(static_cast<float>(kMinDepthRatio));
   const v_float32x4 huber = v_setall_f32(cfg.huber_abs);
   const bool brightness = cfg.brightness_columns > 0;
-  const v_float32x4 gain = v_setall_f32(cfg.gain), offset = v_setall_f32(cfg.offset);
+  const v_float32x4 offset = v_setall_f32(cfg.offset);
+  const bool row_gains = cfg.row_gain != nullptr;
+  const v_float32x4 ref_level = v_setall_f32(cfg.ref_level), cur_level_neg = v_setall_f32(-cfg.cur_level);
+  const v_float32x4 u_to_s = v_setall_f32(cfg.row_gain_u_to_s);
+  if (row_gains) {
+    for (int i = 0; i < 9; ++i) std::fill(sums->GR[i], sums->GR[i] + kMaxRowKnots, 0.0);
+    for (int k = 0; k < kMaxRowKnots; ++k) std::fill(sums->DR[k], sums->DR[k] + kMaxRowKnots, 0.0);
+  }
   // The warp's per-pixel coefficients as vectors, made once: the loop stores through float pointers (the row
   // buffers, the outputs), which the compiler must assume may alias wp's and cfg's floats, so read from there it
   // would load and broadcast every coefficient again for every 4 pixels.
@@ -584,6 +619,14 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
   const v_float32x4 x_step = v_setall_f32(static_cast<float>(4 * cfg.stride));
 
   for (int y = cfg.border; y < H - cfg.border; y += cfg.stride) {
+    const v_float32x4 gain = v_setall_f32(cfg.gain);
+    // Row gains (see SweepConfig): the row's gain, slope and half curvature over delta, and where delta comes from.
+    const v_float32x4 rg0 = v_setall_f32(row_gains ? cfg.row_gain[3 * y] : 1.0f);
+    const v_float32x4 rg1 = v_setall_f32(row_gains ? cfg.row_gain[3 * y + 1] : 0.0f);
+    const v_float32x4 rg2 = v_setall_f32(row_gains ? cfg.row_gain[3 * y + 2] : 0.0f);
+    const float* rg_pixel = row_gains && cfg.row_gain_pixel != nullptr && cfg.stride == 1
+                                ? cfg.row_gain_pixel->ptr<float>(y) + cfg.border
+                                : nullptr;
     const float* Ic;
     const float* Gxc;
     const float* Gyc;
@@ -722,7 +765,14 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
       const v_float32x4 gxc = v_load(Gxc + k), gyc = v_load(Gyc + k);
       // The reference through the pair's brightness model, gain I_r + offset (section 12; off: I_r itself).
       v_float32x4 model = ref_i, model_gx = ref_gx, model_gy = ref_gy;
-      if (brightness) {
+      v_float32x4 delta = zero;  // row gains: the pixel's spline coordinate less its row's
+      if (row_gains) {
+        if (rg_pixel != nullptr) delta = v_load(rg_pixel + k) * u_to_s;
+        const v_float32x4 g = v_muladd(delta, v_muladd(delta, rg2, rg1), rg0);
+        model = v_muladd(g, ref_i + ref_level, cur_level_neg);
+        model_gx = g * ref_gx;
+        model_gy = g * ref_gy;
+      } else if (brightness) {
         model = v_muladd(gain, ref_i, offset);
         model_gx = gain * ref_gx;
         model_gy = gain * ref_gy;
@@ -798,8 +848,15 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
       v_store_aligned(buf.T[7] + k, swj * v_bw[2]);
       v_store_aligned(buf.T[8] + k, sw * r);
       if (brightness) {
-        v_store_aligned(buf.T[9] + k, sw * ref_i);
-        if (cfg.brightness_columns > 1) v_store_aligned(buf.T[10] + k, sw);
+        if (row_gains) {
+          const v_float32x4 nN = sw * (ref_i + ref_level), dN = delta * nN;
+          v_store_aligned(buf.T[9] + k, nN);
+          v_store_aligned(buf.T[10] + k, dN);
+          v_store_aligned(buf.T[11] + k, delta * dN);
+        } else {
+          v_store_aligned(buf.T[9] + k, sw * ref_i);
+          if (cfg.brightness_columns > 1) v_store_aligned(buf.T[10] + k, sw);
+        }
       }
       r2 = v_muladd(r, r, r2);
       const v_float32x4 valid01 = v_select(valid, one, zero);
@@ -844,6 +901,23 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
     accumulateRow(buf.T, buf.valid, n_pad, seg, tiles_x, tile_row, cfg.brightness_columns, sums, Grow);
     for (int i = 0; i < 8; ++i)
       for (int j = i; j < 9; ++j) sums->G[i][j] += Grow[i][j];
+    if (row_gains) {
+      // The row's sums of its columns N, delta N, delta^2 N go to its four knots: knot k0 + j's column is
+      // a_j . (N, delta N, delta^2 N) with a_j = row_basis[12 y + 3 j ..].
+      const int k0 = cfg.row_knot[y];
+      const float* a = cfg.row_basis + 12 * y;
+      double Gb[3][3];
+      for (int n = 0; n < 3; ++n)
+        for (int q = 0; q < 3; ++q) Gb[n][q] = Grow[9 + std::min(n, q)][9 + std::max(n, q)];
+      for (int j = 0; j < 4; ++j) {
+        const double a0 = a[3 * j], a1 = a[3 * j + 1], a2 = a[3 * j + 2];
+        for (int i = 0; i < 9; ++i) sums->GR[i][k0 + j] += a0 * Grow[i][9] + a1 * Grow[i][10] + a2 * Grow[i][11];
+        double Ga[3];
+        for (int q = 0; q < 3; ++q) Ga[q] = a0 * Gb[0][q] + a1 * Gb[1][q] + a2 * Gb[2][q];
+        for (int l = j; l < 4; ++l)
+          sums->DR[k0 + j][k0 + l] += Ga[0] * a[3 * l] + Ga[1] * a[3 * l + 1] + Ga[2] * a[3 * l + 2];
+      }
+    }
     const int j_end = 9 + cfg.brightness_columns;
     for (int i = 0; i < j_end; ++i)
       for (int j = std::max(i, 9); j < j_end; ++j) sums->G[i][j] += Grow[i][j];
@@ -879,6 +953,22 @@ SweepConfig makeConfig(const PhotometricParams& params, const PreprocessParams& 
   cfg.tiles_x = params.noise_tiles_x;
   cfg.tiles_y = params.noise_tiles_y;
   return cfg;
+}
+
+/// Row gains: the first pass is linearised again with the gains it fitted while their step is above this
+/// (relative gain; the images' noise is a few % of their contrast).
+constexpr double kRowGainRefitStep = 0.02;
+
+/// Bands of the rows (brightness model auto, rowBanding): found when the RMS over the rows of the pair's common
+/// relative gain per row, smoothed over kBandsTimeConstantS, is above kBandsFoundGain, lost below kBandsLostGain.
+/// On images whose level (mean over standard deviation) is 2-7, a 2 % gain leaves residuals of 0.04-0.14, several
+/// times the pixels' noise (0.01-0.03); on steadily lit flights the RMS stays below 0.5 % (objects crossing the
+/// view: up to 5 % for a second).
+constexpr double kBandsFoundGain = 0.02, kBandsLostGain = 0.01, kBandsTimeConstantS = 3.0;
+
+/// Knots of the row gains (brightness model kRows), within the supported range.
+int rowKnotCount(const PhotometricParams& params) {
+  return std::clamp(params.brightness_row_knots, 4, kMaxRowKnots);
 }
 
 /// Bounds of the pair's brightness gain and offset (normalised units: each image standardised
@@ -920,6 +1010,40 @@ bool marginalizeBrightness(const double (*G)[kGramCols], int columns, double sca
   return true;
 }
 
+/// The same for the row gains (SweepConfig::row_gain; `knots` columns, the model's derivatives by the spline's
+/// coefficients): C, D (banded) and e from the knots' sums GR, DR; `step` receives the coefficients' step with the
+/// state held. Returns false (nothing changed) when D is not positive definite.
+bool marginalizeRowGains(const SweepSums& sums, int knots, double scale, double half_dt, const ObservedInfo& T,
+                         ObservedInfo* A, ObservedVec* b, BrightnessVec* step) {
+  using KnotMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMaxRowKnots, kMaxRowKnots>;
+  using CMat = Eigen::Matrix<double, 8, Eigen::Dynamic, 0, 8, kMaxRowKnots>;
+  using KMat = Eigen::Matrix<double, Eigen::Dynamic, 8, 0, kMaxRowKnots, 8>;
+  CMat C = CMat::Zero(8, knots);
+  KnotMat D = KnotMat::Zero(knots, knots);
+  BrightnessVec e = BrightnessVec::Zero(knots);
+  for (int k = 0; k < knots; ++k) {
+    for (int i = 0; i < 8; ++i) C(i, k) = sums.GR[i][k];
+    e(k) = scale * sums.GR[8][k];
+    for (int l = k; l < knots; ++l) D(k, l) = D(l, k) = scale * sums.DR[k][l];
+  }
+  C = ((scale * half_dt) * (T.transpose() * C)).eval();
+  double trace = 0.0;
+  for (int k = 0; k < knots; ++k) trace += D(k, k);
+  if (!(trace > 0.0) || !C.allFinite() || !D.allFinite() || !e.allFinite()) return false;
+  // A knot without pixels (all its rows invalid) has no column: the ridge keeps D definite, its step stays 0.
+  for (int k = 0; k < knots; ++k) D(k, k) += 1e-9 * trace;
+  const Eigen::LLT<KnotMat> llt(D);
+  if (llt.info() != Eigen::Success) return false;
+  const KMat K = llt.solve(C.transpose());  // D^-1 C^T
+  const BrightnessVec s = llt.solve(e);
+  if (!K.allFinite() || !s.allFinite()) return false;
+  *A -= C * K;
+  *A = (0.5 * (*A + A->transpose())).eval();
+  *b -= K.transpose() * e;
+  *step = s;
+  return true;
+}
+
 bool framesUsable(const PreprocessedFrame& ref, const PreprocessedFrame& cur, int border) {
   const cv::Mat* mats[6] = {&ref.intensity, &ref.grad_x, &ref.grad_y,
                             &cur.intensity, &cur.grad_x, &cur.grad_y};
@@ -944,6 +1068,9 @@ int PhotometricUpdate::linearize(const PreprocessedFrame& ref, const Preprocesse
                                  const Vec3& gyro_mean_C, double dt_s, const State& x, ObservedInfo* A,
                                  ObservedVec* b, int* candidates, double state_lag_s) {
   internal::cubicBSplineCoefficients(ref.intensity, &ref_coeff_, &spline_scratch_);
+  ref_level_offset_ = ref.level_offset;
+  effective_model_ = params_.brightness_model == BrightnessModel::kAuto ? BrightnessModel::kNormalised
+                                                                        : params_.brightness_model;
   prepareBuffers(cur.intensity.size());
   PassSums sums;
   const int valid = accumulate(cur, K, gyro_mean_C, dt_s, state_lag_s, x, params_.intensity_noise_sigma, &sums);
@@ -966,19 +1093,96 @@ void PhotometricUpdate::prepareBuffers(const cv::Size& size) {
     ref_y_.setTo(-1.0f);
   }
   const int n_pad = (size.width + 3) & ~3;
-  if (scratch_.rows != 16 || scratch_.cols < n_pad) scratch_.create(16, n_pad, CV_32FC1);
+  if (scratch_.rows != kGramCols + 5 || scratch_.cols < n_pad) scratch_.create(kGramCols + 5, n_pad, CV_32FC1);
+}
+
+void PhotometricUpdate::prepareRowKnots(int rows, const ImageTiming* timing) {
+  const int knots = rowKnotCount(params_);
+  const cv::Mat* pixel = timing != nullptr && timing->pixel_weight != nullptr &&
+                                 timing->pixel_weight->type() == CV_32FC1 && timing->pixel_weight->rows >= rows &&
+                                 !timing->pixel_weight->empty()
+                             ? timing->pixel_weight
+                             : nullptr;
+  const float* row_weight = timing != nullptr && timing->row_weight != nullptr && timing->rows == rows
+                                ? timing->row_weight
+                                : nullptr;
+  const size_t n = static_cast<size_t>(std::max(rows, 0));
+  if (row_knot_.size() == n && row_knot_tables_knots_ == knots && row_knot_tables_pixel_ == pixel &&
+      row_knot_tables_rows_ == row_weight)
+    return;
+  row_knot_tables_knots_ = knots;
+  row_knot_tables_pixel_ = pixel;
+  row_knot_tables_rows_ = row_weight;
+  row_gain_.assign(3 * n, 0.0f);  // allocates only when the size, the knots or the timing change
+  row_knot_.assign(n, 0);
+  row_basis_.assign(12 * n, 0.0f);
+  // Capture time per row (the raw rows' readout weight; without one, the working row as its proxy) and its
+  // range over the image with the pixels' offsets: the spline's knots span it evenly.
+  auto row_u = [&](int y) {
+    return row_weight != nullptr ? static_cast<double>(row_weight[y])
+                                 : (rows > 1 ? static_cast<double>(y) / (rows - 1) - 0.5 : 0.0);
+  };
+  double u_lo = 1e300, u_hi = -1e300;
+  for (int y = 0; y < rows; ++y) {
+    double lo = 0.0, hi = 0.0;
+    if (pixel != nullptr) cv::minMaxLoc(pixel->row(y), &lo, &hi);
+    u_lo = std::min(u_lo, row_u(y) + lo);
+    u_hi = std::max(u_hi, row_u(y) + hi);
+  }
+  if (!(u_hi > u_lo)) u_hi = u_lo + 1.0;
+  const double u_to_s = (knots - 3) / (u_hi - u_lo);
+  row_gain_u_to_s_ = pixel != nullptr ? static_cast<float>(u_to_s) : 0.0f;
+  for (int y = 0; y < rows; ++y) {
+    const double s = std::clamp((row_u(y) - u_lo) * u_to_s, 0.0, static_cast<double>(knots - 3));
+    const int k0 = std::min(knots - 4, static_cast<int>(std::floor(s)));
+    const float t = static_cast<float>(s - k0);
+    float w[4], dw[4];
+    internal::cubicBSplineWeights(t, w, dw);
+    const float half_d2w[4] = {0.5f * (1.0f - t), 1.5f * t - 1.0f, 0.5f * (1.0f - 3.0f * t), 0.5f * t};
+    row_knot_[y] = k0;
+    for (int j = 0; j < 4; ++j) {
+      row_basis_[12 * y + 3 * j] = w[j];
+      row_basis_[12 * y + 3 * j + 1] = dw[j];
+      row_basis_[12 * y + 3 * j + 2] = half_d2w[j];
+    }
+  }
 }
 
 int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& K, const Vec3& gyro_mean_C,
                                   double dt_s, double state_lag_s, const State& x, double huber_sigma,
                                   PassSums* out, const ObservedVec* m_rows, const ImageTiming* timing,
-                                  double readout_s, const Eigen::Vector2d& brightness) {
+                                  double readout_s, const BrightnessVec* brightness) {
   *out = PassSums();
   SweepConfig cfg = makeConfig(params_, preprocess_, huber_sigma);
-  if (params_.brightness_model != BrightnessModel::kNormalised) {
-    cfg.brightness_columns = params_.brightness_model == BrightnessModel::kAffine ? 2 : 1;
-    cfg.gain = static_cast<float>(brightness(0));
-    cfg.offset = cfg.brightness_columns > 1 ? static_cast<float>(brightness(1)) : 0.0f;
+  const int knots = rowKnotCount(params_);
+  if (effective_model_ == BrightnessModel::kRows) {
+    // Per row the spline's value, slope and half curvature from the knots' coefficients (gain 1 without them).
+    prepareRowKnots(cur.intensity.rows, row_timing_);
+    cfg.brightness_columns = 3;
+    const bool given = brightness != nullptr && brightness->size() == knots;
+    for (int y = 0; y < cur.intensity.rows; ++y) {
+      const int k0 = row_knot_[y];
+      const float* a = &row_basis_[12 * y];
+      double g[3] = {given ? 0.0 : 1.0, 0.0, 0.0};
+      if (given)
+        for (int j = 0; j < 4; ++j)
+          for (int n = 0; n < 3; ++n) g[n] += (*brightness)(k0 + j) * a[3 * j + n];
+      for (int n = 0; n < 3; ++n) row_gain_[3 * y + n] = static_cast<float>(g[n]);
+    }
+    cfg.row_gain = row_gain_.data();
+    cfg.row_knot = row_knot_.data();
+    cfg.row_basis = row_basis_.data();
+    cfg.row_gain_pixel = row_knot_tables_pixel_ != nullptr && row_knot_tables_pixel_->cols == cur.intensity.cols
+                             ? row_knot_tables_pixel_
+                             : nullptr;
+    cfg.row_gain_u_to_s = row_gain_u_to_s_;
+    cfg.ref_level = static_cast<float>(ref_level_offset_);
+    cfg.cur_level = static_cast<float>(cur.level_offset);
+  } else if (effective_model_ == BrightnessModel::kGain || effective_model_ == BrightnessModel::kAffine) {
+    cfg.brightness_columns = effective_model_ == BrightnessModel::kAffine ? 2 : 1;
+    const bool given = brightness != nullptr && brightness->size() == 2;
+    cfg.gain = given ? static_cast<float>((*brightness)(0)) : 1.0f;
+    cfg.offset = given && cfg.brightness_columns > 1 ? static_cast<float>((*brightness)(1)) : 0.0f;
   }
   cfg.confidence_map = active_map_;
   cfg.reference_weights = use_weight_map_ && weight_map_.type() == CV_32FC1 && weight_map_.size() == cur.intensity.size()
@@ -1005,9 +1209,9 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
   SweepSums sums;
   RowBuffers buf;
   for (int i = 0; i < kGramCols; ++i) buf.T[i] = scratch_.ptr<float>(i);
-  buf.valid = scratch_.ptr<float>(11);
-  for (int i = 0; i < 3; ++i) buf.cur[i] = scratch_.ptr<float>(12 + i);
-  buf.wmap = scratch_.ptr<float>(15);
+  buf.valid = scratch_.ptr<float>(kGramCols);
+  for (int i = 0; i < 3; ++i) buf.cur[i] = scratch_.ptr<float>(kGramCols + 1 + i);
+  buf.wmap = scratch_.ptr<float>(kGramCols + 4);
   const bool huber = cfg.huber_abs > 0.0f;
   auto run = [&](auto weight_map) {
     constexpr bool kMap = decltype(weight_map)::value;
@@ -1045,9 +1249,14 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
   A = (wp.T.transpose() * A * wp.T).eval();
   A = (0.5 * (A + A.transpose())).eval();
   b = (wp.T.transpose() * b).eval();
-  if (cfg.brightness_columns > 0)
-    out->has_brightness = marginalizeBrightness(sums.G, cfg.brightness_columns, scale, half_dt, wp.T, &A, &b,
-                                            &out->brightness_step);
+  if (cfg.row_gain != nullptr) {
+    out->has_brightness = marginalizeRowGains(sums, knots, scale, half_dt, wp.T, &A, &b, &out->brightness_step);
+  } else if (cfg.brightness_columns > 0) {
+    Eigen::Vector2d step;
+    out->has_brightness =
+        marginalizeBrightness(sums.G, cfg.brightness_columns, scale, half_dt, wp.T, &A, &b, &step);
+    out->brightness_step = step;
+  }
   if (cfg.row_moments) {
     // The readout's information (docs/algorithm.md section 3.7): its column is w_y S m, so it needs the row
     // moments sum w S^T S, sum w^2 S^T S and sum w S^T r, scaled and turned like A and b.
@@ -1215,12 +1424,24 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     return stats;
   }
   prepareBuffers(cur.intensity.size());  // no-op after the first call at this size
+  // The row gains' capture times (brightness model kRows) are this update's timing's, for its sweeps only.
+  struct TimingScope {
+    const ImageTiming** slot;
+    ~TimingScope() { *slot = nullptr; }
+  } timing_scope{&row_timing_};
+  row_timing_ = &timing;
+  // auto: the row gains while bands of the rows have been found (rowBanding), else the images as standardised.
+  effective_model_ = params_.brightness_model != BrightnessModel::kAuto
+                         ? params_.brightness_model
+                         : (bands_found_ ? BrightnessModel::kRows : BrightnessModel::kNormalised);
+  stats.row_gains = effective_model_ == BrightnessModel::kRows;
   // Outlier weights from the previous update's residual (section 10), when that update's current image is this
   // one's reference: they belong to the reference's pixels and are sampled where the warp lands, so they move
   // with the objects. A map without any weight below 1 changes nothing: the plain sweep is used (bit for bit,
   // and cheaper).
   use_weight_map_ = params_.outlier_threshold_sigma > 0.0 && weight_map_has_outliers_ && weightsBelongTo(ref);
   internal::cubicBSplineCoefficients(ref.intensity, &ref_coeff_, &spline_scratch_);  // once per update, every pass
+  ref_level_offset_ = ref.level_offset;
   // The camera-fixed pattern's confidence, per pixel of the current image (docs/noise_model.md section 11).
   active_map_ = confidence_ != nullptr && confidence_->type() == CV_32FC1 && confidence_->size() == cur.intensity.size()
                     ? confidence_ : nullptr;
@@ -1279,7 +1500,13 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   }
   // The pair's brightness (gain, offset), section 12: from (1, 0), stepped after every linearisation to its best
   // value with the state held there (the state's steps see it marginalised).
-  Eigen::Vector2d brightness(1.0, 0.0);
+  BrightnessVec brightness;
+  if (effective_model_ == BrightnessModel::kRows) {
+    brightness.setOnes(rowKnotCount(params_));
+  } else {
+    brightness.resize(2);
+    brightness << 1.0, 0.0;
+  }
   PassSums sums;
   // Every pass writes the residual image; the RMS and the valid ratio are those of the last linearisation.
   auto linearize_at = [&](const State& x_j, internal::ObsMat* A, internal::ObsVec* b, internal::ObsVec* m,
@@ -1297,15 +1524,36 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
                          (x_j.readout_s != 0.0 || timing.estimate_readout);
     const ObservedVec m_rows =
         rolling ? stateRateMap(x_seen, gyro_mean_C, timing, dt_s, timing.estimate_readout) : ObservedVec::Zero();
-    const int valid = accumulate(cur, K_j, gyro_mean_C, dt_s, state_lag_s, x_seen, huber_sigma, &sums,
-                                 rolling ? &m_rows : nullptr, rolling ? &timing : nullptr, x_j.readout_s,
-                                 brightness);
-    if (sums.has_brightness) {
-      brightness += sums.brightness_step;
-      brightness(0) = std::clamp(brightness(0), kMinBrightnessGain, kMaxBrightnessGain);
-      brightness(1) = std::clamp(brightness(1), -kMaxBrightnessOffset, kMaxBrightnessOffset);
-      stats.brightness_gain = brightness(0);
-      stats.brightness_offset = brightness(1);
+    // One sweep at this iterate with the current brightness, then the brightness's step (state held).
+    auto sweep_here = [&]() {
+      const int n_valid = accumulate(cur, K_j, gyro_mean_C, dt_s, state_lag_s, x_seen, huber_sigma, &sums,
+                                     rolling ? &m_rows : nullptr, rolling ? &timing : nullptr, x_j.readout_s,
+                                     &brightness);
+      if (sums.has_brightness && sums.brightness_step.size() == brightness.size()) {
+        brightness += sums.brightness_step;
+        if (effective_model_ == BrightnessModel::kRows) {
+          brightness = brightness.cwiseMax(kMinBrightnessGain).cwiseMin(kMaxBrightnessGain);
+          stats.brightness_gain = brightness.mean();
+          stats.brightness_row_spread = brightness.maxCoeff() - brightness.minCoeff();
+        } else {
+          brightness(0) = std::clamp(brightness(0), kMinBrightnessGain, kMaxBrightnessGain);
+          brightness(1) = std::clamp(brightness(1), -kMaxBrightnessOffset, kMaxBrightnessOffset);
+          stats.brightness_gain = brightness(0);
+          stats.brightness_offset = brightness(1);
+        }
+      }
+      return n_valid;
+    };
+    int valid = sweep_here();
+    // Row gains (section 12): a pair under flickering light starts far from its gains (the bands of the two
+    // images are unrelated), and this pass's residual, noise and outlier statistics would be those of the bands.
+    // The first pass is therefore linearised again, at the same state, with the gains just fitted while they
+    // still move (at most twice more; on a steadily lit pair their first step is small: one sweep as before).
+    if (pass == 0 && effective_model_ == BrightnessModel::kRows) {
+      for (int refit = 0; refit < 2 && sums.has_brightness &&
+                          sums.brightness_step.cwiseAbs().maxCoeff() > kRowGainRefitStep;
+           ++refit)
+        valid = sweep_here();
     }
     stats.valid_ratio = sums.candidates > 0 ? static_cast<double>(valid) / sums.candidates : 0.0;
     stats.rms_residual = valid > 0 ? std::sqrt(sums.sum_r2 / valid) : 0.0;
@@ -1424,8 +1672,75 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
                                             : relief_var_;
     noise_.relief_valid = true;
     stats.relief_var = noise_.relief_var;
+    rowBanding(cur, brightness, dt_s, &stats);
   }
   return stats;
+}
+
+void PhotometricUpdate::rowBanding(const PreprocessedFrame& cur, const BrightnessVec& brightness, double dt_s,
+                                   UpdateStats* stats) {
+  const int W = residual_.cols, H = residual_.rows;
+  const int border = std::max(1, preprocess_.border_px);
+  const float c_r = static_cast<float>(ref_level_offset_);
+  // Per row and half of the row: the current image's relative gain against the model, g = sum r N / sum N^2,
+  // N = I_c - r + the reference's level (the model with its level restored): what a gain of that row would still
+  // fit. Bands of the rows change both halves alike; an object in the view changes one. So the bands' variance is
+  // the covariance over the rows of the two halves' gains (noise and objects: zero in expectation).
+  const int half = W / 2;
+  double sw = 0.0, sl = 0.0, sr = 0.0, slr = 0.0;
+  int rows = 0;
+  for (int y = border; y < H - border; ++y) {
+    const float* r = residual_.ptr<float>(y);
+    const float* I = cur.intensity.ptr<float>(y);
+    double rN[2] = {0.0, 0.0}, NN[2] = {0.0, 0.0};
+    for (int x = border; x < W - border; ++x) {
+      if (r[x] == 0.0f) continue;  // not a valid pixel of the last linearisation
+      const double N = I[x] - r[x] + c_r;
+      const int h = x < half ? 0 : 1;
+      rN[h] += r[x] * N;
+      NN[h] += N * N;
+    }
+    if (!(NN[0] > 0.0) || !(NN[1] > 0.0)) continue;
+    const double gl = rN[0] / NN[0], gr = rN[1] / NN[1];
+    const double w = NN[0] * NN[1] / (NN[0] + NN[1]);
+    sw += w;
+    sl += w * gl;
+    sr += w * gr;
+    slr += w * gl * gr;
+    ++rows;
+  }
+  if (!(sw > 0.0) || rows < 2) return;
+  const double ml = sl / sw, mr = sr / sw;
+  double rms2 = std::max(0.0, slr / sw - ml * mr);
+  // With the row gains estimated the bands are in the model, not the residual: add the fitted gains' spread over
+  // the rows (their value at each row, about the mean).
+  if (effective_model_ == BrightnessModel::kRows && brightness.size() == rowKnotCount(params_) &&
+      row_knot_.size() == static_cast<size_t>(H)) {
+    double m = 0.0, m2 = 0.0;
+    int n = 0;
+    for (int y = border; y < H - border; ++y) {
+      double g = 0.0;
+      for (int j = 0; j < 4; ++j) g += brightness(row_knot_[y] + j) * row_basis_[12 * y + 3 * j];
+      m += g;
+      m2 += g * g;
+      ++n;
+    }
+    if (n > 0 && m > 0.0) {
+      m /= n;
+      rms2 += std::max(0.0, m2 / n - m * m) / (m * m);
+    }
+  }
+  stats->row_gain_rms = std::sqrt(rms2);
+  // Smoothed over kBandsTimeConstantS: flicker bands are there in every pair (their pattern changes from pair to
+  // pair, their size does not); an object crossing the view shows in a few seconds at most. Found above
+  // kBandsFoundGain, lost below kBandsLostGain (hysteresis).
+  const double a = 1.0 - std::exp(-dt_s / kBandsTimeConstantS);
+  bands_rms_ = bands_valid_ ? bands_rms_ + a * (stats->row_gain_rms - bands_rms_) : stats->row_gain_rms;
+  bands_valid_ = true;
+  if (!bands_found_ && bands_rms_ > kBandsFoundGain) bands_found_ = true;
+  if (bands_found_ && bands_rms_ < kBandsLostGain) bands_found_ = false;
+  stats->row_banding = bands_rms_;
+  stats->row_bands_found = bands_found_;
 }
 
 void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const PreprocessedFrame& cur,

@@ -830,6 +830,8 @@ void EstimatorNodelet::publishResult(const diekf::FrameResult& r) {
     last_relief_pct_ = 1e2 * r.relief_sigma;
     last_brightness_gain_ = r.brightness_gain;
     last_brightness_offset_ = r.brightness_offset;
+    last_row_banding_pct_ = 1e2 * r.row_banding;
+    last_row_gains_ = r.row_gains;
     last_fixed_pattern_fraction_ = r.fixed_pattern_fraction;
     last_fixed_pattern_contrast_share_ = r.fixed_pattern_contrast_share;
     last_dot_removal_px_ = r.dot_removal_px;
@@ -901,6 +903,9 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
     stat.add("last pair's brightness gain", last_brightness_gain_);
     stat.add("last pair's brightness offset (normalised intensity)", last_brightness_offset_);
   }
+  stat.add("bands of the rows (light flicker under a rolling shutter; smoothed RMS of the row gains, %)",
+           last_row_banding_pct_);
+  stat.add("row gains estimated", last_row_gains_ ? "yes" : "no");
   stat.add("camera-fixed pattern learned", fixed_pattern_active_ ? "yes" : "not yet (start-up)");
   stat.add("strong camera-fixed pattern (share of the image; projector, shadow, dirt)", last_fixed_pattern_fraction_);
   stat.add("camera-fixed pattern's share of the image contrast", last_fixed_pattern_contrast_share_);

@@ -11,6 +11,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "diekf/photometric_update.h"
+#include "../../src/core/bspline.h"
 #include "two_view_scene.h"
 #include "../../src/core/lanes.h"
 #include "../../src/core/window_sum.h"
@@ -503,6 +504,144 @@ TEST_F(PhotometricScene, BrightnessModelRecoversAGainAndOffsetChange) {
   EXPECT_LT(st_affine.rms_residual, 1.5 * st_same.rms_residual + 1e-3);
   EXPECT_LT(st_gain.rms_residual, 1.5 * st_off.rms_residual + 1e-3);
   EXPECT_GT(st_plain.rms_residual, 3.0 * st_affine.rms_residual);
+}
+
+// Row gains (brightness model rows, docs/noise_model.md section 12): the sweep's information with the gains of
+// the spline's knots marginalised equals the Schur complement of a double-precision system whose knot columns are
+// beta_k(s_y) (I_r + ref level); the residual is I_c + cur level - (I_r + ref level) at gains 1. Without per-pixel
+// times the capture time of a row is its place in the image (u_y = y / (H - 1) - 1/2).
+TEST_F(PhotometricScene, RowGainsAreMarginalisedLikeTheDoublePrecisionSystem) {
+  const double dt = scene_->dt_s;
+  PreprocessParams pre;
+  pre.border_px = 1;
+  const State x = startState(0.5);
+  PreprocessedFrame ref = scene_->ref, cur = scene_->cur;
+  ref.level_offset = 2.5;  // the images' means over their standard deviations
+  cur.level_offset = 2.4;
+  constexpr int kKnots = 7;
+  using MatX = Eigen::MatrixXd;
+  MatX A_all = MatX::Zero(8 + kKnots, 8 + kKnots);
+  Eigen::VectorXd b_all = Eigen::VectorXd::Zero(8 + kKnots);
+  const int W = cur.intensity.cols, H = cur.intensity.rows;
+  const SplineReference spline(ref.intensity);
+  const double w = 1.0 / (PhotometricParams{}.intensity_noise_sigma * PhotometricParams{}.intensity_noise_sigma);
+  for (int y = 1; y < H - 1; ++y) {
+    const double s = (static_cast<double>(y) / (H - 1)) * (kKnots - 3);
+    const int k0 = std::min(kKnots - 4, static_cast<int>(std::floor(s)));
+    float bw[4], dbw[4];
+    internal::cubicBSplineWeights(static_cast<float>(s - k0), bw, dbw);
+    for (int xp = 1; xp < W - 1; ++xp) {
+      WarpJacobian J;
+      const Vec2 pr = warpToReference(x, scene_->K, scene_->w_C, dt, xp, y, &J);
+      if (!(pr.x() >= 1.0 && pr.x() < W - 2.0 && pr.y() >= 1.0 && pr.y() < H - 2.0)) continue;
+      Vec2 g_ref;
+      const double level = spline.value(pr.x(), pr.y(), &g_ref) + ref.level_offset;
+      const double r = cur.intensity.at<float>(y, xp) + cur.level_offset - level;
+      const Vec2 g(0.5 * (cur.grad_x.at<float>(y, xp) + g_ref.x()), 0.5 * (cur.grad_y.at<float>(y, xp) + g_ref.y()));
+      Eigen::VectorXd row = Eigen::VectorXd::Zero(8 + kKnots);
+      row.head<8>() = (g.transpose() * J).transpose();
+      for (int j = 0; j < 4; ++j) row(8 + k0 + j) = bw[j] * level;
+      A_all += w * row * row.transpose();
+      b_all += w * row * r;
+    }
+  }
+  PhotometricParams params;
+  params.brightness_model = BrightnessModel::kRows;
+  params.brightness_row_knots = kKnots;
+  PhotometricUpdate update(params, pre);
+  ObservedInfo A;
+  ObservedVec b;
+  update.linearize(ref, cur, scene_->K, scene_->w_C, dt, x, &A, &b);
+  const MatX D = A_all.bottomRightCorner(kKnots, kKnots);
+  const MatX C = A_all.topRightCorner(8, kKnots);
+  const ObservedInfo A_ref = A_all.topLeftCorner<8, 8>() - C * D.ldlt().solve(C.transpose());
+  const ObservedVec b_ref = b_all.head<8>() - C * D.ldlt().solve(b_all.tail(kKnots));
+  EXPECT_LT((A - A_ref).norm(), 1e-3 * A_ref.norm());
+  EXPECT_LT((b - b_ref).norm(), 1e-3 * b_ref.norm());
+  // The knots take information (the images' motion along the rows is partly a change of the rows' gains).
+  ObservedInfo A_plain;
+  ObservedVec b_plain;
+  PhotometricUpdate plain(PhotometricParams{}, pre);
+  plain.linearize(ref, cur, scene_->K, scene_->w_C, dt, x, &A_plain, &b_plain);
+  const Eigen::SelfAdjointEigenSolver<ObservedInfo> lost(A_plain - A);
+  EXPECT_GT(lost.eigenvalues().minCoeff(), -1e-6 * A_plain.norm());
+  EXPECT_GT(lost.eigenvalues().maxCoeff(), 0.0);
+}
+
+namespace {
+/// The scene's image lit by a light whose brightness varies down the rows as a rolling shutter sees a flickering
+/// light, 0.8 (1 + depth sin(2 pi cycles y / H + phase)) on the grey levels (0.8: no grey level clipped), then
+/// blurred and standardised like the preprocessing (level_offset set).
+PreprocessedFrame bandedFrame(const TwoViewScene& s, const cv::Mat& gray8, double t_s, double depth, double cycles,
+                              double phase) {
+  cv::Mat grey;
+  gray8.convertTo(grey, CV_32FC1);
+  for (int y = 0; y < grey.rows; ++y)
+    grey.row(y) *= 0.8 * (1.0 + depth * std::sin(2.0 * M_PI * cycles * y / grey.rows + phase));  // none clipped
+  cv::Mat banded;
+  grey.convertTo(banded, CV_8UC1);
+  PreprocessedFrame f = test_util::makeFrame(banded, t_s);
+  // makeFrame standardises the blurred image; its level is the blurred image's mean over its standard deviation.
+  cv::Mat blurred;
+  banded.convertTo(blurred, CV_32FC1);
+  cv::GaussianBlur(blurred, blurred, cv::Size(0, 0), 0.8, 0.8, cv::BORDER_REFLECT101);
+  cv::Scalar mean, sd;
+  cv::meanStdDev(blurred, mean, sd);
+  f.level_offset = mean[0] / sd[0];
+  (void)s;
+  return f;
+}
+}  // namespace
+
+// A pair under flickering light: the bands of the two images differ (their phase moved between the images). The
+// row gains take them out and the state moves as on the unlit pair; the images compared as they are keep the bands
+// in the residual and the state goes wrong. `auto` finds the bands from the first update on and switches the row
+// gains on for the next; on the steady pair it does neither.
+TEST_F(PhotometricScene, RowGainsRemoveBandsOfTheRows) {
+  const Vec3 truth = scene_->truth.vartheta_inv_s;
+  const PreprocessedFrame ref = bandedFrame(*scene_, scene_->ref.gray8, 0.0, 0.0, 1.6, 0.0);
+  const PreprocessedFrame cur_steady = bandedFrame(*scene_, scene_->cur.gray8, scene_->dt_s, 0.0, 1.6, 0.0);
+  const PreprocessedFrame ref_banded = bandedFrame(*scene_, scene_->ref.gray8, 0.0, 0.2, 1.6, 0.3);
+  const PreprocessedFrame cur_banded = bandedFrame(*scene_, scene_->cur.gray8, scene_->dt_s, 0.2, 1.6, 2.4);
+  auto run = [&](BrightnessModel model, const PreprocessedFrame& r, const PreprocessedFrame& c, UpdateStats* st,
+                 int updates = 1) {
+    PhotometricParams params;
+    params.brightness_model = model;
+    params.stop_threshold = 0.0;
+    PhotometricUpdate update(params, PreprocessParams{});
+    double e = 0.0;
+    for (int i = 0; i < updates; ++i) {
+      State x = startState(0.5);
+      ErrorCov P = priorCov();
+      *st = update.update(r, c, scene_->K, scene_->w_C, scene_->dt_s, &x, &P);
+      EXPECT_TRUE(st->applied);
+      e = (x.vartheta - truth).norm();
+    }
+    return e;
+  };
+  UpdateStats st_steady, st_rows, st_plain, st_rows_steady, st_auto, st_auto_steady;
+  const double e_steady = run(BrightnessModel::kNormalised, ref, cur_steady, &st_steady);
+  const double e_rows = run(BrightnessModel::kRows, ref_banded, cur_banded, &st_rows);
+  const double e_plain = run(BrightnessModel::kNormalised, ref_banded, cur_banded, &st_plain);
+  const double e_rows_steady = run(BrightnessModel::kRows, ref, cur_steady, &st_rows_steady);
+  EXPECT_LT(e_rows, e_steady + 0.01 * truth.norm()) << e_steady << " -> " << e_rows;
+  EXPECT_GT(e_plain, e_rows + 0.02 * truth.norm()) << "the bands bias the images compared as they are";
+  EXPECT_LT(e_rows_steady, e_steady + 0.01 * truth.norm()) << "the row gains on a steady pair";
+  EXPECT_GT(st_rows.brightness_row_spread, 0.3);  // the pair's gain ratio spans about 1 -+ 0.35 down the rows
+  EXPECT_LT(st_rows_steady.brightness_row_spread, 0.02);
+  // What is left: the blur of a banded image is not the banded blurred image (sigma^2 grad g . grad I).
+  EXPECT_LT(st_rows.rms_residual, 3.0 * st_steady.rms_residual);
+  EXPECT_GT(st_plain.rms_residual, 5.0 * st_rows.rms_residual);
+  EXPECT_GT(st_plain.row_gain_rms, 0.1);   // bands of about 17 % RMS in the residual
+  EXPECT_LT(st_steady.row_gain_rms, 0.005);
+  // auto: found on the first update, the row gains used from the second.
+  const double e_auto = run(BrightnessModel::kAuto, ref_banded, cur_banded, &st_auto, 2);
+  EXPECT_TRUE(st_auto.row_bands_found);
+  EXPECT_TRUE(st_auto.row_gains);
+  EXPECT_NEAR(e_auto, e_rows, 0.005 * truth.norm());
+  run(BrightnessModel::kAuto, ref, cur_steady, &st_auto_steady, 3);
+  EXPECT_FALSE(st_auto_steady.row_bands_found);
+  EXPECT_FALSE(st_auto_steady.row_gains);
 }
 
 // The image's own measurement of vartheta (UpdateStats::vartheta_image, for the batch start-up of the distance):

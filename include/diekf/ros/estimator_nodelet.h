@@ -171,6 +171,8 @@ class EstimatorNodelet : public nodelet::Nodelet {
   double last_nis_ = 0.0, last_noise_sigma_ = 0.0, last_noise_correlation_ = 0.0, last_outlier_fraction_ = 0.0;
   double last_relief_pct_ = 0.0;  // FrameResult::relief_sigma of the last applied update, %
   double last_brightness_gain_ = 1.0, last_brightness_offset_ = 0.0;  ///< the pair's (photometric/brightness_model)
+  double last_row_banding_pct_ = 0.0;  ///< FrameResult::row_banding, %
+  bool last_row_gains_ = false;        ///< FrameResult::row_gains
   double last_fixed_pattern_fraction_ = 0.0;
   double last_fixed_pattern_contrast_share_ = 0.0;
   int last_dot_removal_px_ = 0;
