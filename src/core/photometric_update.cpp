@@ -1693,12 +1693,26 @@ void PhotometricUpdate::rowBanding(const PreprocessedFrame& cur, const Brightnes
     const float* r = residual_.ptr<float>(y);
     const float* I = cur.intensity.ptr<float>(y);
     double rN[2] = {0.0, 0.0}, NN[2] = {0.0, 0.0};
-    for (int x = border; x < W - border; ++x) {
-      if (r[x] == 0.0f) continue;  // not a valid pixel of the last linearisation
-      const double N = I[x] - r[x] + c_r;
-      const int h = x < half ? 0 : 1;
-      rN[h] += r[x] * N;
-      NN[h] += N * N;
+    const int ends[3] = {border, half, W - border};
+    for (int h = 0; h < 2; ++h) {
+      // Four lanes at a time; a pixel without a residual (not valid in the last linearisation) adds nothing.
+      using namespace cv;
+      const v_float32x4 zero = v_setzero_f32(), level = v_setall_f32(c_r);
+      v_float32x4 acc_rN = zero, acc_NN = zero;
+      int x = ends[h];
+      for (; x + 4 <= ends[h + 1]; x += 4) {
+        const v_float32x4 rv = v_load(r + x), N = v_load(I + x) - rv + level;
+        acc_rN = v_muladd(rv, N, acc_rN);
+        acc_NN = v_muladd(v_select(rv != zero, N, zero), N, acc_NN);
+      }
+      rN[h] = v_reduce_sum(acc_rN);
+      NN[h] = v_reduce_sum(acc_NN);
+      for (; x < ends[h + 1]; ++x) {
+        if (r[x] == 0.0f) continue;
+        const double N = I[x] - r[x] + c_r;
+        rN[h] += r[x] * N;
+        NN[h] += N * N;
+      }
     }
     if (!(NN[0] > 0.0) || !(NN[1] > 0.0)) continue;
     const double gl = rN[0] / NN[0], gr = rN[1] / NN[1];
