@@ -577,7 +577,7 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
   const v_float32x4 min_depth = v_setall_f32(static_cast<float>(kMinDepthRatio));
   const v_float32x4 huber = v_setall_f32(cfg.huber_abs);
   const bool brightness = cfg.brightness_columns > 0;
-  const v_float32x4 offset = v_setall_f32(cfg.offset);
+  const v_float32x4 gain = v_setall_f32(cfg.gain), offset = v_setall_f32(cfg.offset);
   const bool row_gains = cfg.row_gain != nullptr;
   const v_float32x4 ref_level = v_setall_f32(cfg.ref_level), cur_level_neg = v_setall_f32(-cfg.cur_level);
   const v_float32x4 u_to_s = v_setall_f32(cfg.row_gain_u_to_s);
@@ -619,7 +619,6 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
   const v_float32x4 x_step = v_setall_f32(static_cast<float>(4 * cfg.stride));
 
   for (int y = cfg.border; y < H - cfg.border; y += cfg.stride) {
-    const v_float32x4 gain = v_setall_f32(cfg.gain);
     // Row gains (see SweepConfig): the row's gain, slope and half curvature over delta, and where delta comes from.
     const v_float32x4 rg0 = v_setall_f32(row_gains ? cfg.row_gain[3 * y] : 1.0f);
     const v_float32x4 rg1 = v_setall_f32(row_gains ? cfg.row_gain[3 * y + 1] : 0.0f);

@@ -572,8 +572,7 @@ namespace {
 /// The scene's image lit by a light whose brightness varies down the rows as a rolling shutter sees a flickering
 /// light, 0.8 (1 + depth sin(2 pi cycles y / H + phase)) on the grey levels (0.8: no grey level clipped), then
 /// blurred and standardised like the preprocessing (level_offset set).
-PreprocessedFrame bandedFrame(const TwoViewScene& s, const cv::Mat& gray8, double t_s, double depth, double cycles,
-                              double phase) {
+PreprocessedFrame bandedFrame(const cv::Mat& gray8, double t_s, double depth, double cycles, double phase) {
   cv::Mat grey;
   gray8.convertTo(grey, CV_32FC1);
   for (int y = 0; y < grey.rows; ++y)
@@ -588,7 +587,6 @@ PreprocessedFrame bandedFrame(const TwoViewScene& s, const cv::Mat& gray8, doubl
   cv::Scalar mean, sd;
   cv::meanStdDev(blurred, mean, sd);
   f.level_offset = mean[0] / sd[0];
-  (void)s;
   return f;
 }
 }  // namespace
@@ -599,10 +597,10 @@ PreprocessedFrame bandedFrame(const TwoViewScene& s, const cv::Mat& gray8, doubl
 // gains on for the next; on the steady pair it does neither.
 TEST_F(PhotometricScene, RowGainsRemoveBandsOfTheRows) {
   const Vec3 truth = scene_->truth.vartheta_inv_s;
-  const PreprocessedFrame ref = bandedFrame(*scene_, scene_->ref.gray8, 0.0, 0.0, 1.6, 0.0);
-  const PreprocessedFrame cur_steady = bandedFrame(*scene_, scene_->cur.gray8, scene_->dt_s, 0.0, 1.6, 0.0);
-  const PreprocessedFrame ref_banded = bandedFrame(*scene_, scene_->ref.gray8, 0.0, 0.2, 1.6, 0.3);
-  const PreprocessedFrame cur_banded = bandedFrame(*scene_, scene_->cur.gray8, scene_->dt_s, 0.2, 1.6, 2.4);
+  const PreprocessedFrame ref = bandedFrame(scene_->ref.gray8, 0.0, 0.0, 1.6, 0.0);
+  const PreprocessedFrame cur_steady = bandedFrame(scene_->cur.gray8, scene_->dt_s, 0.0, 1.6, 0.0);
+  const PreprocessedFrame ref_banded = bandedFrame(scene_->ref.gray8, 0.0, 0.2, 1.6, 0.3);
+  const PreprocessedFrame cur_banded = bandedFrame(scene_->cur.gray8, scene_->dt_s, 0.2, 1.6, 2.4);
   auto run = [&](BrightnessModel model, const PreprocessedFrame& r, const PreprocessedFrame& c, UpdateStats* st,
                  int updates = 1) {
     PhotometricParams params;
