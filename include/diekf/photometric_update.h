@@ -252,6 +252,11 @@ class PhotometricUpdate {
   /// of its four knots and the spline's basis values, slopes and half curvatures there, over the capture time of
   /// `timing` (its rows' and pixels' readout weights; null: the working rows).
   void prepareRowKnots(int rows, const ImageTiming* timing);
+  /// The row gains' spline at row y (tables of prepareRowKnots) for the knots' coefficients `c`: its value, slope
+  /// and half curvature over the spline coordinate, into g[0..2].
+  void rowSpline(const BrightnessVec& c, int y, double g[3]) const;
+  /// The reference of the sweeps: its cubic B-spline coefficients (ref_coeff_) and its level (ref_level_offset_).
+  void setReference(const PreprocessedFrame& ref);
   /// The bands of the rows after an update (UpdateStats::row_gain_rms, row_banding, row_bands_found) from the last
   /// linearisation's residual and the fitted row gains `brightness` (when estimated); dt_s: the pair's interval.
   void rowBanding(const PreprocessedFrame& cur, const BrightnessVec& brightness, double dt_s, UpdateStats* stats);

@@ -974,6 +974,29 @@ int rowKnotCount(const PhotometricParams& params) {
 /// to zero mean and unit variance).
 constexpr double kMinBrightnessGain = 0.25, kMaxBrightnessGain = 4.0, kMaxBrightnessOffset = 2.0;
 
+/// Removes nuisance parameters from the state's information (the Schur complement, exact under a flat prior):
+/// A - C D^-1 C^T, b - C D^-1 e, with C the parameters' cross terms with the observed columns (8 x n), D their
+/// information (n x n) and e their score; `step` = D^-1 e, the parameters' step with the state held. A ridge of
+/// 1e-9 tr D keeps D definite where a parameter has no column. Returns false (nothing changed) when D is not
+/// positive definite or a result is not finite.
+template <class CMat, class DMat, class EVec>
+bool removeNuisance(const CMat& C, DMat D, const EVec& e, ObservedInfo* A, ObservedVec* b, EVec* step) {
+  double trace = 0.0;
+  for (int k = 0; k < D.rows(); ++k) trace += D(k, k);
+  for (int k = 0; k < D.rows(); ++k) D(k, k) += 1e-9 * trace;
+  const Eigen::LLT<DMat> llt(D);
+  if (llt.info() != Eigen::Success) return false;
+  using KMat = Eigen::Matrix<double, DMat::RowsAtCompileTime, 8, 0, DMat::MaxRowsAtCompileTime, 8>;
+  const KMat K = llt.solve(C.transpose());  // D^-1 C^T
+  const EVec s = llt.solve(e);
+  if (!K.allFinite() || !s.allFinite()) return false;
+  *A -= C * K;
+  *A = (0.5 * (*A + A->transpose())).eval();
+  *b -= K.transpose() * e;
+  *step = s;
+  return true;
+}
+
 /// Marginalises the pair's brightness (gain, and offset with `columns` = 2) from a sweep's information
 /// (docs/noise_model.md section 12). With the brightness columns N = [I_r, 1] (the model's derivatives,
 /// sqrt(w)-weighted in the sums), C = sum S^T N, D = sum N^T N and e = sum N^T r, the state's information is
@@ -997,16 +1020,7 @@ bool marginalizeBrightness(const double (*G)[kGramCols], int columns, double sca
   D *= scale;
   const Eigen::Vector2d e = scale * Eigen::Vector2d(G[8][9], columns > 1 ? G[8][10] : 0.0);
   if (!(D(0, 0) > 0.0) || !(D(1, 1) > 0.0) || !C.allFinite() || !D.allFinite() || !e.allFinite()) return false;
-  const Eigen::LLT<Eigen::Matrix2d> llt(D + (1e-9 * D.trace()) * Eigen::Matrix2d::Identity());
-  if (llt.info() != Eigen::Success) return false;
-  const Eigen::Matrix<double, 2, 8> K = llt.solve(C.transpose());  // D^-1 C^T
-  const Eigen::Vector2d s = llt.solve(e);
-  if (!K.allFinite() || !s.allFinite()) return false;
-  *A -= C * K;
-  *A = (0.5 * (*A + A->transpose())).eval();
-  *b -= K.transpose() * e;
-  *step = s;
-  return true;
+  return removeNuisance(C, D, e, A, b, step);
 }
 
 /// The same for the row gains (SweepConfig::row_gain; `knots` columns, the model's derivatives by the spline's
@@ -1016,7 +1030,6 @@ bool marginalizeRowGains(const SweepSums& sums, int knots, double scale, double 
                          ObservedInfo* A, ObservedVec* b, BrightnessVec* step) {
   using KnotMat = Eigen::Matrix<double, Eigen::Dynamic, Eigen::Dynamic, 0, kMaxRowKnots, kMaxRowKnots>;
   using CMat = Eigen::Matrix<double, 8, Eigen::Dynamic, 0, 8, kMaxRowKnots>;
-  using KMat = Eigen::Matrix<double, Eigen::Dynamic, 8, 0, kMaxRowKnots, 8>;
   CMat C = CMat::Zero(8, knots);
   KnotMat D = KnotMat::Zero(knots, knots);
   BrightnessVec e = BrightnessVec::Zero(knots);
@@ -1030,17 +1043,7 @@ bool marginalizeRowGains(const SweepSums& sums, int knots, double scale, double 
   for (int k = 0; k < knots; ++k) trace += D(k, k);
   if (!(trace > 0.0) || !C.allFinite() || !D.allFinite() || !e.allFinite()) return false;
   // A knot without pixels (all its rows invalid) has no column: the ridge keeps D definite, its step stays 0.
-  for (int k = 0; k < knots; ++k) D(k, k) += 1e-9 * trace;
-  const Eigen::LLT<KnotMat> llt(D);
-  if (llt.info() != Eigen::Success) return false;
-  const KMat K = llt.solve(C.transpose());  // D^-1 C^T
-  const BrightnessVec s = llt.solve(e);
-  if (!K.allFinite() || !s.allFinite()) return false;
-  *A -= C * K;
-  *A = (0.5 * (*A + A->transpose())).eval();
-  *b -= K.transpose() * e;
-  *step = s;
-  return true;
+  return removeNuisance(C, D, e, A, b, step);
 }
 
 bool framesUsable(const PreprocessedFrame& ref, const PreprocessedFrame& cur, int border) {
@@ -1066,8 +1069,7 @@ void PhotometricUpdate::setPreprocessNoise(double variance_gain, double correlat
 int PhotometricUpdate::linearize(const PreprocessedFrame& ref, const PreprocessedFrame& cur, const PinholeK& K,
                                  const Vec3& gyro_mean_C, double dt_s, const State& x, ObservedInfo* A,
                                  ObservedVec* b, int* candidates, double state_lag_s) {
-  internal::cubicBSplineCoefficients(ref.intensity, &ref_coeff_, &spline_scratch_);
-  ref_level_offset_ = ref.level_offset;
+  setReference(ref);
   effective_model_ = params_.brightness_model == BrightnessModel::kAuto ? BrightnessModel::kNormalised
                                                                         : params_.brightness_model;
   prepareBuffers(cur.intensity.size());
@@ -1078,6 +1080,11 @@ int PhotometricUpdate::linearize(const PreprocessedFrame& ref, const Preprocesse
   *b = inv_var * sums.b;
   if (candidates != nullptr) *candidates = sums.candidates;
   return valid;
+}
+
+void PhotometricUpdate::setReference(const PreprocessedFrame& ref) {
+  internal::cubicBSplineCoefficients(ref.intensity, &ref_coeff_, &spline_scratch_);
+  ref_level_offset_ = ref.level_offset;
 }
 
 void PhotometricUpdate::prepareBuffers(const cv::Size& size) {
@@ -1093,6 +1100,14 @@ void PhotometricUpdate::prepareBuffers(const cv::Size& size) {
   }
   const int n_pad = (size.width + 3) & ~3;
   if (scratch_.rows != kGramCols + 5 || scratch_.cols < n_pad) scratch_.create(kGramCols + 5, n_pad, CV_32FC1);
+}
+
+void PhotometricUpdate::rowSpline(const BrightnessVec& c, int y, double g[3]) const {
+  const int k0 = row_knot_[y];
+  const float* a = &row_basis_[12 * y];
+  g[0] = g[1] = g[2] = 0.0;
+  for (int j = 0; j < 4; ++j)
+    for (int n = 0; n < 3; ++n) g[n] += c(k0 + j) * a[3 * j + n];
 }
 
 void PhotometricUpdate::prepareRowKnots(int rows, const ImageTiming* timing) {
@@ -1160,12 +1175,8 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
     cfg.brightness_columns = 3;
     const bool given = brightness != nullptr && brightness->size() == knots;
     for (int y = 0; y < cur.intensity.rows; ++y) {
-      const int k0 = row_knot_[y];
-      const float* a = &row_basis_[12 * y];
-      double g[3] = {given ? 0.0 : 1.0, 0.0, 0.0};
-      if (given)
-        for (int j = 0; j < 4; ++j)
-          for (int n = 0; n < 3; ++n) g[n] += (*brightness)(k0 + j) * a[3 * j + n];
+      double g[3] = {1.0, 0.0, 0.0};
+      if (given) rowSpline(*brightness, y, g);
       for (int n = 0; n < 3; ++n) row_gain_[3 * y + n] = static_cast<float>(g[n]);
     }
     cfg.row_gain = row_gain_.data();
@@ -1439,8 +1450,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   // with the objects. A map without any weight below 1 changes nothing: the plain sweep is used (bit for bit,
   // and cheaper).
   use_weight_map_ = params_.outlier_threshold_sigma > 0.0 && weight_map_has_outliers_ && weightsBelongTo(ref);
-  internal::cubicBSplineCoefficients(ref.intensity, &ref_coeff_, &spline_scratch_);  // once per update, every pass
-  ref_level_offset_ = ref.level_offset;
+  setReference(ref);  // once per update, every pass
   // The camera-fixed pattern's confidence, per pixel of the current image (docs/noise_model.md section 11).
   active_map_ = confidence_ != nullptr && confidence_->type() == CV_32FC1 && confidence_->size() == cur.intensity.size()
                     ? confidence_ : nullptr;
@@ -1732,10 +1742,10 @@ void PhotometricUpdate::rowBanding(const PreprocessedFrame& cur, const Brightnes
     double m = 0.0, m2 = 0.0;
     int n = 0;
     for (int y = border; y < H - border; ++y) {
-      double g = 0.0;
-      for (int j = 0; j < 4; ++j) g += brightness(row_knot_[y] + j) * row_basis_[12 * y + 3 * j];
-      m += g;
-      m2 += g * g;
+      double g[3];
+      rowSpline(brightness, y, g);
+      m += g[0];
+      m2 += g[0] * g[0];
       ++n;
     }
     if (n > 0 && m > 0.0) {
