@@ -70,6 +70,9 @@ struct FrameResult {
   double row_banding = 0.0;
   bool row_bands_found = false;
   bool row_gains = false;
+  /// Brightness model levels (or auto): this pair's light or exposure changed (its mean residual), and the pair
+  /// was compared as standardised (docs/noise_model.md section 12).
+  bool light_change = false;
   std::string message;               ///< why initializing / reset / skipped (empty when tracking normally)
   int resets = 0;                    ///< filter restarts since construction (automatic and requested)
   std::string last_reset_reason;     ///< why the filter last restarted (empty if it never did)

@@ -86,8 +86,8 @@ struct PreprocessParams {
 
 /// How the photometric update models a brightness change between the two images of a pair
 /// (PhotometricParams::brightness_model).
-enum class BrightnessModel { kNormalised, kGain, kAffine, kRows, kAuto };
-/// "normalised" | "gain" | "affine" | "rows" | "auto" -> BrightnessModel; throws std::invalid_argument naming the
+enum class BrightnessModel { kNormalised, kGain, kAffine, kRows, kAuto, kLevels };
+/// "normalised" | "gain" | "affine" | "rows" | "auto" | "levels" -> BrightnessModel; throws std::invalid_argument naming the
 /// value otherwise.
 BrightnessModel parseBrightnessModel(const std::string& name);
 const char* toString(BrightnessModel model);
@@ -137,9 +137,16 @@ struct PhotometricParams {
   /// pair's gain g (and offset o) estimated in the update's Gauss-Newton passes and marginalised from the
   /// information.
   /// kRows: the pair's gain a smooth function of each pixel's capture time (a rolling shutter under flickering
-  /// light: each row integrates its own part of the light's cycle); kAuto: kNormalised, and kRows while bands of
-  /// the rows are found.
+  /// light: each row integrates its own part of the light's cycle); kAuto: kLevels, and kRows while bands of the
+  /// rows are found.
+  /// kLevels: the images compared at their grey levels (the standardisation undone: the content entering and
+  /// leaving the view changes an image's mean and spread, which the standardisation would read as light), the
+  /// light taken as steady unless the pair's mean residual says otherwise (light_change_threshold): that pair is
+  /// compared as standardised.
   BrightnessModel brightness_model = BrightnessModel::kAuto;
+  /// kLevels: a pair whose first linearisation leaves a mean residual above this fraction of the current image's
+  /// grey level (its mean) is taken for a change of the light or the exposure (unitless).
+  double light_change_threshold = 0.005;
   /// kRows: knots of the gain's cubic B-spline, spread evenly over the capture times of the working image.
   static constexpr int kMaxBrightnessRowKnots = 32;
   int brightness_row_knots = 12;

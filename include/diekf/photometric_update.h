@@ -52,6 +52,9 @@ struct UpdateStats {
   double row_banding = 0.0;
   bool row_bands_found = false;
   bool row_gains = false;
+  /// Brightness model kLevels (or auto): this pair's mean residual said the light or the exposure changed, and the
+  /// pair was compared as standardised.
+  bool light_change = false;
   /// The image pair's own measurement of vartheta, without its prior (1/s): one Gauss-Newton step from the last
   /// linearisation point on the image's information alone, with mu and b_w marginalised under their prior; and
   /// its covariance. For the batch start-up of the distance (docs/algorithm.md section 7.1). Valid when
@@ -222,6 +225,7 @@ class PhotometricUpdate {
     double robust_sigma = 0.0;  ///< sqrt(pi/2) mean |r| over the valid pixels (outlier-weighted)
     double correlation = 1.0;   ///< variance of the tile scores over the variance of independent pixels
     double weight_sum = 0.0;    ///< sum of the outlier weights over the valid pixels (= valid without a map)
+    double mean_residual = 0.0; ///< outlier-weighted mean residual over the valid pixels
     // Rolling-shutter readout (when estimated): row moments with w_y = ImageTiming::row_weight[y], the row's
     // capture time per second of readout.
     bool has_moments = false;
@@ -297,6 +301,7 @@ class PhotometricUpdate {
   const ImageTiming* row_timing_ = nullptr;         ///< the current update's timing (set within update())
   /// The brightness model of the current update (params' unless auto: kRows while bands are found).
   BrightnessModel effective_model_ = BrightnessModel::kNormalised;
+  double ref_grey_per_unit_ = 0.0;  ///< the reference's grey levels per unit (setReference; kLevels)
   double bands_rms_ = 0.0;    ///< smoothed row gain RMS (rowBanding)
   bool bands_valid_ = false;
   bool bands_found_ = false;  ///< bands of the rows found (hysteresis, rowBanding)

@@ -546,6 +546,7 @@ struct Estimator::Impl {
     r->row_banding = std::isfinite(stats.row_banding) ? stats.row_banding : 0.0;
     r->row_bands_found = stats.row_bands_found;
     r->row_gains = stats.row_gains;
+    r->light_change = stats.light_change;
   }
 
   /// Processes every pending image whose stamp is covered by filtered IMU data. Before the filter has started,

@@ -385,6 +385,8 @@ const std::vector<Entry>& table() {
                       &parseBrightnessModel));
     t.push_back(integer("photometric/brightness_row_knots", DIEKF_FIELD(int, photometric.brightness_row_knots),
                         between(4, PhotometricParams::kMaxBrightnessRowKnots)));
+    t.push_back(real("photometric/light_change_threshold", DIEKF_FIELD(double, photometric.light_change_threshold),
+                     between(0.0, 1.0)));
     // camera-fixed pattern (FixedPattern)
     t.push_back(flag("fixed_pattern/enabled", DIEKF_FIELD(bool, fixed_pattern.enabled)));
     t.push_back(real("fixed_pattern/decorrelation_px", DIEKF_FIELD(double, fixed_pattern.decorrelation_px),

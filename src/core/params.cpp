@@ -29,8 +29,9 @@ BrightnessModel parseBrightnessModel(const std::string& name) {
   if (name == "affine") return BrightnessModel::kAffine;
   if (name == "rows") return BrightnessModel::kRows;
   if (name == "auto") return BrightnessModel::kAuto;
+  if (name == "levels") return BrightnessModel::kLevels;
   throw std::invalid_argument("unknown brightness model '" + name +
-                              "' (expected normalised, gain, affine, rows or auto)");
+                              "' (expected normalised, gain, affine, rows, auto or levels)");
 }
 
 const char* toString(BrightnessModel model) {
@@ -45,6 +46,8 @@ const char* toString(BrightnessModel model) {
       return "rows";
     case BrightnessModel::kAuto:
       return "auto";
+    case BrightnessModel::kLevels:
+      return "levels";
   }
   return "?";
 }

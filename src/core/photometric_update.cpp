@@ -388,6 +388,8 @@ struct SweepConfig {
   int brightness_columns = 0;
   float gain = 1.0f;
   float offset = 0.0f;
+  // Brightness kLevels: gain and offset applied as given (the levels' relation), no columns.
+  bool fixed_brightness = false;
   // Row gains (brightness model kRows, brightness_columns 3; docs/noise_model.md section 12): the pair's gain is
   // a cubic B-spline over the capture time of the raw rows, g(s) = sum_k c_k beta(s - k), s the spline
   // coordinate. Row y sits at s_y; a pixel of it at s_y + delta, delta = row_gain_pixel (the pixel's capture
@@ -432,6 +434,7 @@ struct SweepSums {
   int valid = 0;
   double sum_r2 = 0.0;
   double sum_abs_r = 0.0;  // sum of w_map |r| over valid pixels (w_map = 1 without a weight map)
+  double sum_r = 0.0;      // sum of w_map r over valid pixels
   double sum_w = 0.0;      // sum of w_map over valid pixels
   double grad_sum = 0.0;  // sum of |grad I_c| over valid pixels (gradient weighting normalisation)
   double G[kGramCols][kGramCols] = {};
@@ -576,7 +579,8 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
   const v_float32x4 ifx = v_setall_f32(wp.ifx);
   const v_float32x4 min_depth = v_setall_f32(static_cast<float>(kMinDepthRatio));
   const v_float32x4 huber = v_setall_f32(cfg.huber_abs);
-  const bool brightness = cfg.brightness_columns > 0;
+  const bool brightness_cols = cfg.brightness_columns > 0;
+  const bool brightness = brightness_cols || cfg.fixed_brightness;
   const v_float32x4 gain = v_setall_f32(cfg.gain), offset = v_setall_f32(cfg.offset);
   const bool row_gains = cfg.row_gain != nullptr;
   const v_float32x4 ref_level = v_setall_f32(cfg.ref_level), cur_level_neg = v_setall_f32(-cfg.cur_level);
@@ -700,7 +704,8 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
     const v_float32x4 qP0 = v_setall_f32(wp.P[1][0] * qy_s + wp.P[2][0]);
     const v_float32x4 qP1 = v_setall_f32(wp.P[1][1] * qy_s + wp.P[2][1]);
 
-    v_float32x4 r2 = v_setzero_f32(), rabs = v_setzero_f32(), gsum = v_setzero_f32(), vcount = v_setzero_f32();
+    v_float32x4 r2 = v_setzero_f32(), rabs = v_setzero_f32(), rsum = v_setzero_f32(), gsum = v_setzero_f32(),
+                vcount = v_setzero_f32();
     v_float32x4 wsum = v_setzero_f32();
     v_float32x4 xv = v_load(xs_init);
     for (int k = 0; k < n_pad; k += 4, xv += x_step) {
@@ -846,7 +851,7 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
       v_store_aligned(buf.T[6] + k, swj * v_bw[1]);
       v_store_aligned(buf.T[7] + k, swj * v_bw[2]);
       v_store_aligned(buf.T[8] + k, sw * r);
-      if (brightness) {
+      if (brightness_cols) {
         if (row_gains) {
           const v_float32x4 nN = sw * (ref_i + ref_level), dN = delta * nN;
           v_store_aligned(buf.T[9] + k, nN);
@@ -861,9 +866,11 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
       const v_float32x4 valid01 = v_select(valid, one, zero);
       if constexpr (kWeightMap) {
         rabs = v_muladd(v_abs(r), wm, rabs);
+        rsum = v_muladd(r, wm, rsum);
         wsum = v_muladd(valid01, wm, wsum);
       } else {
         rabs += v_abs(r);
+        rsum += r;
         wsum += valid01;
       }
       v_store_aligned(buf.valid + k, valid01);
@@ -932,6 +939,7 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
     sums->valid += static_cast<int>(v_reduce_sum(vcount));
     sums->sum_r2 += v_reduce_sum(r2);
     sums->sum_abs_r += v_reduce_sum(rabs);
+    sums->sum_r += v_reduce_sum(rsum);
     sums->sum_w += v_reduce_sum(wsum);
     sums->grad_sum += v_reduce_sum(gsum);
   }
@@ -1085,6 +1093,7 @@ int PhotometricUpdate::linearize(const PreprocessedFrame& ref, const Preprocesse
 void PhotometricUpdate::setReference(const PreprocessedFrame& ref) {
   internal::cubicBSplineCoefficients(ref.intensity, &ref_coeff_, &spline_scratch_);
   ref_level_offset_ = ref.level_offset;
+  ref_grey_per_unit_ = ref.grey_per_unit;
 }
 
 void PhotometricUpdate::prepareBuffers(const cv::Size& size) {
@@ -1193,6 +1202,13 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
     const bool given = brightness != nullptr && brightness->size() == 2;
     cfg.gain = given ? static_cast<float>((*brightness)(0)) : 1.0f;
     cfg.offset = given && cfg.brightness_columns > 1 ? static_cast<float>((*brightness)(1)) : 0.0f;
+  } else if (effective_model_ == BrightnessModel::kLevels && ref_grey_per_unit_ > 0.0 && cur.grey_per_unit > 0.0) {
+    // The grey levels' relation I_c s_c + m_c = I_r s_r + m_r in the standardised units of the current image
+    // (I = (grey - m) / s, level l = m / s): I_c = (s_r / s_c) (I_r + l_r) - l_c.
+    const double gain = ref_grey_per_unit_ / cur.grey_per_unit;
+    cfg.fixed_brightness = true;
+    cfg.gain = static_cast<float>(gain);
+    cfg.offset = static_cast<float>(gain * ref_level_offset_ - cur.level_offset);
   }
   cfg.confidence_map = active_map_;
   cfg.reference_weights = use_weight_map_ && weight_map_.type() == CV_32FC1 && weight_map_.size() == cur.intensity.size()
@@ -1286,6 +1302,7 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
   out->candidates = sums.candidates;
   out->sum_r2 = sums.sum_r2;
   out->weight_sum = sums.sum_w;
+  out->mean_residual = sums.sum_w > 0.0 ? sums.sum_r / sums.sum_w : 0.0;
   out->robust_sigma = sums.sum_w > 0.0 ? std::sqrt(0.5 * 3.14159265358979323846) * sums.sum_abs_r / sums.sum_w : 0.0;
 
   // Score correlation (docs/noise_model.md): with independent pixels of variance s^2 the tile scores b_t are
@@ -1443,7 +1460,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   // auto: the row gains while bands of the rows have been found (rowBanding), else the images as standardised.
   effective_model_ = params_.brightness_model != BrightnessModel::kAuto
                          ? params_.brightness_model
-                         : (bands_found_ ? BrightnessModel::kRows : BrightnessModel::kNormalised);
+                         : (bands_found_ ? BrightnessModel::kRows : BrightnessModel::kLevels);
   stats.row_gains = effective_model_ == BrightnessModel::kRows;
   // Outlier weights from the previous update's residual (section 10), when that update's current image is this
   // one's reference: they belong to the reference's pixels and are sampled where the warp lands, so they move
@@ -1554,6 +1571,14 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
       return n_valid;
     };
     int valid = sweep_here();
+    // Levels (section 12): a mean residual of the first linearisation above light_change_threshold of the current
+    // image's level is a change of the light or the exposure, not motion: this pair is compared as standardised.
+    if (pass == 0 && effective_model_ == BrightnessModel::kLevels &&
+        std::abs(sums.mean_residual) > params_.light_change_threshold * std::abs(cur.level_offset)) {
+      effective_model_ = BrightnessModel::kNormalised;
+      stats.light_change = true;
+      valid = sweep_here();
+    }
     // Row gains (section 12): a pair under flickering light starts far from its gains (the bands of the two
     // images are unrelated), and this pass's residual, noise and outlier statistics would be those of the bands.
     // The first pass is therefore linearised again, at the same state, with the gains just fitted while they
@@ -1690,7 +1715,10 @@ void PhotometricUpdate::rowBanding(const PreprocessedFrame& cur, const Brightnes
                                    UpdateStats* stats) {
   const int W = residual_.cols, H = residual_.rows;
   const int border = std::max(1, preprocess_.border_px);
-  const float c_r = static_cast<float>(ref_level_offset_);
+  // The model with its level restored: the reference's level added (under kLevels the model already holds the
+  // levels' relation less the current image's level).
+  const float c_r =
+      static_cast<float>(effective_model_ == BrightnessModel::kLevels ? cur.level_offset : ref_level_offset_);
   // Per row and half of the row: the current image's relative gain against the model, g = sum r N / sum N^2,
   // N = I_c - r + the reference's level (the model with its level restored): what a gain of that row would still
   // fit. Bands of the rows change both halves alike; an object in the view changes one. So the bands' variance is

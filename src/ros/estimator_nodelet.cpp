@@ -832,6 +832,7 @@ void EstimatorNodelet::publishResult(const diekf::FrameResult& r) {
     last_brightness_offset_ = r.brightness_offset;
     last_row_banding_pct_ = 1e2 * r.row_banding;
     last_row_gains_ = r.row_gains;
+    if (r.light_change) ++light_changes_;
     last_fixed_pattern_fraction_ = r.fixed_pattern_fraction;
     last_fixed_pattern_contrast_share_ = r.fixed_pattern_contrast_share;
     last_dot_removal_px_ = r.dot_removal_px;
@@ -906,6 +907,7 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
   stat.add("bands of the rows (light flicker under a rolling shutter; smoothed RMS of the row gains, %)",
            last_row_banding_pct_);
   stat.add("row gains estimated", last_row_gains_ ? "yes" : "no");
+  stat.add("pairs with a change of the light or exposure (compared standardised; since start)", light_changes_);
   stat.add("camera-fixed pattern learned", fixed_pattern_active_ ? "yes" : "not yet (start-up)");
   stat.add("strong camera-fixed pattern (share of the image; projector, shadow, dirt)", last_fixed_pattern_fraction_);
   stat.add("camera-fixed pattern's share of the image contrast", last_fixed_pattern_contrast_share_);

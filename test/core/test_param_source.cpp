@@ -96,6 +96,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          ha.relief_in_covariance == hb.relief_in_covariance &&
          ha.focal_scale_in_covariance == hb.focal_scale_in_covariance &&
          ha.brightness_model == hb.brightness_model && ha.brightness_row_knots == hb.brightness_row_knots &&
+         ha.light_change_threshold == hb.light_change_threshold &&
          da.max_step_sigma == db.max_step_sigma && da.degraded_hold_s == db.degraded_hold_s &&
          da.max_nis_ratio == db.max_nis_ratio && a.input.gap_accel_sigma_mps2 == b.input.gap_accel_sigma_mps2 &&
          a.input.gap_gyro_sigma_radps == b.input.gap_gyro_sigma_radps && fa.max_corners == fb.max_corners && fa.predict_flow == fb.predict_flow &&

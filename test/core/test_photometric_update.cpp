@@ -591,6 +591,53 @@ PreprocessedFrame bandedFrame(const cv::Mat& gray8, double t_s, double depth, do
 }
 }  // namespace
 
+// Levels (docs/noise_model.md section 12): the images compared at their grey levels. (1) The current image
+// standardised with a mean off by delta (ground of another brightness entered the view outside the overlap): the
+// levels' relation (each image's level and spread) restores it, and the state moves as on the unchanged pair,
+// while the images compared as standardised are biased. (2) An exposure change (the raw image times 1.15: the
+// standardised image is the same, its spread 1.15 times larger): the pair's mean residual says the light changed
+// and the pair is compared as standardised, bit for bit.
+TEST_F(PhotometricScene, LevelsRestoreTheStandardisationsLevelAndFallBackOnALightChange) {
+  constexpr double kLevel = 4.0, kSpread = 40.0, kDelta = 0.1;
+  PreprocessedFrame ref = scene_->ref, same = scene_->cur;
+  ref.level_offset = same.level_offset = kLevel;
+  ref.grey_per_unit = same.grey_per_unit = kSpread;
+  PreprocessedFrame shifted = same;
+  shifted.intensity = cv::Mat(same.intensity - kDelta);  // new buffer; the gradients are unchanged
+  shifted.level_offset = kLevel + kDelta;
+  PreprocessedFrame brighter = same;
+  brighter.grey_per_unit = 1.15 * kSpread;
+  const Vec3 truth = scene_->truth.vartheta_inv_s;
+  auto run = [&](BrightnessModel model, const PreprocessedFrame& cur, UpdateStats* st) {
+    PhotometricParams params;
+    params.brightness_model = model;
+    params.stop_threshold = 0.0;
+    PhotometricUpdate update(params, PreprocessParams{});
+    State x = startState(0.5);
+    ErrorCov P = priorCov();
+    *st = update.update(ref, cur, scene_->K, scene_->w_C, scene_->dt_s, &x, &P);
+    EXPECT_TRUE(st->applied);
+    return x.vartheta;
+  };
+  UpdateStats st;
+  const Vec3 v_norm_same = run(BrightnessModel::kNormalised, same, &st);
+  const Vec3 v_norm_shifted = run(BrightnessModel::kNormalised, shifted, &st);
+  const Vec3 v_levels_same = run(BrightnessModel::kLevels, same, &st);
+  EXPECT_FALSE(st.light_change);
+  const Vec3 v_levels_shifted = run(BrightnessModel::kLevels, shifted, &st);
+  EXPECT_FALSE(st.light_change);
+  const Vec3 v_levels_brighter = run(BrightnessModel::kLevels, brighter, &st);
+  EXPECT_TRUE(st.light_change);
+  EXPECT_EQ(v_levels_brighter, v_norm_same);  // compared as standardised
+  // Equal levels and spreads: the levels' relation is the standardised one.
+  EXPECT_LT((v_levels_same - v_norm_same).norm(), 1e-6 * truth.norm());
+  // The spurious offset: restored by the levels, a bias when compared as standardised.
+  const double e_same = (v_norm_same - truth).norm();
+  EXPECT_LT((v_levels_shifted - v_levels_same).norm(), 1e-4 * truth.norm());
+  EXPECT_GT((v_norm_shifted - v_norm_same).norm(), 0.01 * truth.norm()) << e_same;
+}
+
+
 // A pair under flickering light: the bands of the two images differ (their phase moved between the images). The
 // row gains take them out and the state moves as on the unlit pair; the images compared as they are keep the bands
 // in the residual and the state goes wrong. `auto` finds the bands from the first update on and switches the row

@@ -172,6 +172,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
   double last_relief_pct_ = 0.0;  // FrameResult::relief_sigma of the last applied update, %
   double last_brightness_gain_ = 1.0, last_brightness_offset_ = 0.0;  ///< the pair's (photometric/brightness_model)
   double last_row_banding_pct_ = 0.0;  ///< FrameResult::row_banding, %
+  std::uint64_t light_changes_ = 0;    ///< pairs with FrameResult::light_change since start
   bool last_row_gains_ = false;        ///< FrameResult::row_gains
   double last_fixed_pattern_fraction_ = 0.0;
   double last_fixed_pattern_contrast_share_ = 0.0;
