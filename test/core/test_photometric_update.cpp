@@ -294,6 +294,20 @@ class PhotometricScene : public ::testing::Test {
     x.g = UnitVector(Vec3(0.0, 0.0, 1.0));
     return x;
   }
+  /// One update of the pair (ref, cur) from startState(0.5) with the given brightness model (all passes): the
+  /// updated vartheta; the stats to `st`.
+  static Vec3 updatedVartheta(BrightnessModel model, const PreprocessedFrame& ref, const PreprocessedFrame& cur,
+                              UpdateStats* st) {
+    PhotometricParams params;
+    params.brightness_model = model;
+    params.stop_threshold = 0.0;
+    PhotometricUpdate update(params, PreprocessParams{});
+    State x = startState(0.5);
+    ErrorCov P = priorCov();
+    *st = update.update(ref, cur, scene_->K, scene_->w_C, scene_->dt_s, &x, &P);
+    EXPECT_TRUE(st->applied);
+    return x.vartheta;
+  }
   static TwoViewScene* scene_;
 };
 TwoViewScene* PhotometricScene::scene_ = nullptr;
@@ -473,15 +487,7 @@ TEST_F(PhotometricScene, BrightnessModelRecoversAGainAndOffsetChange) {
   const PreprocessedFrame affine_change = changedBy(kGain, kOffset), gain_change = changedBy(kGain, 0.0);
   const Vec3 truth = scene_->truth.vartheta_inv_s;
   auto run = [&](BrightnessModel model, const PreprocessedFrame& cur, UpdateStats* st) {
-    PhotometricParams params;
-    params.brightness_model = model;
-    params.stop_threshold = 0.0;
-    PhotometricUpdate update(params, PreprocessParams{});
-    State x = startState(0.5);
-    ErrorCov P = priorCov();
-    *st = update.update(scene_->ref, cur, scene_->K, scene_->w_C, scene_->dt_s, &x, &P);
-    EXPECT_TRUE(st->applied);
-    return (x.vartheta - truth).norm();
+    return (updatedVartheta(model, scene_->ref, cur, st) - truth).norm();
   };
   UpdateStats st_same, st_affine, st_plain, st_off, st_gain;
   const double e_same = run(BrightnessModel::kAffine, scene_->cur, &st_same);
@@ -609,15 +615,7 @@ TEST_F(PhotometricScene, LevelsRestoreTheStandardisationsLevelAndFallBackOnALigh
   brighter.grey_per_unit = 1.15 * kSpread;
   const Vec3 truth = scene_->truth.vartheta_inv_s;
   auto run = [&](BrightnessModel model, const PreprocessedFrame& cur, UpdateStats* st) {
-    PhotometricParams params;
-    params.brightness_model = model;
-    params.stop_threshold = 0.0;
-    PhotometricUpdate update(params, PreprocessParams{});
-    State x = startState(0.5);
-    ErrorCov P = priorCov();
-    *st = update.update(ref, cur, scene_->K, scene_->w_C, scene_->dt_s, &x, &P);
-    EXPECT_TRUE(st->applied);
-    return x.vartheta;
+    return updatedVartheta(model, ref, cur, st);
   };
   UpdateStats st;
   const Vec3 v_norm_same = run(BrightnessModel::kNormalised, same, &st);
