@@ -299,7 +299,8 @@ class PhotometricUpdate {
   const cv::Mat* row_knot_tables_pixel_ = nullptr;  ///< the per-pixel times they were made with (not owned)
   const float* row_knot_tables_rows_ = nullptr;     ///< the per-row times they were made with (not owned)
   const ImageTiming* row_timing_ = nullptr;         ///< the current update's timing (set within update())
-  /// The brightness model of the current update (params' unless auto: kRows while bands are found).
+  /// The brightness model of the current update (params' unless auto: kRows while bands are found, else kLevels;
+  /// kNormalised for a pair kLevels finds a light change in).
   BrightnessModel effective_model_ = BrightnessModel::kNormalised;
   double ref_grey_per_unit_ = 0.0;  ///< the reference's grey levels per unit (setReference; kLevels)
   double bands_rms_ = 0.0;    ///< smoothed row gain RMS (rowBanding)

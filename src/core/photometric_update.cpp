@@ -1457,10 +1457,14 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     ~TimingScope() { *slot = nullptr; }
   } timing_scope{&row_timing_};
   row_timing_ = &timing;
-  // auto: the row gains while bands of the rows have been found (rowBanding), else the images as standardised.
+  // auto: the row gains while bands of the rows have been found (rowBanding), else the images at their grey
+  // levels. Images that are not standardised (preprocess normalize_brightness false) are at their grey levels
+  // already: kLevels is kNormalised for them.
   effective_model_ = params_.brightness_model != BrightnessModel::kAuto
                          ? params_.brightness_model
                          : (bands_found_ ? BrightnessModel::kRows : BrightnessModel::kLevels);
+  if (effective_model_ == BrightnessModel::kLevels && !preprocess_.normalize_brightness)
+    effective_model_ = BrightnessModel::kNormalised;
   stats.row_gains = effective_model_ == BrightnessModel::kRows;
   // Outlier weights from the previous update's residual (section 10), when that update's current image is this
   // one's reference: they belong to the reference's pixels and are sampled where the warp lands, so they move
