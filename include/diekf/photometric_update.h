@@ -259,6 +259,9 @@ class PhotometricUpdate {
   /// The row gains' spline at row y (tables of prepareRowKnots) for the knots' coefficients `c`: its value, slope
   /// and half curvature over the spline coordinate, into g[0..2].
   void rowSpline(const BrightnessVec& c, int y, double g[3]) const;
+  /// The pair's brightness model before its light-change test: the parameter's, auto resolved (kRows while bands
+  /// of the rows are found, else kLevels), kLevels as kNormalised for images that are not standardised.
+  BrightnessModel pairModel() const;
   /// The reference of the sweeps: its cubic B-spline coefficients (ref_coeff_) and its level (ref_level_offset_).
   void setReference(const PreprocessedFrame& ref);
   /// The bands of the rows after an update (UpdateStats::row_gain_rms, row_banding, row_bands_found) from the last

@@ -1078,8 +1078,7 @@ int PhotometricUpdate::linearize(const PreprocessedFrame& ref, const Preprocesse
                                  const Vec3& gyro_mean_C, double dt_s, const State& x, ObservedInfo* A,
                                  ObservedVec* b, int* candidates, double state_lag_s) {
   setReference(ref);
-  effective_model_ = params_.brightness_model == BrightnessModel::kAuto ? BrightnessModel::kNormalised
-                                                                        : params_.brightness_model;
+  effective_model_ = pairModel();
   prepareBuffers(cur.intensity.size());
   PassSums sums;
   const int valid = accumulate(cur, K, gyro_mean_C, dt_s, state_lag_s, x, params_.intensity_noise_sigma, &sums);
@@ -1088,6 +1087,17 @@ int PhotometricUpdate::linearize(const PreprocessedFrame& ref, const Preprocesse
   *b = inv_var * sums.b;
   if (candidates != nullptr) *candidates = sums.candidates;
   return valid;
+}
+
+BrightnessModel PhotometricUpdate::pairModel() const {
+  // auto: the row gains while bands of the rows have been found (rowBanding), else the images at their grey
+  // levels. Images that are not standardised (preprocess normalize_brightness false) are at their grey levels
+  // already: kLevels is kNormalised for them.
+  BrightnessModel model = params_.brightness_model != BrightnessModel::kAuto
+                              ? params_.brightness_model
+                              : (bands_found_ ? BrightnessModel::kRows : BrightnessModel::kLevels);
+  if (model == BrightnessModel::kLevels && !preprocess_.normalize_brightness) model = BrightnessModel::kNormalised;
+  return model;
 }
 
 void PhotometricUpdate::setReference(const PreprocessedFrame& ref) {
@@ -1457,14 +1467,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     ~TimingScope() { *slot = nullptr; }
   } timing_scope{&row_timing_};
   row_timing_ = &timing;
-  // auto: the row gains while bands of the rows have been found (rowBanding), else the images at their grey
-  // levels. Images that are not standardised (preprocess normalize_brightness false) are at their grey levels
-  // already: kLevels is kNormalised for them.
-  effective_model_ = params_.brightness_model != BrightnessModel::kAuto
-                         ? params_.brightness_model
-                         : (bands_found_ ? BrightnessModel::kRows : BrightnessModel::kLevels);
-  if (effective_model_ == BrightnessModel::kLevels && !preprocess_.normalize_brightness)
-    effective_model_ = BrightnessModel::kNormalised;
+  effective_model_ = pairModel();
   stats.row_gains = effective_model_ == BrightnessModel::kRows;
   // Outlier weights from the previous update's residual (section 10), when that update's current image is this
   // one's reference: they belong to the reference's pixels and are sampled where the warp lands, so they move
