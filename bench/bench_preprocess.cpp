@@ -32,9 +32,11 @@ cv::Mat texturedRaw(int w, int h) {
   return img;
 }
 
-/// Times ImagePreprocessor::process with `params` on the textured 752x480 raw image.
-void timePreprocess(benchmark::State& state, const diekf::PreprocessParams& params) {
+/// Times ImagePreprocessor::process with `params` on the textured 752x480 raw image (with the projector dots'
+/// fill over `fill` when not empty).
+void timePreprocess(benchmark::State& state, const diekf::PreprocessParams& params, const cv::Mat& fill = cv::Mat()) {
   diekf::ImagePreprocessor pre(myntCamera(), params);
+  pre.setDotFill(fill);
   const cv::Mat raw = texturedRaw(752, 480);
   diekf::PreprocessedFrame frame;
   pre.process(raw, 0.0, &frame);  // first call allocates the outputs
@@ -72,6 +74,26 @@ void BM_PreprocessFrameOpened(benchmark::State& state) {
 }
 
 BENCHMARK(BM_PreprocessFrameOpened)->Arg(5)->Arg(9)->Arg(11)->Arg(13)->Arg(17)->Unit(benchmark::kMillisecond);
+
+// The same with the projector dots filled instead (fixed_pattern/dot_fill): 1500 dots of radius 3 px (discs), the
+// mask the detector grows over the simulator's dots, on 15-19 % of the image; argument: the mask's share in %.
+void BM_PreprocessFrameFilled(benchmark::State& state) {
+  diekf::PreprocessParams params;
+  params.working_width_px = 180;
+  params.working_height_px = 116;
+  cv::Mat mask(480, 752, CV_8UC1, cv::Scalar(0));
+  cv::RNG rng(3);
+  const double want = static_cast<double>(state.range(0)) / 100.0;
+  while (cv::countNonZero(mask) < want * mask.total()) {
+    const cv::Point c(rng.uniform(0, 752), rng.uniform(0, 480));
+    for (int y = std::max(0, c.y - 3); y <= std::min(479, c.y + 3); ++y)
+      for (int x = std::max(0, c.x - 3); x <= std::min(751, c.x + 3); ++x)
+        if ((x - c.x) * (x - c.x) + (y - c.y) * (y - c.y) <= 9) mask.at<uint8_t>(y, x) = 255;
+  }
+  timePreprocess(state, params, mask);
+}
+
+BENCHMARK(BM_PreprocessFrameFilled)->Arg(10)->Arg(17)->Arg(25)->Unit(benchmark::kMillisecond);
 
 }  // namespace
 

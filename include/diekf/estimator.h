@@ -54,6 +54,9 @@ struct FrameResult {
   /// Side (raw px) of the opening that removes bright dots from the raw images (preprocess/dot_removal_px, or
   /// switched on by fixed_pattern/auto_dot_removal_px); 0: off.
   int dot_removal_px = 0;
+  /// Share of the raw image (%) whose projector dots are filled from the ground around them (fixed_pattern/dot_fill,
+  /// once the raw-image test found dots); 0: none.
+  double dot_fill_pct = 0.0;
   /// The projector-dot test on the raw images (fixed_pattern/dot_detect_share; docs/noise_model.md section 11): the
   /// share of the image held by bright specks that stayed on the same pixels while the ground moved, at its verdict
   /// (the dots were found when it reached dot_detect_share); -1 while the test runs, when it is off, or when it gave up

@@ -38,6 +38,8 @@ struct PreprocessedFrame {
   double level_offset = 0.0;
   int dot_removal_px = 0;  ///< the opening the raw image went through (ImagePreprocessor::setDotRemoval; 0: none):
                            ///< two frames with different openings are not a pair
+  bool dots_filled = false;  ///< the raw image's projector dots were filled (ImagePreprocessor::setDotFill): a
+                             ///< filled and an unfilled frame are not a pair
   bool valid = false;
 };
 
@@ -48,6 +50,7 @@ struct ResampledImage {
   cv::Mat padded;  ///< CV_32FC1 H x (W + 2 blur radius): grey levels, border columns replicated
   cv::Mat gray8;   ///< CV_8UC1 H x W: the same, rounded (PreprocessedFrame::gray8)
   int dot_removal_px = 0;  ///< the opening the raw image went through (PreprocessParams::dot_removal_px; 0: none)
+  bool dots_filled = false;  ///< the projector dots were filled (ImagePreprocessor::setDotFill)
   bool valid = false;
 };
 
@@ -89,6 +92,19 @@ class ImagePreprocessor {
   /// Whether px is a side setDotRemoval accepts: 0, or odd in [1, 31].
   static bool validDotRemovalPx(int px);
   int dotRemovalPx() const { return dot_removal_px_; }
+  /// Fills the raw pixels of `mask` (CV_8UC1 at the calibration's resolution, nonzero: lit by an IR projector's
+  /// dots; DotDetector::fillMask) in the images resampled from now on: each from the nearest pixels outside the
+  /// mask along the row and the column (at most kMaxFillReachPx away each way), weighted by the inverse distance;
+  /// a pixel with none of them within reach keeps its value. Replaces the opening (setDotRemoval) when both are
+  /// set. An empty mask switches the fill off. Builds the taps once (allocates); no allocation per image. Throws
+  /// std::invalid_argument for a mask of another size or type. docs/noise_model.md section 11.
+  void setDotFill(const cv::Mat& mask);
+  /// Share of the raw image filled (setDotFill; 0: no fill).
+  double dotFillShare() const { return dot_fill_share_; }
+  /// Per working pixel (CV_32FC1, working size), the share of its resampling footprint on filled raw pixels (0..1;
+  /// empty without a fill): what of it is the fill's interpolation, not the ground's own texture.
+  const cv::Mat& dotFillCoverage() const { return dot_fill_coverage_; }
+  static constexpr int kMaxFillReachPx = 12;
 
  private:
   // ---- Resampling lookup table (built once in the constructor; see image_preprocessor.cpp). ----
@@ -146,6 +162,14 @@ class ImagePreprocessor {
   int pad_ = 0;                     // blur radius, px: columns of replicated border on each side of the padded stage
   cv::Mat raw_copy_;                // continuous copy of a non-continuous input
   int dot_removal_px_ = 0;          // side of the bright-dot opening (0: off)
+  struct FillPixel {
+    int32_t at = 0;              // raw pixel filled (byte offset)
+    int32_t tap[4] = {};         // raw pixels outside the mask it is filled from (byte offsets)
+    int32_t w[4] = {};           // their weights, Q15 (sum exactly 2^15; an unused tap: 0, on the pixel itself)
+  };
+  std::vector<FillPixel> fill_;     // setDotFill's taps (empty: no fill)
+  double dot_fill_share_ = 0.0;
+  cv::Mat dot_fill_coverage_;       // see dotFillCoverage()
   cv::Mat dots_removed_;            // the raw image opened by it
   cv::Mat dots_scratch_;            // two raw-size scratch images of the opening
   ResampledImage stage_;            // process()'s own stage-1 buffers

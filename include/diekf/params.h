@@ -200,6 +200,12 @@ struct FixedPatternParams {
   /// side no longer takes more from the dots than from the ground (their tails and clusters are gone;
   /// DotDetector::removalElement). Equal to auto_dot_removal_px: that side, not measured.
   int max_dot_removal_px = 21;
+  /// When the detector finds dots: fill the pixels they light (the detector's fixed specks grown over their
+  /// tails, DotDetector::fillMask) from the ground around them, instead of opening the whole raw image
+  /// (ImagePreprocessor::setDotFill; docs/noise_model.md section 11, "Filling the dots"). The opening leaves the
+  /// dots a few grey levels of remains fixed in the image (an opening only rises where a dot lit the minimum of a
+  /// window) and takes fine bright texture from the ground; the fill touches only the dots' pixels.
+  bool dot_fill = true;
   /// Optional offline flat field: a cv::FileStorage file (YAML/XML) with a matrix `gain` (relative response per
   /// raw pixel at the calibration resolution, any scale); empty: none. Divided out before the online model.
   std::string vignetting_file;

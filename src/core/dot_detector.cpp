@@ -73,6 +73,8 @@ void DotDetector::configure(int width, int height, int element_px, double contra
   ensureBytes(scratch_a_, height, width);
   ensureBytes(scratch_b_, height, width);
   ensureBytes(fixed_, height, width);
+  ensureBytes(hits_, height, width);
+  hits_.setTo(0);
   ensureBytes(last_, height, width);
   ensureBytes(larger_, height, width);
   // Tiles, and blocks made of whole tiles.
@@ -160,6 +162,8 @@ void DotDetector::addImage(const cv::Mat& grey) {
   const size_t n = static_cast<size_t>(width_) * static_cast<size_t>(height_);
   speckMask(src, opened_.data, n, contrast_q8_, speck);
   dilateSquare(speck, speck, scratch_b_.data, width_, height_, 1);
+  uint8_t* hits = hits_.data;
+  for (size_t i = 0; i < n; ++i) hits[i] = static_cast<uint8_t>(hits[i] + (speck[i] != 0));  // (<= kMaxSamples)
   // M = M and the speck mask; per tile the specks of this sample and the pixels left in M.
   std::fill(tile_q_.begin(), tile_q_.end(), 0.0);
   std::fill(tile_fixed_.begin(), tile_fixed_.end(), 0);
@@ -311,6 +315,43 @@ int DotDetector::removalElement(int max_px) {
     std::swap(cur, next);
   }
   return side;
+}
+
+double DotDetector::fillMask(cv::Mat* mask) {
+  if (mask == nullptr) throw std::invalid_argument("DotDetector::fillMask: null mask");
+  ensureBytes(*mask, height_, width_);
+  if (width_ == 0) return 0.0;
+  const size_t n = static_cast<size_t>(width_) * static_cast<size_t>(height_);
+  uint8_t* m = mask->data;
+  std::copy(fixed_.data, fixed_.data + n, m);
+  if (samples_ == 0) return 0.0;
+  // A dot may miss one sample's speck test (weak, on bright ground) and so M; with kFillMisses it is filled too.
+  const int need = std::max(1, samples_ - kFillMisses);
+  for (size_t i = 0; i < n; ++i)
+    if (hits_.data[i] >= need) m[i] = 255;
+  const uint8_t* img = last_.data;
+  uint8_t* grown = larger_.data;
+  for (int ring = 0; ring < kMaxFillGrowth; ++ring) {
+    dilateSquare(m, grown, scratch_a_.data, width_, height_, 1);
+    uint64_t sum_ring = 0, n_ring = 0, sum_out = 0, n_out = 0;
+    for (size_t i = 0; i < n; ++i) {
+      if (grown[i] == 0) {
+        sum_out += img[i];
+        ++n_out;
+      } else if (m[i] == 0) {
+        sum_ring += img[i];
+        ++n_ring;
+      }
+    }
+    if (n_ring == 0 || n_out == 0) break;
+    const double excess = static_cast<double>(sum_ring) / static_cast<double>(n_ring) -
+                          static_cast<double>(sum_out) / static_cast<double>(n_out);
+    if (excess < kFillTailFraction * static_cast<double>(sum_out) / static_cast<double>(n_out)) break;
+    std::copy(grown, grown + n, m);
+  }
+  size_t lit = 0;
+  for (size_t i = 0; i < n; ++i) lit += m[i] != 0;
+  return static_cast<double>(lit) / static_cast<double>(n);
 }
 
 }  // namespace internal

@@ -102,6 +102,17 @@ class DotDetector {
   /// See removalElement: grey levels a larger element may still take from the dots, beyond what it takes from the
   /// ground (a camera's quantisation; its read noise is 1-2).
   static constexpr double kRemnantGrey = 1.0;
+  /// The pixels the dots light, for filling them (ImagePreprocessor::setDotFill), into `mask` (width x height,
+  /// CV_8UC1, 255: lit): the pixels that were (dilated) specks in all but at most kFillMisses of the samples (M
+  /// and the dots that missed a sample's speck test), grown by one pixel at a time (3 x 3 dilation) while the new
+  /// ring's mean grey on the last sample stands more than kFillTailFraction of the mean of the pixels outside it
+  /// above that mean (the dots' tails: they multiply the ground's light), at most kMaxFillGrowth times. Returns the mask's share of the image. One-off, after a verdict of dots (allocates
+  /// `mask` when it has not that size).
+  double fillMask(cv::Mat* mask);
+  static constexpr int kMaxFillGrowth = 4;
+  static constexpr double kFillTailFraction = 0.05;
+  /// Samples a pixel may miss and still start the fill's mask (M itself misses none).
+  static constexpr int kFillMisses = 2;
 
  private:
   struct Block {
@@ -122,6 +133,7 @@ class DotDetector {
   double motion_px_ = 0.0;  // kMotionElements elements, raw px
   double step_px_ = 0.0;    // element + 2 px: the least distance between independent samples
   cv::Mat opened_, scratch_a_, scratch_b_, fixed_;  // CV_8UC1, width x height
+  cv::Mat hits_;  // CV_8UC1: per pixel, the sampled images in which it was a (dilated) speck
   cv::Mat last_, larger_;  // the last sampled image (contiguous) and a second opening of it (removalElement)
   bool armed_ = false;
   int samples_ = 0;                                   // images in M

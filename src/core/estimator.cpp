@@ -247,26 +247,50 @@ struct Estimator::Impl {
     const internal::DotDetector::Verdict verdict = dots.decide();
     if (verdict == internal::DotDetector::Verdict::kDots) {
       dot_share = dots.share();
-      // The opening's side from the dots' own extent on the last sample (their tails, clusters).
-      const int side = dots.removalElement(params.fixed_pattern.max_dot_removal_px);
       char why[kMessageCapacity];
-      std::snprintf(why, sizeof(why),
-                    "projector dots found (fixed bright specks on %.1f %% of the image): raw images opened over %d px",
-                    100.0 * dots.share(), side);
-      switchOnDotRemoval(img.t_s, why, side);
+      if (params.fixed_pattern.dot_fill && params.fixed_pattern.auto_dot_removal_px > 1) {
+        // The pixels the dots light (their tails too) filled from the ground around them.
+        const double filled = dots.fillMask(&dot_mask);
+        std::snprintf(why, sizeof(why),
+                      "projector dots found (fixed bright specks on %.1f %% of the image): raw images filled over "
+                      "%.1f %% of the image",
+                      100.0 * dots.share(), 100.0 * filled);
+        switchOnDotRemoval(img.t_s, why, 0, &dot_mask);
+      } else {
+        // The opening's side from the dots' own extent on the last sample (their tails, clusters).
+        const int side = dots.removalElement(params.fixed_pattern.max_dot_removal_px);
+        std::snprintf(why, sizeof(why),
+                      "projector dots found (fixed bright specks on %.1f %% of the image): raw images opened over %d px",
+                      100.0 * dots.share(), side);
+        switchOnDotRemoval(img.t_s, why, side);
+      }
     } else if (verdict == internal::DotDetector::Verdict::kNoDots) {
       dot_share = dots.share();
     }
   }
 
   /// Switches the opening of the raw images on (side_px, or fixed_pattern.auto_dot_removal_px when 0; never when
-  /// auto_dot_removal_px is 0), once per estimator: the pattern is learned anew from the opened images, the
+  /// auto_dot_removal_px is 0), or the fill of the pixels in `fill_mask` instead when given (fixed_pattern.dot_fill),
+  /// once per estimator: the pattern is learned anew from the opened (filled) images, the
   /// distance and velocity over distance get their initial uncertainty back; the first opened image starts a new
   /// pair (processImage). `why`: the status's reason. docs/noise_model.md section 11.
-  void switchOnDotRemoval(double t_s, const char* why, int side_px = 0) {
+  void switchOnDotRemoval(double t_s, const char* why, int side_px = 0, const cv::Mat* fill_mask = nullptr) {
     const FixedPatternParams& fp = params.fixed_pattern;
-    if (fp.auto_dot_removal_px <= 1 || img_pre.dotRemovalPx() != 0) return;
-    img_pre.setDotRemoval(side_px > 0 ? side_px : fp.auto_dot_removal_px);
+    if (fp.auto_dot_removal_px <= 1 || img_pre.dotRemovalPx() != 0 || img_pre.dotFillShare() > 0.0) return;
+    if (fill_mask != nullptr) {
+      img_pre.setDotFill(*fill_mask);
+      // A working pixel is worth what of it is the ground's own texture: the fill's interpolation is fixed in the
+      // image (smooth patches), a vote for "no motion" like the dots', only weaker.
+      const cv::Mat& coverage = img_pre.dotFillCoverage();
+      fill_confidence.create(coverage.size(), CV_32FC1);
+      for (int y = 0; y < coverage.rows; ++y)
+        for (int xx = 0; xx < coverage.cols; ++xx) {
+          const float keep = 1.0f - coverage.at<float>(y, xx);
+          fill_confidence.at<float>(y, xx) = keep * keep;
+        }
+    } else {
+      img_pre.setDotRemoval(side_px > 0 ? side_px : fp.auto_dot_removal_px);
+    }
     fixed_pattern.reset();
     dots.disarm();  // (when the learned pattern came first)
     health.noteDegraded(t_s, why);
@@ -275,6 +299,16 @@ struct Estimator::Impl {
     // so far): both are given back their initial uncertainty, uncorrelated (the estimates are kept; the attitude,
     // normal and biases are not affected). Measured better than a restart of the whole filter (docs/results.md).
     restarts.setInitialScaleCovariance(&P);
+  }
+
+  /// The pixels' confidence for the next update: the camera-fixed pattern's, times the dots' fill's (each may be
+  /// absent: null when neither is).
+  const cv::Mat* pixelConfidence() {
+    const cv::Mat* pattern = fixed_pattern.confidence();
+    if (fill_confidence.empty()) return pattern;
+    if (pattern == nullptr) return &fill_confidence;
+    cv::multiply(*pattern, fill_confidence, combined_confidence);  // (allocates once: same size every time)
+    return &combined_confidence;
   }
 
   /// Starts the filter at image `t_s`: gravity from the accelerometer, no propagation before.
@@ -361,11 +395,12 @@ struct Estimator::Impl {
     if (!usable) {
       // Keep the reference and the gyro integral: the next usable image is compared with the old reference.
       skip_reason = usable_why;
-    } else if (have_reference && frames[ref_index].dot_removal_px != cur.dot_removal_px) {
+    } else if (have_reference && (frames[ref_index].dot_removal_px != cur.dot_removal_px ||
+                                  frames[ref_index].dots_filled != cur.dots_filled)) {
       // The dot removal was switched on between the two images: not a pair; this image is the next reference.
       skip_reason = "raw images opened from this image on (dots fixed in the image): new reference";
     } else if (have_reference) {
-      update.setPixelConfidence(fixed_pattern.confidence());
+      update.setPixelConfidence(pixelConfidence());
       const double alpha0 = x.alpha, var_alpha0 = P(ErrIdx::kAlpha, ErrIdx::kAlpha);
       update.setReportImageVartheta(scale_init.phase() != internal::ScaleInitializer::Phase::kDone);
       stats = update.apply(frames[ref_index], cur, img.t_s, imu, last_imu_gap_end_s, &health, &x, &P, &skip_reason);
@@ -443,6 +478,7 @@ struct Estimator::Impl {
     r.fixed_pattern_fraction = fixed_pattern.strongFraction();
     r.fixed_pattern_contrast_share = fixed_pattern.contrastShare();
     r.dot_removal_px = img_pre.dotRemovalPx();
+    r.dot_fill_pct = 100.0 * img_pre.dotFillShare();
     r.projector_dot_share = dot_share;
     health.countUpdate(stats.applied);
 
@@ -607,6 +643,9 @@ struct Estimator::Impl {
   double relief_var = 0.0;           // the scene's smoothed relief variance of the last update, relative^2
   bool pattern_named = false;        // the status has named the dominant pattern in view
   internal::DotDetector dots;        // projector dots in the raw images (configured when enabled)
+  cv::Mat dot_mask;                  // the raw pixels the dots light, once found (DotDetector::fillMask)
+  cv::Mat fill_confidence;           // working pixels' confidence under the fill: (1 - its share of the footprint)^2
+  cv::Mat combined_confidence;       // fill_confidence times the pattern's (pixelConfidence)
   double dot_share = -1.0;           // the detector's share of fixed specks at its verdict (-1: none yet)
   internal::ImuPropagator imu;       // filtered samples, state time, prediction
   internal::ImageUpdate update;      // update from an image pair

@@ -557,6 +557,62 @@ void ImagePreprocessor::setDotRemoval(int px) {
   dot_removal_px_ = px > 1 ? px : 0;  // (an opening over 1 px changes nothing)
 }
 
+void ImagePreprocessor::setDotFill(const cv::Mat& mask) {
+  fill_.clear();
+  dot_fill_share_ = 0.0;
+  dot_fill_coverage_.release();
+  if (mask.empty()) return;
+  const int w = raw_K_.width, h = raw_K_.height;
+  if (mask.type() != CV_8UC1 || mask.cols != w || mask.rows != h) {
+    throw std::invalid_argument("ImagePreprocessor::setDotFill: expected a CV_8UC1 " + std::to_string(w) + "x" +
+                                std::to_string(h) + " mask, got " + describe(mask));
+  }
+  constexpr int kDx[4] = {1, -1, 0, 0}, kDy[4] = {0, 0, 1, -1};
+  size_t lit = 0;
+  for (int y = 0; y < h; ++y) {
+    for (int x = 0; x < w; ++x) {
+      if (mask.at<uint8_t>(y, x) == 0) continue;
+      ++lit;
+      FillPixel f;
+      f.at = y * w + x;
+      double sum = 0.0;
+      double wt[4] = {};
+      for (int d = 0; d < 4; ++d) {
+        f.tap[d] = f.at;
+        for (int k = 1; k <= kMaxFillReachPx; ++k) {
+          const int xx = x + k * kDx[d], yy = y + k * kDy[d];
+          if (xx < 0 || yy < 0 || xx >= w || yy >= h) break;
+          if (mask.at<uint8_t>(yy, xx) == 0) {
+            f.tap[d] = yy * w + xx;
+            wt[d] = 1.0 / k;
+            sum += wt[d];
+            break;
+          }
+        }
+      }
+      if (sum == 0.0) continue;  // nothing within reach: the pixel keeps its value
+      int q_sum = 0, largest = 0;
+      for (int d = 0; d < 4; ++d) {
+        f.w[d] = static_cast<int32_t>(std::lround(wt[d] / sum * (1 << 15)));
+        q_sum += f.w[d];
+        if (f.w[d] > f.w[largest]) largest = d;
+      }
+      f.w[largest] += (1 << 15) - q_sum;
+      fill_.push_back(f);
+    }
+  }
+  dot_fill_share_ = static_cast<double>(lit) / (static_cast<double>(w) * h);
+  // The footprints' share on the mask: the mask (0 / 255, contiguous) through the resampling table.
+  const cv::Mat m8 = (mask != 0) / 255;
+  const int W = working_K_.width, H = working_K_.height, PW = W + 2 * pad_;
+  cv::Mat padded(H, PW, CV_32FC1, cv::Scalar(0.f)), g8(H, W, CV_8UC1);
+  resampleTable(m8.ptr<uint8_t>(), padded.ptr<float>(), g8.ptr<uint8_t>());
+  dot_fill_coverage_.create(H, W, CV_32FC1);
+  for (int y = 0; y < H; ++y)
+    for (int x = 0; x < W; ++x)
+      dot_fill_coverage_.at<float>(y, x) = std::clamp(padded.at<float>(y, pad_ + x), 0.0f, 1.0f);
+}
+
 void ImagePreprocessor::resample(const cv::Mat& raw, ResampledImage* stage) {
   if (stage == nullptr) throw std::invalid_argument("ImagePreprocessor::resample: null stage");
   if (raw.type() != CV_8UC1 || raw.cols != raw_K_.width || raw.rows != raw_K_.height || raw.dims != 2) {
@@ -570,7 +626,19 @@ void ImagePreprocessor::resample(const cv::Mat& raw, ResampledImage* stage) {
     raw.copyTo(raw_copy_);
     src = raw_copy_.data;
   }
-  if (dot_removal_px_ > 1) {
+  if (!fill_.empty()) {
+    // The pixels an IR projector's dots light, filled from the ground around them (setDotFill).
+    ensure(dots_removed_, raw.rows, raw.cols, CV_8UC1);
+    uint8_t* out = dots_removed_.data;
+    std::copy(src, src + static_cast<size_t>(raw.rows) * static_cast<size_t>(raw.cols), out);
+    for (const FillPixel& f : fill_) {
+      // Q15 weights summing to 2^15: at most 255, rounded.
+      const int32_t v = f.w[0] * src[f.tap[0]] + f.w[1] * src[f.tap[1]] + f.w[2] * src[f.tap[2]] +
+                        f.w[3] * src[f.tap[3]];
+      out[f.at] = static_cast<uint8_t>((v + (1 << 14)) >> 15);
+    }
+    src = out;
+  } else if (dot_removal_px_ > 1) {
     // Bright specks smaller than the element (an IR projector's dots) removed by a grey-scale opening: a
     // translation-equivariant filter, so the ground's image still moves as the warp says.
     ensure(dots_removed_, raw.rows, raw.cols, CV_8UC1);
@@ -595,6 +663,7 @@ void ImagePreprocessor::resample(const cv::Mat& raw, ResampledImage* stage) {
     }
   }
   stage->dot_removal_px = dot_removal_px_;
+  stage->dots_filled = !fill_.empty();
   stage->valid = true;
 }
 
@@ -666,6 +735,7 @@ void ImagePreprocessor::finish(ResampledImage* stage, double t_s, PreprocessedFr
   normalizeAndGradients(sum, sum_sq, pivot, out);
   out->t_s = t_s;
   out->dot_removal_px = stage->dot_removal_px;
+  out->dots_filled = stage->dots_filled;
   out->valid = true;
 }
 

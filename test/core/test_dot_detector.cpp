@@ -67,6 +67,8 @@ struct Outcome {
   int samples = 0;
   double share = 0.0;
   int element = 0;  // the opening's side measured at a verdict of dots (removalElement(21))
+  cv::Mat fill;     // the pixels the dots light, at a verdict of dots (fillMask)
+  double fill_share = 0.0;
 };
 
 /// The camera looks at `ground` through a kW x kH window moving along `path(k)` (integer px), the images times
@@ -98,7 +100,10 @@ Outcome fly(const cv::Mat& ground, const cv::Mat& gain, Path path, int frames, d
     if (v != DotDetector::Verdict::kUndecided) {
       out.verdict = v;
       out.frame = k;
-      if (v == DotDetector::Verdict::kDots) out.element = det.removalElement(21);
+      if (v == DotDetector::Verdict::kDots) {
+        out.element = det.removalElement(21);
+        out.fill_share = det.fillMask(&out.fill);
+      }
     }
     out.samples = det.samples();
     out.share = det.share();
@@ -212,6 +217,35 @@ TEST(DotDetector, TheOpeningCoversTheDotsTails) {
   ASSERT_EQ(narrow.verdict, DotDetector::Verdict::kDots);
   EXPECT_LT(narrow.element, dots.element);
   std::printf("sides for dots of sigma 0.8, 1.2, 1.5 px: %d, %d, %d\n", narrow.element, dots.element, wide.element);
+}
+
+TEST(DotDetector, TheFillMaskCoversTheDotsDownToTheirTails) {
+  // The mask the dots are filled over (fillMask): nearly every pixel a dot brightens by more than 5 % (and every
+  // core), little beyond where a dot adds 1 %, and more than M itself (the cores); wider dots a wider mask.
+  const cv::Mat ground = specklyGround(1000, 700, 1);
+  auto check = [&](double sigma_px) {
+    const cv::Mat gain = projectorGain(1500, 1.5, sigma_px);
+    const Outcome dots = fly(ground, gain, circle, 120);
+    EXPECT_EQ(dots.verdict, DotDetector::Verdict::kDots);
+    if (dots.verdict != DotDetector::Verdict::kDots) return 0.0;
+    EXPECT_EQ(dots.fill.size(), cv::Size(kW, kH));
+    const cv::Mat lit5 = gain > 1.05f, cores = gain > 1.5f, dark = gain < 1.01f;
+    const double covered5 = cv::countNonZero(dots.fill & lit5) / static_cast<double>(cv::countNonZero(lit5));
+    const double covered_cores = cv::countNonZero(dots.fill & cores) / static_cast<double>(cv::countNonZero(cores));
+    const double beyond = cv::countNonZero(dots.fill & dark) / static_cast<double>(kW * kH);
+    std::printf("sigma %.1f px: fill %.1f %% of the image (M %.1f %%); 5 %% tails covered %.1f %%, cores %.1f %%, "
+                "beyond 1 %%: %.1f %% of the image\n",
+                sigma_px, 100.0 * dots.fill_share, 100.0 * dots.share, 100.0 * covered5, 100.0 * covered_cores,
+                100.0 * beyond);
+    EXPECT_NEAR(dots.fill_share, cv::countNonZero(dots.fill) / static_cast<double>(kW * kH), 1e-12);
+    EXPECT_GT(dots.fill_share, dots.share);
+    EXPECT_GT(covered5, 0.9);
+    EXPECT_GT(covered_cores, 0.99);
+    EXPECT_LT(beyond, 0.03);
+    return dots.fill_share;
+  };
+  const double normal = check(1.2), wide = check(1.5);
+  EXPECT_GT(wide, normal);
 }
 
 TEST(DotDetector, GroundSpecksAloneAreNoDots) {

@@ -251,7 +251,8 @@ namespace {
 struct DotTestRun {
   double verdict_at_s = -1.0;  // first result with projector_dot_share >= 0 (-1: none)
   double share = -1.0;         // its share
-  double opened_at_s = -1.0;   // first result with the raw images opened (-1: never)
+  double opened_at_s = -1.0;   // first result with the raw images opened or their dots filled (-1: never)
+  double fill_pct = 0.0;       // the share of the raw image filled there (0: opened)
   bool named = false;          // a status message named the dots found by the raw-image test
 };
 
@@ -296,24 +297,31 @@ DotTestRun flyForTheRawImageTest(bool with_dots, double duration_s) {
         run.verdict_at_s = r.t_s;
         run.share = r.projector_dot_share;
       }
-      if (run.opened_at_s < 0.0 && r.dot_removal_px > 0) run.opened_at_s = r.t_s;
+      if (run.opened_at_s < 0.0 && (r.dot_removal_px > 0 || r.dot_fill_pct > 0.0)) {
+        run.opened_at_s = r.t_s;
+        run.fill_pct = r.dot_fill_pct;
+      }
       if (r.message.find("projector dots found") != std::string::npos) run.named = true;
     }
   }
-  std::printf("[raw-image dot test] dots %s: verdict at %.2f s, share %.4f, opened at %.2f s\n",
-              with_dots ? "on" : "off", run.verdict_at_s, run.share, run.opened_at_s);
+  std::printf("[raw-image dot test] dots %s: verdict at %.2f s, share %.4f, opened or filled at %.2f s (%.1f %% "
+              "filled)\n",
+              with_dots ? "on" : "off", run.verdict_at_s, run.share, run.opened_at_s, run.fill_pct);
   return run;
 }
 
 // The raw-image test (fixed_pattern/dot_detect_share, on by default) finds the dots within the first seconds of
-// motion and switches the opening on, long before the pattern's statistics could (above: 12 s); without a
-// projector it says so as early and switches nothing.
+// motion and switches their fill on (fixed_pattern/dot_fill, on by default: more than the fixed specks it found,
+// their tails too), long before the pattern's statistics could (above: 12 s); without a projector it says so as
+// early and switches nothing.
 TEST(FixedPatternFlight, TheRawImageTestFindsProjectorDotsInTheFirstSeconds) {
   const DotTestRun dots = flyForTheRawImageTest(true, 2.5);
   ASSERT_GT(dots.verdict_at_s, 0.0);  // (within the 2.5 s flown: 0.37 s measured)
   EXPECT_GE(dots.share, EstimatorParams{}.fixed_pattern.dot_detect_share);
   EXPECT_LT(dots.share, 0.3);
   EXPECT_NEAR(dots.opened_at_s, dots.verdict_at_s, 0.05);
+  EXPECT_GT(dots.fill_pct, 100.0 * dots.share);
+  EXPECT_LT(dots.fill_pct, 50.0);
   EXPECT_TRUE(dots.named);
   const DotTestRun none = flyForTheRawImageTest(false, 2.5);
   ASSERT_GT(none.verdict_at_s, 0.0);  // (0.27 s measured)

@@ -405,6 +405,76 @@ TEST(ImagePreprocessor, DotRemovalTakesProjectorDotsOut) {
   }
 }
 
+// The same kind of dots as a projector makes them (a gain on the ground's light: 1 + 1.5 x a Gaussian of sigma
+// 1.2 raw px), filled from the ground around them (setDotFill) with a mask of where they add more than 3 %: the
+// working image is then closer to the ground's than the 11 px opening's (which the detector measures for such
+// dots) and, unlike the opening's, not brighter on average (an opening only rises where a dot lit a window's
+// minimum: remains fixed in the image); pixels whose footprint does not reach the mask are the ground's exactly;
+// an empty mask switches the fill off; a mask of the wrong size is refused.
+TEST(ImagePreprocessor, DotFillTakesProjectorDotsOutWithoutRemains) {
+  const cv::Mat ground = stripes(60.0, 0.4);
+  cv::Mat gain(480, 752, CV_32FC1, cv::Scalar(0.f));
+  cv::RNG rng(7);
+  for (int k = 0; k < 1500; ++k) {
+    const double cx = rng.uniform(0.0, 752.0), cy = rng.uniform(0.0, 480.0);
+    for (int y = std::max(0, int(cy) - 5); y <= std::min(479, int(cy) + 5); ++y)
+      for (int x = std::max(0, int(cx) - 5); x <= std::min(751, int(cx) + 5); ++x) {
+        const double r2 = (x - cx) * (x - cx) + (y - cy) * (y - cy);
+        gain.at<float>(y, x) += static_cast<float>(std::exp(-0.5 * r2 / (1.2 * 1.2)));
+      }
+  }
+  gain = 1.0 + 1.5 * gain;
+  cv::Mat ground_f, dotted;
+  ground.convertTo(ground_f, CV_32FC1);
+  cv::Mat(ground_f.mul(gain)).convertTo(dotted, CV_8UC1);
+  const cv::Mat mask = gain > 1.03f;
+  PreprocessParams p;
+  p.normalize_brightness = false;
+  auto working = [&](const cv::Mat& raw, int dot_removal_px, const cv::Mat& fill) {
+    PreprocessParams q = p;
+    q.dot_removal_px = dot_removal_px;
+    ImagePreprocessor pre(myntEyeCamera(), q);
+    pre.setDotFill(fill);
+    PreprocessedFrame f;
+    pre.process(raw, 0.0, &f);
+    EXPECT_EQ(f.dots_filled, !fill.empty());
+    return f.intensity.clone();
+  };
+  const int b = 4;
+  const cv::Rect inner(b, b, 180 - 2 * b, 116 - 2 * b);
+  auto rms = [&](const cv::Mat& a, const cv::Mat& c) {
+    return cv::norm(a(inner), c(inner), cv::NORM_L2) / std::sqrt(inner.area());
+  };
+  auto mean_diff = [&](const cv::Mat& a, const cv::Mat& c) { return cv::mean(cv::Mat(a(inner) - c(inner)))[0]; };
+  const cv::Mat clean = working(ground, 0, cv::Mat()), none = working(dotted, 0, cv::Mat());
+  const cv::Mat filled = working(dotted, 0, mask), opened = working(dotted, 11, cv::Mat());
+  const cv::Mat ground_opened = working(ground, 11, cv::Mat());
+  const double kept = rms(none, clean), left_fill = rms(filled, clean), left_open = rms(opened, ground_opened);
+  const double bias_fill = mean_diff(filled, clean), bias_open = mean_diff(opened, ground_opened);
+  std::printf("dots: kept %.4f; filled: left %.4f, mean %+.4f; opened (11 px): left %.4f, mean %+.4f (grey / 255)\n",
+              kept, left_fill, bias_fill, left_open, bias_open);
+  EXPECT_GT(kept, 8.0 / 255.0);
+  EXPECT_LT(left_fill, 0.25 * kept);
+  EXPECT_LT(left_fill, left_open);
+  EXPECT_GT(bias_open, 0.5 / 255.0);                  // the opening's remains: brighter
+  EXPECT_LT(std::abs(bias_fill), 0.25 * bias_open);   // the fill's: about even
+  // Untouched where the footprint (a few raw px) does not reach the mask: a mask only in the left half.
+  cv::Mat half = mask.clone();
+  half(cv::Rect(376, 0, 376, 480)).setTo(0);
+  cv::Mat half_dotted = ground.clone();
+  dotted(cv::Rect(0, 0, 376, 480)).copyTo(half_dotted(cv::Rect(0, 0, 376, 480)));
+  const cv::Mat half_filled = working(half_dotted, 0, half);
+  const cv::Rect right(100, b, 180 - 100 - b, 116 - 2 * b);
+  EXPECT_EQ(cv::norm(half_filled(right), clean(right), cv::NORM_INF), 0.0);
+  // An empty mask: no fill.
+  EXPECT_EQ(cv::norm(working(dotted, 0, cv::Mat()), none, cv::NORM_INF), 0.0);
+  ImagePreprocessor pre(myntEyeCamera(), p);
+  EXPECT_THROW(pre.setDotFill(cv::Mat(240, 376, CV_8UC1, cv::Scalar(0))), std::invalid_argument);
+  EXPECT_THROW(pre.setDotFill(cv::Mat(480, 752, CV_32FC1, cv::Scalar(0))), std::invalid_argument);
+  pre.setDotFill(mask);
+  EXPECT_NEAR(pre.dotFillShare(), cv::countNonZero(mask) / (752.0 * 480.0), 1e-12);
+}
+
 TEST(ImagePreprocessor, UniformImagesGiveFiniteZeros) {
   ImagePreprocessor pre(myntEyeCamera(), PreprocessParams{});
   PreprocessedFrame f;

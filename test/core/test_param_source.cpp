@@ -142,6 +142,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          a.fixed_pattern.dot_detect_share == b.fixed_pattern.dot_detect_share &&
          a.fixed_pattern.dot_detect_contrast == b.fixed_pattern.dot_detect_contrast &&
          a.fixed_pattern.max_dot_removal_px == b.fixed_pattern.max_dot_removal_px &&
+         a.fixed_pattern.dot_fill == b.fixed_pattern.dot_fill &&
          a.fixed_pattern.discount_biased_updates == b.fixed_pattern.discount_biased_updates &&
          a.fixed_pattern.vignetting_file == b.fixed_pattern.vignetting_file;
 }
