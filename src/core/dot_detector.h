@@ -106,8 +106,8 @@ class DotDetector {
   /// CV_8UC1, 255: lit): the pixels that were (dilated) specks in all but at most kFillMisses of the samples (M
   /// and the dots that missed a sample's speck test), grown by one pixel at a time (3 x 3 dilation) while the new
   /// ring's mean grey on the last sample stands more than kFillTailFraction of the mean of the pixels outside it
-  /// above that mean (the dots' tails: they multiply the ground's light), at most kMaxFillGrowth times. Returns the mask's share of the image. One-off, after a verdict of dots (allocates
-  /// `mask` when it has not that size).
+  /// above that mean (the dots' tails: they multiply the ground's light), at most kMaxFillGrowth times. Returns the
+  /// mask's share of the image. One-off, after a verdict of dots (allocates `mask` when it has not that size).
   double fillMask(cv::Mat* mask);
   static constexpr int kMaxFillGrowth = 4;
   static constexpr double kFillTailFraction = 0.05;

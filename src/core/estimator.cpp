@@ -260,7 +260,8 @@ struct Estimator::Impl {
         // The opening's side from the dots' own extent on the last sample (their tails, clusters).
         const int side = dots.removalElement(params.fixed_pattern.max_dot_removal_px);
         std::snprintf(why, sizeof(why),
-                      "projector dots found (fixed bright specks on %.1f %% of the image): raw images opened over %d px",
+                      "projector dots found (fixed bright specks on %.1f %% of the image): raw images opened over "
+                      "%d px",
                       100.0 * dots.share(), side);
         switchOnDotRemoval(img.t_s, why, side);
       }
@@ -397,8 +398,10 @@ struct Estimator::Impl {
       skip_reason = usable_why;
     } else if (have_reference && (frames[ref_index].dot_removal_px != cur.dot_removal_px ||
                                   frames[ref_index].dots_filled != cur.dots_filled)) {
-      // The dot removal was switched on between the two images: not a pair; this image is the next reference.
-      skip_reason = "raw images opened from this image on (dots fixed in the image): new reference";
+      // The dot removal (opening or fill) was switched on between the two images: not a pair; this image is the
+      // next reference.
+      skip_reason =
+          "raw images opened or their dots filled from this image on (dots fixed in the image): new reference";
     } else if (have_reference) {
       update.setPixelConfidence(pixelConfidence());
       const double alpha0 = x.alpha, var_alpha0 = P(ErrIdx::kAlpha, ErrIdx::kAlpha);

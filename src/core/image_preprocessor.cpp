@@ -602,7 +602,8 @@ void ImagePreprocessor::setDotFill(const cv::Mat& mask) {
     }
   }
   dot_fill_share_ = static_cast<double>(lit) / (static_cast<double>(w) * h);
-  // The footprints' share on the mask: the mask (0 / 255, contiguous) through the resampling table.
+  // The footprints' share on the mask: the mask as 0 / 1 (contiguous) through the resampling table, whose weights
+  // sum to 1.
   const cv::Mat m8 = (mask != 0) / 255;
   const int W = working_K_.width, H = working_K_.height, PW = W + 2 * pad_;
   cv::Mat padded(H, PW, CV_32FC1, cv::Scalar(0.f)), g8(H, W, CV_8UC1);
