@@ -38,8 +38,8 @@ struct PreprocessedFrame {
   double level_offset = 0.0;
   int dot_removal_px = 0;  ///< the opening the raw image went through (ImagePreprocessor::setDotRemoval; 0: none):
                            ///< two frames with different openings are not a pair
-  bool dots_filled = false;  ///< the raw image's projector dots were filled (ImagePreprocessor::setDotFill): a
-                             ///< filled and an unfilled frame are not a pair
+  int dot_fill_id = 0;  ///< the fill the raw image's projector dots went through (ImagePreprocessor::dotFillId;
+                        ///< 0: none): two frames with different fills are not a pair
   bool valid = false;
 };
 
@@ -50,7 +50,7 @@ struct ResampledImage {
   cv::Mat padded;  ///< CV_32FC1 H x (W + 2 blur radius): grey levels, border columns replicated
   cv::Mat gray8;   ///< CV_8UC1 H x W: the same, rounded (PreprocessedFrame::gray8)
   int dot_removal_px = 0;  ///< the opening the raw image went through (PreprocessParams::dot_removal_px; 0: none)
-  bool dots_filled = false;  ///< the projector dots were filled (ImagePreprocessor::setDotFill)
+  int dot_fill_id = 0;  ///< the fill the projector dots went through (ImagePreprocessor::dotFillId; 0: none)
   bool valid = false;
 };
 
@@ -101,6 +101,9 @@ class ImagePreprocessor {
   void setDotFill(const cv::Mat& mask);
   /// Share of the raw image filled (setDotFill; 0: no fill).
   double dotFillShare() const { return dot_fill_share_; }
+  /// Which fill the images resampled from now on go through: a new number for every setDotFill with a mask, 0 for
+  /// none (PreprocessedFrame::dot_fill_id).
+  int dotFillId() const { return fill_.empty() ? 0 : fill_id_; }
   /// Per working pixel (CV_32FC1, working size), the share of its resampling footprint on filled raw pixels (0..1;
   /// empty without a fill): what of it is the fill's interpolation, not the ground's own texture.
   const cv::Mat& dotFillCoverage() const { return dot_fill_coverage_; }
@@ -169,6 +172,7 @@ class ImagePreprocessor {
   };
   std::vector<FillPixel> fill_;     // setDotFill's taps (empty: no fill)
   double dot_fill_share_ = 0.0;
+  int fill_id_ = 0;                 // setDotFill's calls with a mask
   cv::Mat dot_fill_coverage_;       // see dotFillCoverage()
   cv::Mat dots_removed_;            // the raw image opened by it
   cv::Mat dots_scratch_;            // two raw-size scratch images of the opening

@@ -200,9 +200,10 @@ struct FixedPatternParams {
   /// side no longer takes more from the dots than from the ground (their tails and clusters are gone;
   /// DotDetector::removalElement). Equal to auto_dot_removal_px: that side, not measured.
   int max_dot_removal_px = 21;
-  /// When the detector finds dots: fill the pixels they light (the detector's fixed specks grown over their
-  /// tails, DotDetector::fillMask) from the ground around them, instead of opening the whole raw image
-  /// (ImagePreprocessor::setDotFill; docs/noise_model.md section 11, "Filling the dots"). The opening leaves the
+  /// Fill the pixels the dots light (the detector's fixed specks grown over their tails, DotDetector::fillMask) from
+  /// the ground around them, instead of opening the whole raw image at the detector's verdict
+  /// (ImagePreprocessor::setDotFill; docs/noise_model.md section 11, "Filling the dots"): from its fourth sample
+  /// once the fixed specks have stopped falling (interim), and with the final mask at a verdict of dots. The opening leaves the
   /// dots a few grey levels of remains fixed in the image (an opening only rises where a dot lit the minimum of a
   /// window) and takes fine bright texture from the ground; the fill touches only the dots' pixels.
   bool dot_fill = true;

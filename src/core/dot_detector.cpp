@@ -317,7 +317,7 @@ int DotDetector::removalElement(int max_px) {
   return side;
 }
 
-double DotDetector::fillMask(cv::Mat* mask) {
+double DotDetector::fillMask(cv::Mat* mask, int misses) {
   if (mask == nullptr) throw std::invalid_argument("DotDetector::fillMask: null mask");
   ensureBytes(*mask, height_, width_);
   if (width_ == 0) return 0.0;
@@ -325,8 +325,8 @@ double DotDetector::fillMask(cv::Mat* mask) {
   uint8_t* m = mask->data;
   std::copy(fixed_.data, fixed_.data + n, m);
   if (samples_ == 0) return 0.0;
-  // A dot may miss one sample's speck test (weak, on bright ground) and so M; with kFillMisses it is filled too.
-  const int need = std::max(1, samples_ - kFillMisses);
+  // A dot may miss a sample's speck test (weak, on bright ground) and so M; with `misses` it is filled too.
+  const int need = std::max(1, samples_ - std::max(0, misses));
   for (size_t i = 0; i < n; ++i)
     if (hits_.data[i] >= need) m[i] = 255;
   const uint8_t* img = last_.data;

@@ -108,7 +108,19 @@ class DotDetector {
   /// ring's mean grey on the last sample stands more than kFillTailFraction of the mean of the pixels outside it
   /// above that mean (the dots' tails: they multiply the ground's light), at most kMaxFillGrowth times. Returns the
   /// mask's share of the image. One-off, after a verdict of dots (allocates `mask` when it has not that size).
-  double fillMask(cv::Mat* mask);
+  double fillMask(cv::Mat* mask) { return fillMask(mask, kFillMisses); }
+  /// The same from the pixels that were specks in all but at most `misses` samples (0: M itself; the interim fill
+  /// while the test runs, when few samples would let the ground's specks in).
+  double fillMask(cv::Mat* mask, int misses);
+  /// M's share of the whole image after the last sample (0 before any).
+  double wholeShare() const { return samples_ > 0 ? share_history_[static_cast<size_t>(samples_ - 1)] : 0.0; }
+  /// M's share after the last sample over its share after the one before (1 before two samples): the ground's
+  /// chance agreements fall by half or more per independent sample, dots stay.
+  double wholeShareRatio() const {
+    if (samples_ < 2) return 1.0;
+    const double before = share_history_[static_cast<size_t>(samples_ - 2)];
+    return before > 0.0 ? share_history_[static_cast<size_t>(samples_ - 1)] / before : 1.0;
+  }
   static constexpr int kMaxFillGrowth = 4;
   static constexpr double kFillTailFraction = 0.05;
   /// Samples a pixel may miss and still start the fill's mask (M itself misses none).

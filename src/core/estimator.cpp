@@ -268,6 +268,48 @@ struct Estimator::Impl {
     } else if (verdict == internal::DotDetector::Verdict::kNoDots) {
       dot_share = dots.share();
     }
+    if (!dots.armed() && !dot_removal_switched && img_pre.dotFillId() != 0) {
+      setFill(cv::Mat());  // no dots (or no verdict): the interim fill ends
+    } else if (verdict == internal::DotDetector::Verdict::kUndecided && dots.armed() && img.dots_sampled &&
+               params.fixed_pattern.dot_fill && params.fixed_pattern.auto_dot_removal_px > 1 &&
+               dots.samples() > internal::DotDetector::kStableSamples) {
+      // Interim fill while the test runs: past its first samples M holds the dots and what of the ground's specks
+      // has not moved off yet; filling M from then on keeps the dots from biasing the start-up until the verdict.
+      // Only once M has stopped falling (its last sample kept kStableFraction of it: the ground's chance agreements
+      // halve or more per sample, dots stay), while it holds twice the share dots must hold and at most
+      // kInterimFillMaxShare; made again when M has shrunk by a tenth (each change starts a new pair).
+      const double m = dots.wholeShare();
+      if (m >= 2.0 * params.fixed_pattern.dot_detect_share && m <= kInterimFillMaxShare &&
+          dots.wholeShareRatio() >= internal::DotDetector::kStableFraction &&
+          (img_pre.dotFillId() == 0 || m < 0.9 * interim_m_share)) {
+        const bool first = img_pre.dotFillId() == 0;
+        dots.fillMask(&dot_mask, 0);
+        setFill(dot_mask);
+        interim_m_share = m;
+        // What the filter holds of the distance and the velocity over distance came from images with the dots
+        // (their vote for "no motion"): given back their initial uncertainty, as at the verdict below when there was
+        // no interim fill.
+        if (first) restarts.setInitialScaleCovariance(&P);
+      }
+    }
+  }
+
+  /// Fills the raw pixels of `mask` from now on (empty: no fill), and the working pixels' confidence with it: a
+  /// working pixel is worth what of it is the ground's own texture, the fill's interpolation being fixed in the image
+  /// (smooth patches: a vote for "no motion" like the dots', only weaker).
+  void setFill(const cv::Mat& mask) {
+    img_pre.setDotFill(mask);
+    if (mask.empty()) {
+      fill_confidence.release();
+      return;
+    }
+    const cv::Mat& coverage = img_pre.dotFillCoverage();
+    fill_confidence.create(coverage.size(), CV_32FC1);
+    for (int y = 0; y < coverage.rows; ++y)
+      for (int xx = 0; xx < coverage.cols; ++xx) {
+        const float keep = 1.0f - coverage.at<float>(y, xx);
+        fill_confidence.at<float>(y, xx) = keep * keep;
+      }
   }
 
   /// Switches the opening of the raw images on (side_px, or fixed_pattern.auto_dot_removal_px when 0; never when
@@ -277,19 +319,13 @@ struct Estimator::Impl {
   /// pair (processImage). `why`: the status's reason. docs/noise_model.md section 11.
   void switchOnDotRemoval(double t_s, const char* why, int side_px = 0, const cv::Mat* fill_mask = nullptr) {
     const FixedPatternParams& fp = params.fixed_pattern;
-    if (fp.auto_dot_removal_px <= 1 || img_pre.dotRemovalPx() != 0 || img_pre.dotFillShare() > 0.0) return;
+    if (fp.auto_dot_removal_px <= 1 || img_pre.dotRemovalPx() != 0 || dot_removal_switched) return;
+    dot_removal_switched = true;
+    const bool interim = img_pre.dotFillId() != 0;
     if (fill_mask != nullptr) {
-      img_pre.setDotFill(*fill_mask);
-      // A working pixel is worth what of it is the ground's own texture: the fill's interpolation is fixed in the
-      // image (smooth patches), a vote for "no motion" like the dots', only weaker.
-      const cv::Mat& coverage = img_pre.dotFillCoverage();
-      fill_confidence.create(coverage.size(), CV_32FC1);
-      for (int y = 0; y < coverage.rows; ++y)
-        for (int xx = 0; xx < coverage.cols; ++xx) {
-          const float keep = 1.0f - coverage.at<float>(y, xx);
-          fill_confidence.at<float>(y, xx) = keep * keep;
-        }
+      setFill(*fill_mask);
     } else {
+      setFill(cv::Mat());
       img_pre.setDotRemoval(side_px > 0 ? side_px : fp.auto_dot_removal_px);
     }
     fixed_pattern.reset();
@@ -299,7 +335,9 @@ struct Estimator::Impl {
     // vote for "no motion" biased every update before the model had learned them, by more than the share learned
     // so far): both are given back their initial uncertainty, uncorrelated (the estimates are kept; the attitude,
     // normal and biases are not affected). Measured better than a restart of the whole filter (docs/results.md).
-    restarts.setInitialScaleCovariance(&P);
+    // With the interim fill on since the test's first samples the distance's uncertainty was reopened when it
+    // started (detectDots) and the updates since saw no dots: the covariance is kept.
+    if (!interim) restarts.setInitialScaleCovariance(&P);
   }
 
   /// The pixels' confidence for the next update: the camera-fixed pattern's, times the dots' fill's (each may be
@@ -397,7 +435,7 @@ struct Estimator::Impl {
       // Keep the reference and the gyro integral: the next usable image is compared with the old reference.
       skip_reason = usable_why;
     } else if (have_reference && (frames[ref_index].dot_removal_px != cur.dot_removal_px ||
-                                  frames[ref_index].dots_filled != cur.dots_filled)) {
+                                  frames[ref_index].dot_fill_id != cur.dot_fill_id)) {
       // The dot removal (opening or fill) was switched on between the two images: not a pair; this image is the
       // next reference.
       skip_reason =
@@ -649,6 +687,11 @@ struct Estimator::Impl {
   cv::Mat dot_mask;                  // the raw pixels the dots light, once found (DotDetector::fillMask)
   cv::Mat fill_confidence;           // working pixels' confidence under the fill: (1 - its share of the footprint)^2
   cv::Mat combined_confidence;       // fill_confidence times the pattern's (pixelConfidence)
+  bool dot_removal_switched = false; // the opening or the fill switched on for good (switchOnDotRemoval)
+  double interim_m_share = 0.0;      // M's share when the interim fill was last made
+  /// The interim fill is made while M holds at most this share of the image (more: the ground's specks, a ground the
+  /// test cannot tell yet).
+  static constexpr double kInterimFillMaxShare = 0.15;
   double dot_share = -1.0;           // the detector's share of fixed specks at its verdict (-1: none yet)
   internal::ImuPropagator imu;       // filtered samples, state time, prediction
   internal::ImageUpdate update;      // update from an image pair

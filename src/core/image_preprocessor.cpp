@@ -602,6 +602,7 @@ void ImagePreprocessor::setDotFill(const cv::Mat& mask) {
     }
   }
   dot_fill_share_ = static_cast<double>(lit) / (static_cast<double>(w) * h);
+  ++fill_id_;
   // The footprints' share on the mask: the mask as 0 / 1 (contiguous) through the resampling table, whose weights
   // sum to 1.
   const cv::Mat m8 = (mask != 0) / 255;
@@ -664,7 +665,7 @@ void ImagePreprocessor::resample(const cv::Mat& raw, ResampledImage* stage) {
     }
   }
   stage->dot_removal_px = dot_removal_px_;
-  stage->dots_filled = !fill_.empty();
+  stage->dot_fill_id = dotFillId();
   stage->valid = true;
 }
 
@@ -736,7 +737,7 @@ void ImagePreprocessor::finish(ResampledImage* stage, double t_s, PreprocessedFr
   normalizeAndGradients(sum, sum_sq, pivot, out);
   out->t_s = t_s;
   out->dot_removal_px = stage->dot_removal_px;
-  out->dots_filled = stage->dots_filled;
+  out->dot_fill_id = stage->dot_fill_id;
   out->valid = true;
 }
 

@@ -252,7 +252,7 @@ struct DotTestRun {
   double verdict_at_s = -1.0;  // first result with projector_dot_share >= 0 (-1: none)
   double share = -1.0;         // its share
   double opened_at_s = -1.0;   // first result with the raw images opened or their dots filled (-1: never)
-  double fill_pct = 0.0;       // the share of the raw image filled there (0: opened)
+  double fill_pct = 0.0;       // the share of the raw image filled at the verdict (0: none)
   bool named = false;          // a status message named the dots found by the raw-image test
 };
 
@@ -296,11 +296,9 @@ DotTestRun flyForTheRawImageTest(bool with_dots, double duration_s) {
       if (run.verdict_at_s < 0.0 && r.projector_dot_share >= 0.0) {
         run.verdict_at_s = r.t_s;
         run.share = r.projector_dot_share;
-      }
-      if (run.opened_at_s < 0.0 && (r.dot_removal_px > 0 || r.dot_fill_pct > 0.0)) {
-        run.opened_at_s = r.t_s;
         run.fill_pct = r.dot_fill_pct;
       }
+      if (run.opened_at_s < 0.0 && (r.dot_removal_px > 0 || r.dot_fill_pct > 0.0)) run.opened_at_s = r.t_s;
       if (r.message.find("projector dots found") != std::string::npos) run.named = true;
     }
   }
@@ -311,15 +309,16 @@ DotTestRun flyForTheRawImageTest(bool with_dots, double duration_s) {
 }
 
 // The raw-image test (fixed_pattern/dot_detect_share, on by default) finds the dots within the first seconds of
-// motion and switches their fill on (fixed_pattern/dot_fill, on by default: more than the fixed specks it found,
-// their tails too), long before the pattern's statistics could (above: 12 s); without a projector it says so as
-// early and switches nothing.
+// motion, long before the pattern's statistics could (above: 12 s); their fill (fixed_pattern/dot_fill, on by
+// default) starts with the test's fourth sample, before the verdict, and covers more than the fixed specks found at
+// the verdict (their tails too); without a projector the test says so as early and nothing is filled.
 TEST(FixedPatternFlight, TheRawImageTestFindsProjectorDotsInTheFirstSeconds) {
   const DotTestRun dots = flyForTheRawImageTest(true, 2.5);
   ASSERT_GT(dots.verdict_at_s, 0.0);  // (within the 2.5 s flown: 0.37 s measured)
   EXPECT_GE(dots.share, EstimatorParams{}.fixed_pattern.dot_detect_share);
   EXPECT_LT(dots.share, 0.3);
-  EXPECT_NEAR(dots.opened_at_s, dots.verdict_at_s, 0.05);
+  EXPECT_GT(dots.opened_at_s, 0.0);
+  EXPECT_LT(dots.opened_at_s, dots.verdict_at_s);  // the interim fill
   EXPECT_GT(dots.fill_pct, 100.0 * dots.share);
   EXPECT_LT(dots.fill_pct, 50.0);
   EXPECT_TRUE(dots.named);

@@ -437,7 +437,7 @@ TEST(ImagePreprocessor, DotFillTakesProjectorDotsOutWithoutRemains) {
     pre.setDotFill(fill);
     PreprocessedFrame f;
     pre.process(raw, 0.0, &f);
-    EXPECT_EQ(f.dots_filled, !fill.empty());
+    EXPECT_EQ(f.dot_fill_id != 0, !fill.empty());
     return f.intensity.clone();
   };
   const int b = 4;
