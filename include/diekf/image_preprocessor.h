@@ -174,7 +174,7 @@ class ImagePreprocessor {
   double dot_fill_share_ = 0.0;
   int fill_id_ = 0;                 // setDotFill's calls with a mask
   cv::Mat dot_fill_coverage_;       // see dotFillCoverage()
-  cv::Mat dots_removed_;            // the raw image opened by it
+  cv::Mat dots_removed_;            // the raw image opened by it, or with its dots filled (setDotFill)
   cv::Mat dots_scratch_;            // two raw-size scratch images of the opening
   ResampledImage stage_;            // process()'s own stage-1 buffers
   cv::Mat blur_tmp_;                // CV_32FC1 H x W: horizontal pass of the blur

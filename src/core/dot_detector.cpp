@@ -253,7 +253,7 @@ void DotDetector::restartMotion() {
 DotDetector::Verdict DotDetector::decide() {
   if (!armed_ || samples_ <= kStableSamples) return Verdict::kUndecided;
   // Every dot is in every sample: fewer fixed specks than the share are no dots (M only ever shrinks).
-  const double whole = share_history_[static_cast<size_t>(samples_ - 1)];
+  const double whole = wholeShare();
   if (whole < min_share_) {
     share_ = whole;
     armed_ = false;
@@ -323,12 +323,14 @@ double DotDetector::fillMask(cv::Mat* mask, int misses) {
   if (width_ == 0) return 0.0;
   const size_t n = static_cast<size_t>(width_) * static_cast<size_t>(height_);
   uint8_t* m = mask->data;
-  std::copy(fixed_.data, fixed_.data + n, m);
-  if (samples_ == 0) return 0.0;
-  // A dot may miss a sample's speck test (weak, on bright ground) and so M; with `misses` it is filled too.
+  if (samples_ == 0) {
+    std::fill(m, m + n, uint8_t{0});
+    return 0.0;
+  }
+  // M is the pixels that were specks in every sample (hits == samples); a dot may miss a sample's speck test (weak,
+  // on bright ground), so with `misses` the pixels that missed at most that many are taken too.
   const int need = std::max(1, samples_ - std::max(0, misses));
-  for (size_t i = 0; i < n; ++i)
-    if (hits_.data[i] >= need) m[i] = 255;
+  for (size_t i = 0; i < n; ++i) m[i] = hits_.data[i] >= need ? 255 : 0;
   const uint8_t* img = last_.data;
   uint8_t* grown = larger_.data;
   for (int ring = 0; ring < kMaxFillGrowth; ++ring) {
