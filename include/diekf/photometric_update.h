@@ -186,6 +186,11 @@ class PhotometricUpdate {
   /// multiplies the pixels' weights in the next updates, with the outlier weights when there are any
   /// (FixedPattern::confidence, docs/noise_model.md section 11); null: none.
   void setPixelConfidence(const cv::Mat* confidence) { confidence_ = confidence; }
+  /// Per-pixel confidence of the reference image's pixels (CV_32FC1 in [0, 1], the image size; not owned, must
+  /// outlive the next update), sampled (bilinear) where the warp lands and multiplied into the weights with the
+  /// reference's outlier weights: a residual is as good as the worse of its two samples. For what is fixed in the
+  /// image on both images of the pair (the projector dots' fill, docs/noise_model.md section 11); null: none.
+  void setReferenceConfidence(const cv::Mat* confidence) { ref_confidence_ = confidence; }
   /// Whether update() also computes UpdateStats::vartheta_image (the batch start-up needs it; off by default).
   void setReportImageVartheta(bool on) { report_image_vartheta_ = on; }
   /// Forgets the smoothed noise estimates (the next update starts from its own residuals). The outlier weights
@@ -329,6 +334,9 @@ class PhotometricUpdate {
   const cv::Mat* confidence_ = nullptr;  ///< per-pixel confidence (setPixelConfidence), not owned
   bool report_image_vartheta_ = false;
   const cv::Mat* active_map_ = nullptr;  ///< the weights the sweeps of the current update use (null: none)
+  const cv::Mat* ref_confidence_ = nullptr;  ///< the reference pixels' confidence (setReferenceConfidence), not owned
+  const cv::Mat* ref_map_ = nullptr;  ///< the reference weights the sweeps of the current update use (null: none)
+  cv::Mat ref_map_buf_;               ///< outlier weights times the reference's confidence, when both apply
   bool weight_map_has_outliers_ = false;  ///< some weight of weight_map_ is below 1
   double relief_var_ = 0.0;               ///< reliefVariance() of the last map (0: none), not smoothed
   double weight_map_t_s_ = 0.0;           ///< stamp of the image weight_map_'s pixels (and parallax_sums_) belong to

@@ -442,6 +442,7 @@ struct Estimator::Impl {
           "raw images opened or their dots filled from this image on (dots fixed in the image): new reference";
     } else if (have_reference) {
       update.setPixelConfidence(pixelConfidence());
+      update.setReferenceConfidence(fill_confidence.empty() ? nullptr : &fill_confidence);  // the same fill on both
       const double alpha0 = x.alpha, var_alpha0 = P(ErrIdx::kAlpha, ErrIdx::kAlpha);
       update.setReportImageVartheta(scale_init.phase() != internal::ScaleInitializer::Phase::kDone);
       stats = update.apply(frames[ref_index], cur, img.t_s, imu, last_imu_gap_end_s, &health, &x, &P, &skip_reason);

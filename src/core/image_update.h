@@ -45,6 +45,9 @@ class ImageUpdate {
   /// Per-pixel confidence for the next photometric updates (PhotometricUpdate::setPixelConfidence; the camera-fixed
   /// pattern's, docs/noise_model.md section 11); null: none.
   void setPixelConfidence(const cv::Mat* confidence) { photometric_.setPixelConfidence(confidence); }
+  /// Per-pixel confidence of the reference image's pixels (PhotometricUpdate::setReferenceConfidence; the projector
+  /// dots' fill); null: none.
+  void setReferenceConfidence(const cv::Mat* confidence) { photometric_.setReferenceConfidence(confidence); }
   /// The reference image was re-timed from from_s to to_s (a changed time offset estimate): what the photometric
   /// update keeps of it (its outlier weights) follows.
   void retimeReference(double from_s, double to_s) { photometric_.retimeWeights(from_s, to_s); }

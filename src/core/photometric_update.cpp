@@ -1221,9 +1221,7 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
     cfg.offset = static_cast<float>(gain * ref_level_offset_ - cur.level_offset);
   }
   cfg.confidence_map = active_map_;
-  cfg.reference_weights = use_weight_map_ && weight_map_.type() == CV_32FC1 && weight_map_.size() == cur.intensity.size()
-                              ? &weight_map_
-                              : nullptr;
+  cfg.reference_weights = ref_map_ != nullptr && ref_map_->size() == cur.intensity.size() ? ref_map_ : nullptr;
   const bool rolling = m_rows != nullptr && timing != nullptr && timing->row_weight != nullptr &&
                        timing->rows == cur.intensity.rows && dt_s > 0.0 &&
                        (readout_s != 0.0 || timing->estimate_readout);
@@ -1478,6 +1476,19 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   // The camera-fixed pattern's confidence, per pixel of the current image (docs/noise_model.md section 11).
   active_map_ = confidence_ != nullptr && confidence_->type() == CV_32FC1 && confidence_->size() == cur.intensity.size()
                     ? confidence_ : nullptr;
+  // The reference's weights, sampled where the warp lands: its outlier weights, times its confidence where given.
+  ref_map_ = use_weight_map_ && weight_map_.type() == CV_32FC1 && weight_map_.size() == cur.intensity.size()
+                 ? &weight_map_
+                 : nullptr;
+  if (ref_confidence_ != nullptr && ref_confidence_->type() == CV_32FC1 &&
+      ref_confidence_->size() == cur.intensity.size()) {
+    if (ref_map_ != nullptr) {
+      cv::multiply(weight_map_, *ref_confidence_, ref_map_buf_);  // (allocates once: same size every time)
+      ref_map_ = &ref_map_buf_;
+    } else {
+      ref_map_ = ref_confidence_;
+    }
+  }
 
   // Prior covariance of what the image observes, H P H^T with H = [observed columns | m] (the time offset
   // enters as the combination m of the observed columns; for the innovation test of the first pass).
@@ -1686,6 +1697,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
       params_.max_passes, params_.stop_threshold, linearize_at, x, P);
   use_weight_map_ = false;
   active_map_ = nullptr;
+  ref_map_ = nullptr;
   stats.applied = it.ok;
   if (image_only && it.ok && !stats.gated) imageOnlyVartheta(A_last, b_last, x_last, x_prior, P_other, &stats);
   stats.outlier_fraction = sums.valid > 0 ? std::clamp(1.0 - sums.weight_sum / sums.valid, 0.0, 1.0) : 0.0;

@@ -1148,6 +1148,73 @@ TEST(PhotometricOutliers, AnObjectMovingOnItsOwnIsDownWeighted) {
   EXPECT_LT(e_clean_robust, e_clean + 0.01);
 }
 
+TEST(PhotometricConfidence, APatchFixedInTheImageIsDownWeightedWhereTheWarpLandsToo) {
+  // Smooth patches fixed in the image on both images of the pair (projector dots filled from their surroundings,
+  // docs/noise_model.md section 11): 84 small discs of a flat grey, 11 % of the image, at the same pixels in both images.
+  // The current image's confidence (0 on the discs and a pixel around them) removes the residuals whose current
+  // sample is a patch; those whose warped reference sample lands on a patch stay, and vote for "no motion" (the
+  // patch does not move with the ground). The same confidence given for the reference too
+  // (setReferenceConfidence, sampled where the warp lands) removes them as well.
+  const int W = 180, H = 116;
+  const double dt = 1.0 / 30.0;
+  const PinholeK K = test_util::makeK(W, H);
+  const Vec3 v_W(0.45, -0.25, 0.05), w_C(0.05, -0.03, 0.10);
+  const test_util::Plane ground;
+  const test_util::CameraPose cur = test_util::lookDownPose(Vec3(0.1, -0.2, 1.0), 0.2, 0.1);
+  const test_util::PlaneTruth truth = test_util::planeTruth(ground, cur, v_W);
+  const test_util::PlaneTexture texture(7);
+  cv::Mat patches(H, W, CV_8UC1, cv::Scalar(0));
+  for (int i = 0; i < 84; ++i) {
+    const int cx = 8 + (i % 12) * 14 + (i / 12) * 2, cy = 9 + (i / 12) * 16;
+    cv::circle(patches, cv::Point(cx, cy), 3, cv::Scalar(255), cv::FILLED);
+  }
+  cv::Mat grown;  // (the preprocessing's blur and gradients spread a patch by a pixel)
+  cv::dilate(patches, grown, cv::Mat::ones(3, 3, CV_8UC1));
+  cv::Mat confidence(H, W, CV_32FC1, cv::Scalar(1.0f));
+  confidence.setTo(0.0f, grown);
+  std::vector<PreprocessedFrame> clean, patched;
+  for (int j = 0; j < 2; ++j) {
+    const double t = (j - 1) * dt;
+    const cv::Mat img = test_util::renderPlane(texture, ground, K, test_util::propagate(cur, v_W, w_C, t), 3);
+    cv::Mat grey = test_util::toGray8(img);
+    clean.push_back(test_util::makeFrame(grey, t));
+    grey.setTo(cv::mean(grey)[0], patches);
+    patched.push_back(test_util::makeFrame(grey, t));
+  }
+  const double share = cv::countNonZero(patches) / static_cast<double>(W * H);
+  auto error = [&](const std::vector<PreprocessedFrame>& f, const cv::Mat* cur_conf, const cv::Mat* ref_conf) {
+    PhotometricParams params;
+    params.outlier_threshold_sigma = 0.0;  // the confidence alone
+    PhotometricUpdate update(params, PreprocessParams{});
+    update.setPixelConfidence(cur_conf);
+    update.setReferenceConfidence(ref_conf);
+    State x;
+    x.alpha = 1.0 / truth.d_m;
+    x.vartheta = 0.5 * truth.vartheta_inv_s;
+    x.mu = UnitVector(truth.mu).boxplus(Vec2(0.04, -0.03));
+    x.g = UnitVector(Vec3(0.0, 0.0, 1.0));
+    ErrorCov P = priorCov();
+    const UpdateStats st = update.update(f[0], f[1], K, w_C, dt, &x, &P);
+    EXPECT_TRUE(st.applied);
+    return (x.vartheta - truth.vartheta_inv_s).norm() / truth.vartheta_inv_s.norm();
+  };
+  const double e_clean = error(clean, nullptr, nullptr);
+  const double e_clean_both = error(clean, &confidence, &confidence);
+  const double e_none = error(patched, nullptr, nullptr);
+  const double e_current = error(patched, &confidence, nullptr);
+  const double e_both = error(patched, &confidence, &confidence);
+  std::printf("patches on %.1f %% of the image; relative vartheta error: no patches %.4f (both confidences %.4f); "
+              "patches %.4f, current confidence %.4f, both %.4f\n",
+              100.0 * share, e_clean, e_clean_both, e_none, e_current, e_both);
+  EXPECT_GT(share, 0.10);
+  EXPECT_GT(e_none, 4.0 * e_clean) << "the patches must matter";
+  EXPECT_LT(e_current, e_none);
+  EXPECT_GT(e_current, 1.3 * e_clean_both) << "the reference's patches pull when only the current's are weighted";
+  EXPECT_LT(e_both, 1.1 * e_clean_both) << "the reference's patches must be down-weighted too";
+  // Without the reference's confidence nothing changes (bit for bit: the same sweep as before it existed).
+  EXPECT_EQ(error(patched, &confidence, nullptr), e_current);
+}
+
 /// The ground (z = 0) with a box standing on it: its top at `box_top_m`, footprint |X - c| <= half (x, y), m.
 /// Textures at world (X, Y); the box's sides are not drawn (the top hides the ground behind it).
 cv::Mat renderGroundWithBox(const test_util::PlaneTexture& ground_tex, const test_util::PlaneTexture& box_tex,
