@@ -294,22 +294,32 @@ struct Estimator::Impl {
     }
   }
 
-  /// Fills the raw pixels of `mask` from now on (empty: no fill), and the working pixels' confidence with it: a
-  /// working pixel is worth what of it is the ground's own texture, the fill's interpolation being fixed in the image
-  /// (smooth patches: a vote for "no motion" like the dots', only weaker).
+  /// Fills the raw pixels of `mask` from now on (empty: no fill), and weighs the working pixels under it
+  /// (weighFill) for the last update's per-pixel noise.
   void setFill(const cv::Mat& mask) {
     img_pre.setDotFill(mask);
     if (mask.empty()) {
       fill_confidence.release();
       return;
     }
+    weighFill(last_noise_sigma > 0.0 ? last_noise_sigma : params.photometric.intensity_noise_sigma);
+  }
+
+  /// The working pixels' confidence under the fill for the per-pixel noise 1-sigma `sigma` (normalised units): the
+  /// fill is an interpolation fixed in the image, and a pixel whose resampling footprint lies on filled raw pixels
+  /// by the share f carries its error, at most f times the ground's detail it replaces, which is at most the working
+  /// image's own spread (unit variance): its variance sigma^2 + f^2 against sigma^2, so the weight
+  /// 1 / (1 + f^2 / sigma^2) (docs/noise_model.md section 11). Made again when the noise has moved by a fifth.
+  void weighFill(double sigma) {
     const cv::Mat& coverage = img_pre.dotFillCoverage();
-    fill_confidence.create(coverage.size(), CV_32FC1);
-    for (int y = 0; y < coverage.rows; ++y)
-      for (int xx = 0; xx < coverage.cols; ++xx) {
-        const float keep = 1.0f - coverage.at<float>(y, xx);
-        fill_confidence.at<float>(y, xx) = keep * keep;
-      }
+    fill_confidence.create(coverage.size(), CV_32FC1);  // (no allocation after the first fill)
+    const float inv_var = static_cast<float>(1.0 / (sigma * sigma));
+    for (int y = 0; y < coverage.rows; ++y) {
+      const float* f = coverage.ptr<float>(y);
+      float* w = fill_confidence.ptr<float>(y);
+      for (int xx = 0; xx < coverage.cols; ++xx) w[xx] = 1.0f / (1.0f + f[xx] * f[xx] * inv_var);
+    }
+    fill_sigma = sigma;
   }
 
   /// Switches the opening of the raw images on (side_px, or fixed_pattern.auto_dot_removal_px when 0; never when
@@ -515,6 +525,11 @@ struct Estimator::Impl {
     r.update_ms = img.resample_ms + std::chrono::duration<double, std::milli>(t1 - t0).count();
     fillStats(stats, &r);
     if (stats.applied && std::isfinite(stats.relief_var)) relief_var = stats.relief_var;  // (kept when not)
+    if (stats.applied && std::isfinite(stats.noise_sigma) && stats.noise_sigma > 0.0) {
+      last_noise_sigma = stats.noise_sigma;
+      if (!fill_confidence.empty() && std::abs(std::log(last_noise_sigma / fill_sigma)) > std::log(1.2))
+        weighFill(last_noise_sigma);
+    }
     r.relief_sigma = std::sqrt(relief_var);
     r.fixed_pattern_active = fixed_pattern.active();
     r.fixed_pattern_fraction = fixed_pattern.strongFraction();
@@ -686,7 +701,9 @@ struct Estimator::Impl {
   bool pattern_named = false;        // the status has named the dominant pattern in view
   internal::DotDetector dots;        // projector dots in the raw images (configured when enabled)
   cv::Mat dot_mask;                  // the raw pixels the dots light, once found (DotDetector::fillMask)
-  cv::Mat fill_confidence;           // working pixels' confidence under the fill: (1 - its share of the footprint)^2
+  cv::Mat fill_confidence;           // working pixels' confidence under the fill (weighFill)
+  double fill_sigma = 0.0;           // the per-pixel noise 1-sigma fill_confidence was made for
+  double last_noise_sigma = 0.0;     // the last applied update's per-pixel noise 1-sigma (0: none yet)
   cv::Mat combined_confidence;       // fill_confidence times the pattern's (pixelConfidence)
   bool dot_removal_switched = false; // the opening or the fill switched on for good (switchOnDotRemoval)
   double interim_m_share = 0.0;      // M's share when the interim fill was last made
