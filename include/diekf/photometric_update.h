@@ -111,8 +111,8 @@ struct ImageTiming {
 /// times) is pulled toward zero (errors in the variables; docs/algorithm.md section 3.7).
 ObservedVec stateRateMap(const State& x, const Vec3& gyro_mean_C, const ImageTiming& in, double dt_s,
                          bool expected = false);
-/// The time offset's Jacobian column as a combination of the observed ones, J_t_d = J_obs m: stateRateMap
-/// when in.estimate_offset, else zero.
+/// The time offset's Jacobian column as a combination of the observed ones, J_t_d = J_obs m: stateRateMap with
+/// `expected` (the readings' expected values given their noise) when in.estimate_offset, else zero.
 ObservedVec timeOffsetMap(const State& x, const Vec3& gyro_mean_C, const ImageTiming& in, double dt_s);
 /// The focal-length scale's Jacobian column as a combination of the observed ones, J_focal ~ J_obs m_f
 /// (docs/algorithm.md section 3.8): scaling both focal lengths of K by (1 + e) moves every reference pixel by

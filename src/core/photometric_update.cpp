@@ -133,7 +133,10 @@ ObservedVec stateRateMap(const State& x, const Vec3& gyro_mean_C, const ImageTim
 }
 
 ObservedVec timeOffsetMap(const State& x, const Vec3& gyro_mean_C, const ImageTiming& in, double dt_s) {
-  return in.estimate_offset ? stateRateMap(x, gyro_mean_C, in, dt_s) : ObservedVec::Zero();
+  // The readings' expected values given their noise (as for the readout's rows): in slow flight the rate change
+  // between the images is mostly the gyro's noise, and with the readings as they are the offset was pulled toward
+  // its current value with a 1-sigma that fell regardless (errors in the variables; docs/algorithm.md section 3.6).
+  return in.estimate_offset ? stateRateMap(x, gyro_mean_C, in, dt_s, true) : ObservedVec::Zero();
 }
 
 std::vector<float> readoutRowWeights(const CameraModel& cam, const PinholeK& K_working) {

@@ -103,10 +103,10 @@ TEST(TimeOffsetMap, ZeroWhenDisabled) {
 }
 
 // While the readout is estimated, the rows of a rolling shutter take the expected rates given their noisy readings
-// (docs/algorithm.md section 3.7): each component of the acceleration a + g0 g and of the rate change shrunk by
-// (1 - var / r^2), zero within the noise; the vartheta part carries it as alpha times the acceleration, the b_w part
-// as minus the rate change over dt. Without noise variances, and for the time offset's column, the readings as they
-// are.
+// (docs/algorithm.md section 3.7), and so does the time offset's column (section 3.6): each component of the
+// acceleration a + g0 g and of the rate change shrunk by (1 - var / r^2), zero within the noise; the vartheta part
+// carries it as alpha times the acceleration, the b_w part as minus the rate change over dt. Without noise
+// variances, the readings as they are.
 TEST(TimeOffsetMap, RowsTakeTheExpectedRatesGivenTheirNoise) {
   std::mt19937 rng(9);
   const State x = randomState(rng);
@@ -122,7 +122,7 @@ TEST(TimeOffsetMap, RowsTakeTheExpectedRatesGivenTheirNoise) {
   in.rate_change_noise_var = Vec3::Constant(0.001 * 0.001);
   const Vec3 w(0.2, -0.1, 0.3);
   const ObservedVec raw = stateRateMap(x, w, in, dt), expected = stateRateMap(x, w, in, dt, true);
-  EXPECT_EQ(raw, timeOffsetMap(x, w, in, dt)) << "the offset's column: the readings as they are";
+  EXPECT_EQ(expected, timeOffsetMap(x, w, in, dt)) << "the offset's column: the expected rates too";
   ImageTiming quiet = in;
   quiet.accel_noise_var.setZero();
   quiet.rate_change_noise_var.setZero();
