@@ -2,7 +2,6 @@
 
 #include <algorithm>
 #include <cmath>
-#include <cstdlib>
 #include <limits>
 
 #include <Eigen/Eigenvalues>
@@ -1524,14 +1523,9 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   // offset error times the change of the rate between consecutive intervals.
   const Vec3 rate_C = gyro_mean_C - x->b_w;  // rad/s
   const Vec3 rate_change = last_rate_valid_ ? Vec3(rate_C - last_rate_C_) : Vec3::Zero();
-  static const bool consider = std::getenv("DIEKF_TDCONS") != nullptr;  // EXPERIMENT
-  const double offset_sigma_s =
-      consider && !timing.estimate_offset
-          ? std::max(params_.time_offset_sigma_s, std::sqrt(std::max(0.0, (*P)(ErrIdx::kTd, ErrIdx::kTd))))
-          : params_.time_offset_sigma_s;
   const double var_theta =
       std::pow(params_.rotation_scale_sigma * dt_s, 2) * rate_C.squaredNorm() +
-      std::pow(offset_sigma_s, 2) * rate_change.squaredNorm() +
+      std::pow(params_.time_offset_sigma_s, 2) * rate_change.squaredNorm() +
       timing.gyro_noise_density_sq * dt_s;  // rad^2
   const double var_bw_equiv = var_theta / (dt_s * dt_s);                        // (rad/s)^2
   last_rate_C_ = rate_C;
