@@ -1150,7 +1150,8 @@ TEST(PhotometricOutliers, AnObjectMovingOnItsOwnIsDownWeighted) {
 
 TEST(PhotometricConfidence, APatchFixedInTheImageIsDownWeightedWhereTheWarpLandsToo) {
   // Smooth patches fixed in the image on both images of the pair (projector dots filled from their surroundings,
-  // docs/noise_model.md section 11): 84 small discs of a flat grey, 11 % of the image, at the same pixels in both images.
+  // docs/noise_model.md section 11): 84 small discs of a flat grey, 11 % of the image, at the same pixels in both
+  // images.
   // The current image's confidence (0 on the discs and a pixel around them) removes the residuals whose current
   // sample is a patch; those whose warped reference sample lands on a patch stay, and vote for "no motion" (the
   // patch does not move with the ground). The same confidence given for the reference too
