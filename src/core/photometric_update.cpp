@@ -969,6 +969,10 @@ SweepConfig makeConfig(const PhotometricParams& params, const PreprocessParams& 
 /// (relative gain; the images' noise is a few % of their contrast).
 constexpr double kRowGainRefitStep = 0.02;
 
+/// The 95 % quantile of chi-square with 8 degrees of freedom (the NIS of the eight observed columns): a frame whose
+/// NIS lies above it does not move the time states (update(); docs/algorithm.md section 3.6).
+constexpr double kTimeStatesMaxNis = 15.507;
+
 /// Bands of the rows (brightness model auto, rowBanding): found when the RMS over the rows of the pair's common
 /// relative gain per row, smoothed over kBandsTimeConstantS, is above kBandsFoundGain, lost below kBandsLostGain.
 /// On images whose level (mean over standard deviation) is 2-7, a 2 % gain leaves residuals of 0.04-0.14, several
@@ -1658,13 +1662,16 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
         info_scale /= stats.gate_inflation;
       }
     }
-    // A frame the innovation test flags does not move the time offset: the offset is a slow property of the
-    // sensors, and a wrong frame's innovation projected on m would be taken for it.
-    if (stats.gated) {
+    // A frame the innovation test flags does not move the time states (offset, readout, focal scale): they are slow
+    // properties of the sensors, and a wrong frame's innovation projected on their columns would be taken for them.
+    // Nor does a frame whose NIS lies above its 95 % quantile (kTimeStatesMaxNis): a model error building up (a
+    // fast dash below the gate) dragged the offset by 9 ms and the readout by 7 ms (docs/algorithm.md section 3.6).
+    const bool freeze = stats.gated || stats.nis > kTimeStatesMaxNis;
+    if (freeze) {
       m->setZero();
       calib->setZero();
     }
-    if (rolling && sums.has_moments && !stats.gated) {
+    if (rolling && sums.has_moments && !freeze) {
       // The readout's column w_y S m_rows (section 3.7) next to the observed ones, the rotation error
       // marginalised from the extended system.
       Eigen::Matrix<double, 9, 9> Ae;

@@ -986,6 +986,41 @@ TEST_F(PhotometricScene, GateBoundsTheStepOfAnInconsistentUpdate) {
   EXPECT_EQ(st2.gate_inflation, 1.0);
 }
 
+TEST_F(PhotometricScene, AnImprobableFrameDoesNotMoveTheTimeStates) {
+  // The time offset's column active (rates given), the gate off: a frame whose NIS lies above the 95 % quantile of
+  // chi-square(8) updates the state but not the offset (docs/algorithm.md section 3.6); one below it moves the offset.
+  PhotometricParams params;
+  params.max_passes = 1;
+  params.gate_nis = 0.0;  // the quantile alone
+  ImageTiming timing;
+  timing.estimate_offset = true;
+  timing.rates_valid = true;
+  timing.gravity_mps2 = 9.81;
+  timing.accel_C = Vec3(0.8, -0.5, -9.81);   // m/s^2
+  timing.rate_change_C = Vec3(0.3, -0.2, 0.1);  // rad/s between the images: the offset is seen
+  auto run = [&](double cov_scale, State* x, UpdateStats* st) {
+    PhotometricUpdate update(params, PreprocessParams{});
+    *x = startState(0.0);
+    ErrorCov P = priorCov() * cov_scale;
+    P(ErrIdx::kTd, ErrIdx::kTd) = 0.01 * 0.01;  // s^2: the offset's prior as configured by default
+    *st = update.update(scene_->ref, scene_->cur, scene_->K, scene_->w_C, scene_->dt_s, x, &P, 0.0, timing);
+  };
+  State x_tight, x_loose;
+  UpdateStats st_tight, st_loose;
+  run(1e-4, &x_tight, &st_tight);  // vartheta 0 against the truth with a 1-sigma of a few mm/s: improbable
+  run(1.0, &x_loose, &st_loose);
+  std::printf("NIS %.1f: offset step %.3g ms; NIS %.1f: offset step %.3g ms\n", st_tight.nis, 1e3 * x_tight.t_d_s,
+              st_loose.nis, 1e3 * x_loose.t_d_s);
+  ASSERT_TRUE(st_tight.applied);
+  ASSERT_TRUE(st_loose.applied);
+  EXPECT_GT(st_tight.nis, 15.507);
+  EXPECT_FALSE(st_tight.gated);
+  EXPECT_EQ(x_tight.t_d_s, 0.0) << "an improbable frame must not move the offset";
+  EXPECT_GT((x_tight.vartheta - startState(0.0).vartheta).norm(), 0.0) << "the frame still updates the state";
+  EXPECT_LT(st_loose.nis, 15.507);
+  EXPECT_NE(x_loose.t_d_s, 0.0) << "a probable frame moves the offset";
+}
+
 TEST_F(PhotometricScene, RotationModelErrorDiscountsTheGyroRotation) {
   // The gyro's interval rotation off by 0.1 rad/s about the camera's x and y axes (a scale-factor, focal length
   // or timing error of the rotation, far outside the b_w prior). Without the rotation model error the image must
