@@ -1228,7 +1228,7 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
     cfg.offset = static_cast<float>(gain * ref_level_offset_ - cur.level_offset);
   }
   cfg.confidence_map = active_map_;
-  cfg.reference_weights = ref_map_ != nullptr && ref_map_->size() == cur.intensity.size() ? ref_map_ : nullptr;
+  cfg.reference_weights = ref_map_;  // (update() points it only at maps of the current image's size)
   const bool rolling = m_rows != nullptr && timing != nullptr && timing->row_weight != nullptr &&
                        timing->rows == cur.intensity.rows && dt_s > 0.0 &&
                        (readout_s != 0.0 || timing->estimate_readout);
