@@ -7,6 +7,8 @@
 #include "diekf/params.h"
 #include "diekf/state.h"
 
+#include <array>
+#include <cstdint>
 #include <vector>
 
 namespace diekf {
@@ -330,6 +332,7 @@ class PhotometricUpdate {
   cv::Mat weight_inv_pixels_;  ///< CV_32FC1 per cell: 1 / pixels in its window (depends only on the sizes)
   int weight_inv_pixels_hc_ = -1;  ///< the window half-side the table was made for
   std::vector<float> weight_median_buf_;  ///< per-cell values, for their medians; then the rows' flags (border minimum)
+  std::array<uint32_t, 2048> weight_median_counts_{};  ///< the medians' histogram (internal::kthSmallest)
   bool use_weight_map_ = false;  ///< weight_map_ applies to the sweeps of the current update
   const cv::Mat* confidence_ = nullptr;  ///< per-pixel confidence (setPixelConfidence), not owned
   bool report_image_vartheta_ = false;

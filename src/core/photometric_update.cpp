@@ -11,6 +11,7 @@
 #include "expected_value.h"
 #include "gauss_newton.h"
 #include "lanes.h"
+#include "select.h"
 #include "window_sum.h"
 
 // The sweep and the preprocessing are written with OpenCV's universal intrinsics. On 32-bit ARM, NEON is optional
@@ -621,6 +622,7 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
   alignas(16) int32_t idx[4];
   alignas(16) int32_t widx[4];
   const v_int32x4 one_i = v_setall_s32(1);
+  const v_int32x4 lane_ramp(0, 1, 2, 3);
   alignas(16) float xs_init[4];
   for (int l = 0; l < 4; ++l) xs_init[l] = static_cast<float>(cfg.border + l * cfg.stride);
   const v_float32x4 x_step = v_setall_f32(static_cast<float>(4 * cfg.stride));
@@ -746,7 +748,11 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
       const v_float32x4 rxs = v_select(valid, rx, rx_lo), rys = v_select(valid, ry, ry_lo);
       const v_int32x4 x0 = v_floor(rxs), y0 = v_floor(rys);
       const v_float32x4 ax = rxs - v_cvt_f32(x0), ay = rys - v_cvt_f32(y0);
-      v_store_aligned(idx, (y0 - one_i) * v_setall_s32(sC) + (x0 - one_i));  // the lanes' top-left taps
+      const v_int32x4 idx_v = (y0 - one_i) * v_setall_s32(sC) + (x0 - one_i);  // the lanes' top-left taps
+      v_store_aligned(idx, idx_v);
+      // Most groups sample 4 consecutive reference columns of one row (the warp is near a shift along the
+      // row): lane l's taps start at idx[0] + l, so tap m of the 4 lanes is one load at idx[0] + m.
+      const bool consecutive = v_check_all(idx_v == v_setall_s32(idx[0]) + lane_ramp);
       // The reference's value and gradient: per tap row, the 4 taps of the 4 lanes transposed to tap planes, and
       // the row's value and x-derivative at ax (row_i, row_d); the rows are then combined with the vertical
       // weights (value, d/dx) and their derivatives (d/dy).
@@ -756,10 +762,18 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
       v_float32x4 row_i[4], row_d[4];
       for (int j = 0; j < 4; ++j) {
         const int off = j * sC;
-        v_float32x4 p0 = v_load(C + idx[0] + off), p1 = v_load(C + idx[1] + off);
-        v_float32x4 p2 = v_load(C + idx[2] + off), p3 = v_load(C + idx[3] + off);
         v_float32x4 c0, c1, c2, c3;
-        v_transpose4x4(p0, p1, p2, p3, c0, c1, c2, c3);
+        if (consecutive) {
+          const float* p = C + idx[0] + off;
+          c0 = v_load(p);
+          c1 = v_load(p + 1);
+          c2 = v_load(p + 2);
+          c3 = v_load(p + 3);
+        } else {
+          const v_float32x4 p0 = v_load(C + idx[0] + off), p1 = v_load(C + idx[1] + off);
+          const v_float32x4 p2 = v_load(C + idx[2] + off), p3 = v_load(C + idx[3] + off);
+          v_transpose4x4(p0, p1, p2, p3, c0, c1, c2, c3);
+        }
         row_i[j] = v_muladd(wx[3], c3, v_muladd(wx[2], c2, v_muladd(wx[1], c1, wx[0] * c0)));
         row_d[j] = v_muladd(dwx[3], c3, v_muladd(dwx[2], c2, v_muladd(dwx[1], c1, dwx[0] * c0)));
       }
@@ -805,13 +819,21 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
           } else {
             v_store_aligned(widx, y0 * v_setall_s32(sW) + x0);
           }
-          const float* p0 = RW + widx[0];
-          const float* p1 = RW + widx[1];
-          const float* p2 = RW + widx[2];
-          const float* p3 = RW + widx[3];
           v_float32x4 q00, q01, q10, q11;
-          loadPairs(p0, p1, p2, p3, &q00, &q01);
-          loadPairs(p0 + sW, p1 + sW, p2 + sW, p3 + sW, &q10, &q11);
+          if (consecutive) {
+            const float* p = RW + widx[0];
+            q00 = v_load(p);
+            q01 = v_load(p + 1);
+            q10 = v_load(p + sW);
+            q11 = v_load(p + sW + 1);
+          } else {
+            const float* p0 = RW + widx[0];
+            const float* p1 = RW + widx[1];
+            const float* p2 = RW + widx[2];
+            const float* p3 = RW + widx[3];
+            loadPairs(p0, p1, p2, p3, &q00, &q01);
+            loadPairs(p0 + sW, p1 + sW, p2 + sW, p3 + sW, &q10, &q11);
+          }
           const v_float32x4 bx = one - ax, by = one - ay;
           const v_float32x4 ref_w =
               v_muladd(ax * ay, q11, v_muladd(bx * ay, q10, v_muladd(ax * by, q01, (bx * by) * q00)));
@@ -1973,9 +1995,8 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
         if (std::isfinite(v)) weight_median_buf_.push_back(v);  // capacity kept between images
       }
     if (weight_median_buf_.empty()) return 0.0;
-    auto mid = weight_median_buf_.begin() + weight_median_buf_.size() / 2;
-    std::nth_element(weight_median_buf_.begin(), mid, weight_median_buf_.end());
-    return static_cast<double>(*mid);
+    return static_cast<double>(internal::kthSmallest(weight_median_buf_.data(), weight_median_buf_.size(),
+                                                     weight_median_buf_.size() / 2, &weight_median_counts_));
   };
 
   // (1) Energy: m = mean r^2 of the window, against the larger of the noise and the median over the image.

@@ -1,5 +1,7 @@
 #include <algorithm>
+#include <array>
 #include <cmath>
+#include <functional>
 #include <random>
 #include <vector>
 
@@ -14,6 +16,7 @@
 #include "../../src/core/bspline.h"
 #include "two_view_scene.h"
 #include "../../src/core/lanes.h"
+#include "../../src/core/select.h"
 #include "../../src/core/window_sum.h"
 
 namespace diekf {
@@ -1495,6 +1498,37 @@ TEST(OutlierWindowSums, FourRowsAsLanesGiveEachRowsSumsBitForBit) {
   }
 }
 
+
+TEST(OutlierMedians, KthSmallestEqualsNthElement) {
+  // updateWeightMap's image medians select through a histogram of the values' top bits (internal::kthSmallest):
+  // the value of every rank must be std::nth_element's, for sizes on both sides of its small-set fallback and
+  // for values spread over many octaves, packed into one bin, repeated, signed, zero of either sign, subnormal or
+  // infinite.
+  std::mt19937 rng(11);
+  std::array<uint32_t, 2048> counts{};
+  const std::vector<std::function<float()>> kinds = {
+      [&] { return std::uniform_real_distribution<float>(0.0f, 1.0f)(rng); },
+      [&] { return std::exp(std::uniform_real_distribution<float>(-40.0f, 40.0f)(rng)); },
+      [&] { return 1.0f + std::uniform_real_distribution<float>(0.0f, 1e-3f)(rng); },  // one bin
+      [&] { return std::normal_distribution<float>(0.0f, 1e-3f)(rng); },
+      [&] { return static_cast<float>(std::uniform_int_distribution<int>(-3, 3)(rng)); },  // repeated values
+      [&] {
+        const float special[] = {0.0f, -0.0f, 1e-40f, -1e-40f, INFINITY, -INFINITY, 2.5f, -2.5f};
+        return special[std::uniform_int_distribution<int>(0, 7)(rng)];
+      }};
+  for (size_t kind = 0; kind < kinds.size(); ++kind) {
+    for (size_t n : {1u, 2u, 64u, 65u, 66u, 1305u, 5000u}) {
+      std::vector<float> values(n);
+      for (float& v : values) v = kinds[kind]();
+      for (size_t k : {size_t{0}, n / 3, n / 2, n - 1}) {
+        std::vector<float> a = values, b = values;
+        std::nth_element(b.begin(), b.begin() + static_cast<std::ptrdiff_t>(k), b.end());
+        const float got = internal::kthSmallest(a.data(), n, k, &counts);
+        EXPECT_EQ(got, b[k]) << "kind " << kind << " n " << n << " k " << k;  // (-0 == +0)
+      }
+    }
+  }
+}
+
 }  // namespace
 }  // namespace diekf
-
