@@ -2229,7 +2229,7 @@ void PhotometricUpdate::updateWeightMap(const PreprocessedFrame& ref, const Prep
       const float* w = weight_cell_w_.ptr<float>(j);
       float* rowmin = window(0, j);
       bool low = false;
-      for (int i = 0; i < Wc; ++i) low = low || w[i] < kHigh;
+      for (int i = 0; i < Wc; ++i) low |= w[i] < kHigh;  // (no short cut: vectorised)
       row_has[j] = low ? 1.0f : 0.0f;
       if (!low) continue;
       // What each cell spreads (1 from kHigh up), then the minimum over the window (4 cells at a time inside
