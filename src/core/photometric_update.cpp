@@ -556,9 +556,9 @@ void accumulateRow(float* const* T, const float* valid, int n_pad, const int* se
 
 /// One linearisation sweep over the current image against the reference's cubic B-spline coefficients
 /// (bspline.h). Per row: (1) 4 pixels at a time, warp, the reference's value and gradient from the 4x4 spline
-/// taps (4 row loads + transpose per tap row and lane group), residual, Jacobian row S (2/dt times the true row:
-/// gradient sum instead of mean, Jacobian without dt; the caller rescales), weight; the results go to the row
-/// buffers; (2) the row's Gram sums.
+/// taps (per tap row and lane group 4 loads, transposed unless the lanes' taps are consecutive columns),
+/// residual, Jacobian row S (2/dt times the true row: gradient sum instead of mean, Jacobian without dt; the
+/// caller rescales), weight; the results go to the row buffers; (2) the row's Gram sums.
 /// The residual r, dr / d rho and the reference position per pixel go to `out` (PixelOutputs). The weighting
 /// options are template parameters.
 template <bool kHuber, bool kGradientWeighting, bool kWeightMap>
@@ -753,7 +753,7 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
       // Most groups sample 4 consecutive reference columns of one row (the warp is near a shift along the
       // row): lane l's taps start at idx[0] + l, so tap m of the 4 lanes is one load at idx[0] + m.
       const bool consecutive = v_check_all(idx_v == v_setall_s32(idx[0]) + lane_ramp);
-      // The reference's value and gradient: per tap row, the 4 taps of the 4 lanes transposed to tap planes, and
+      // The reference's value and gradient: per tap row, the 4 taps of the 4 lanes as tap planes, and
       // the row's value and x-derivative at ax (row_i, row_d); the rows are then combined with the vertical
       // weights (value, d/dx) and their derivatives (d/dy).
       v_float32x4 wx[4], dwx[4], wy[4], dwy[4];
