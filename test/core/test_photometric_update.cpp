@@ -1498,7 +1498,6 @@ TEST(OutlierWindowSums, FourRowsAsLanesGiveEachRowsSumsBitForBit) {
   }
 }
 
-
 TEST(OutlierMedians, KthSmallestEqualsNthElement) {
   // updateWeightMap's image medians select through a histogram of the values' top bits (internal::kthSmallest):
   // the value of every rank must be std::nth_element's, for sizes on both sides of its small-set fallback and
