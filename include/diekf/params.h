@@ -195,6 +195,9 @@ struct FixedPatternParams {
   double dot_detect_share = 0.01;
   /// A speck for that detector: a top-hat (image minus its opening) above this fraction of the opening, unitless.
   double dot_detect_contrast = 0.5;
+  /// Contrast levels of that detector (1-3): level l looks for specks above dot_detect_contrast / 2^l, and decides
+  /// once every brighter level found no dots (fainter dots: a projector far away, a ground dark in infrared).
+  int dot_detect_levels = 3;
   /// When the detector finds dots, the opening's side is measured on its last sample instead of taking
   /// auto_dot_removal_px: the least odd side from auto_dot_removal_px up to this one (raw px) at which a larger
   /// side no longer takes more from the dots than from the ground (their tails and clusters are gone;

@@ -51,7 +51,45 @@ void speckMask(const uint8_t* src, const uint8_t* opened, size_t n, int contrast
   }
 }
 
-void DotDetector::configure(int width, int height, int element_px, double contrast, double min_share) {
+void speckLevels(const uint8_t* src, const uint8_t* opened, size_t n, const int* contrast_q8, int levels,
+                 uint8_t* out) {
+  // speckMask's test at each contrast, the passes counted (the thresholds fall with the contrast: nested).
+  size_t i = 0;
+  {
+    using namespace cv;
+    const v_uint16x8 vfloor = v_setall_u16(static_cast<uint16_t>(DotDetector::kNoiseFloorGrey));
+    const v_uint8x16 v255 = v_setall_u8(255), vlevels = v_setall_u8(static_cast<uint8_t>(levels));
+    const v_uint8x16 one = v_setall_u8(1);
+    for (; i + 16 <= n; i += 16) {
+      const v_uint8x16 vi = v_load(src + i), vo = v_load(opened + i);
+      v_uint16x8 i0, i1, o0, o1;
+      v_expand(vi, i0, i1);
+      v_expand(vo, o0, o1);
+      const v_uint16x8 t0 = i0 - o0, t1 = i1 - o1;
+      v_uint8x16 count = v_setzero_u8();
+      for (int l = 0; l < levels; ++l) {
+        const v_uint16x8 vhi = v_setall_u16(static_cast<uint16_t>(contrast_q8[l] >> 8));
+        const v_uint16x8 vlo = v_setall_u16(static_cast<uint16_t>(contrast_q8[l] & 255));
+        const v_uint16x8 thr0 = v_mul_wrap(o0, vhi) + v_shr<8>(v_mul_wrap(o0, vlo)) + vfloor;
+        const v_uint16x8 thr1 = v_mul_wrap(o1, vhi) + v_shr<8>(v_mul_wrap(o1, vlo)) + vfloor;
+        count = count + (v_pack(v_reinterpret_as_u16(t0 > thr0), v_reinterpret_as_u16(t1 > thr1)) & one);
+      }
+      const v_uint8x16 above = v_pack(v_reinterpret_as_u16(t0 > vfloor), v_reinterpret_as_u16(t1 > vfloor));
+      v_store(out + i, v_max(count, (vi == v255) & above & vlevels));
+    }
+  }
+  for (; i < n; ++i) {
+    const int top = static_cast<int>(src[i]) - static_cast<int>(opened[i]);
+    int count = 0;
+    for (int l = 0; l < levels; ++l) {
+      const int c_hi = contrast_q8[l] >> 8, c_lo = contrast_q8[l] & 255;
+      count += top > c_hi * opened[i] + ((c_lo * opened[i]) >> 8) + DotDetector::kNoiseFloorGrey;
+    }
+    out[i] = static_cast<uint8_t>(src[i] == 255 && top > DotDetector::kNoiseFloorGrey ? levels : count);
+  }
+}
+
+void DotDetector::configure(int width, int height, int element_px, double contrast, double min_share, int levels) {
   if (!fits(width, height)) {
     throw std::invalid_argument("DotDetector: image of " + std::to_string(width) + "x" + std::to_string(height) +
                                 " px too small");
@@ -62,29 +100,37 @@ void DotDetector::configure(int width, int height, int element_px, double contra
   }
   if (!(contrast > 0.0 && contrast <= 10.0)) throw std::invalid_argument("DotDetector: contrast not in (0, 10]");
   if (!(min_share > 0.0 && min_share < 1.0)) throw std::invalid_argument("DotDetector: share not in (0, 1)");
+  if (levels < 1 || levels > kMaxLevels) throw std::invalid_argument("DotDetector: levels not in [1, 3]");
   width_ = width;
   height_ = height;
   radius_ = element_px / 2;
-  contrast_q8_ = static_cast<int>(std::lround(contrast * 256.0));
   min_share_ = min_share;
   motion_px_ = kMotionElements * element_px;
   step_px_ = element_px + 2.0;
   ensureBytes(opened_, height, width);
   ensureBytes(scratch_a_, height, width);
   ensureBytes(scratch_b_, height, width);
-  ensureBytes(fixed_, height, width);
-  ensureBytes(hits_, height, width);
-  hits_.setTo(0);
   ensureBytes(last_, height, width);
   ensureBytes(larger_, height, width);
   // Tiles, and blocks made of whole tiles.
   tiles_x_ = (width + kTilePx - 1) / kTilePx;
   tiles_y_ = (height + kTilePx - 1) / kTilePx;
   const size_t tiles = static_cast<size_t>(tiles_x_) * static_cast<size_t>(tiles_y_);
-  tile_chance_.assign(tiles, 1.0);
-  tile_q_.assign(tiles, 1.0);
+  n_levels_ = levels;
+  level_ = 0;
+  for (int l = 0; l < levels; ++l) {
+    Level& L = levels_[static_cast<size_t>(l)];
+    L.contrast_q8 = std::max(1, static_cast<int>(std::lround(std::ldexp(contrast, -l) * 256.0)));
+    contrast_q8_[static_cast<size_t>(l)] = L.contrast_q8;
+    L.tile_chance.assign(tiles, 1.0);
+    L.tile_q.assign(tiles, 1.0);
+    L.tile_fixed.assign(tiles, 0);
+  }
+  for (cv::Mat& m : lowest_) {
+    ensureBytes(m, height, width);
+    m.setTo(255);  // (no sample yet: above every level)
+  }
   tile_block_.assign(tiles, 0);
-  tile_fixed_.assign(tiles, 0);
   tile_area_.assign(tiles, 0);
   for (int ty = 0; ty < tiles_y_; ++ty)
     for (int tx = 0; tx < tiles_x_; ++tx)
@@ -140,11 +186,11 @@ bool DotDetector::wantsImage() const {
   return false;
 }
 
-double DotDetector::fixedShare(const std::array<bool, kBlocks>& use) const {
+double DotDetector::fixedShare(const Level& L, const std::array<bool, kBlocks>& use) const {
   size_t count = 0, area = 0;
   for (size_t t = 0; t < tile_area_.size(); ++t) {
     if (!use[static_cast<size_t>(tile_block_[t])]) continue;
-    count += static_cast<size_t>(tile_fixed_[t]);
+    count += static_cast<size_t>(L.tile_fixed[t]);
     area += static_cast<size_t>(tile_area_[t]);
   }
   return area > 0 ? static_cast<double>(count) / static_cast<double>(area) : 0.0;
@@ -158,50 +204,76 @@ void DotDetector::addImage(const cv::Mat& grey) {
   grey.copyTo(last_);  // kept for removalElement; contiguous rows for the opening whatever the input's stride
   const uint8_t* src = last_.data;
   openSquare(src, opened_.data, scratch_a_.data, scratch_b_.data, width_, height_, radius_);
-  uint8_t* speck = scratch_a_.data;
+  // The passes of every level in one mask (a pixel passing level l passes every fainter one too), dilated: a pixel
+  // is a (dilated) speck at level l when it holds at least levels - l.
+  uint8_t* passes = scratch_a_.data;
   const size_t n = static_cast<size_t>(width_) * static_cast<size_t>(height_);
-  speckMask(src, opened_.data, n, contrast_q8_, speck);
-  dilateSquare(speck, speck, scratch_b_.data, width_, height_, 1);
-  uint8_t* hits = hits_.data;
-  for (size_t i = 0; i < n; ++i) hits[i] = static_cast<uint8_t>(hits[i] + (speck[i] != 0));  // (<= kMaxSamples)
-  // M = M and the speck mask; per tile the specks of this sample and the pixels left in M.
-  std::fill(tile_q_.begin(), tile_q_.end(), 0.0);
-  std::fill(tile_fixed_.begin(), tile_fixed_.end(), 0);
-  uint8_t* f = fixed_.data;
-  if (samples_ == 0) std::copy(speck, speck + n, f);
+  speckLevels(src, opened_.data, n, contrast_q8_.data(), n_levels_, passes);
+  dilateSquare(passes, passes, scratch_b_.data, width_, height_, 1);
+  // The three lowest passes over the samples, in order: M of level l is lowest >= levels - l, the pixels that
+  // missed at most one or two samples the second and third lowest.
+  uint8_t* m1 = lowest_[0].data;
+  uint8_t* m2 = lowest_[1].data;
+  uint8_t* m3 = lowest_[2].data;
+  {
+    size_t i = 0;
+    using namespace cv;
+    for (; i + 16 <= n; i += 16) {
+      const v_uint8x16 v = v_load(passes + i), a = v_load(m1 + i), b = v_load(m2 + i), c = v_load(m3 + i);
+      v_store(m3 + i, v_max(b, v_min(c, v)));
+      v_store(m2 + i, v_max(a, v_min(b, v)));
+      v_store(m1 + i, v_min(a, v));
+    }
+    for (; i < n; ++i) {
+      const uint8_t v = passes[i], a = m1[i], b = m2[i], c = m3[i];
+      m3[i] = std::max(b, std::min(c, v));
+      m2[i] = std::max(a, std::min(b, v));
+      m1[i] = std::min(a, v);
+    }
+  }
+  // Per level and tile, the specks of this sample and the pixels in M. (Levels that said no dots are done with.)
+  for (int l = level_; l < n_levels_; ++l) {
+    Level& L = levels_[static_cast<size_t>(l)];
+    std::fill(L.tile_q.begin(), L.tile_q.end(), 0.0);
+    std::fill(L.tile_fixed.begin(), L.tile_fixed.end(), 0);
+  }
   for (int y = 0; y < height_; ++y) {
     const size_t row = static_cast<size_t>(y) * static_cast<size_t>(width_);
     const size_t t0 = static_cast<size_t>((y / kTilePx) * tiles_x_);
     for (int tx = 0; tx < tiles_x_; ++tx) {
       const int x0 = tx * kTilePx, x1 = std::min(width_, x0 + kTilePx);
-      unsigned specks = 0, fixed = 0;
-      int x = x0;
-      if (x1 - x0 == 16) {
-        using namespace cv;
-        const v_uint8x16 sp = v_load(speck + row + x0);
-        const v_uint8x16 m = v_min(v_load(f + row + x0), sp);
-        v_store(f + row + x0, m);
-        const v_uint8x16 one = v_setall_u8(1);
-        v_uint16x8 a0, a1, b0, b1;
-        v_expand(sp & one, a0, a1);
-        v_expand(m & one, b0, b1);
-        specks = v_reduce_sum(a0 + a1);
-        fixed = v_reduce_sum(b0 + b1);
-        x = x1;
+      for (int l = level_; l < n_levels_; ++l) {
+        const uint8_t need = static_cast<uint8_t>(n_levels_ - l);
+        unsigned specks = 0, fixed = 0;
+        int x = x0;
+        if (x1 - x0 == 16) {
+          using namespace cv;
+          const v_uint8x16 vneed = v_setall_u8(need), one = v_setall_u8(1);
+          const v_uint8x16 sp = v_load(passes + row + x0) >= vneed, m = v_load(m1 + row + x0) >= vneed;
+          v_uint16x8 a0, a1, b0, b1;
+          v_expand(sp & one, a0, a1);
+          v_expand(m & one, b0, b1);
+          specks = v_reduce_sum(a0 + a1);
+          fixed = v_reduce_sum(b0 + b1);
+          x = x1;
+        }
+        for (; x < x1; ++x) {
+          specks += passes[row + x] >= need;
+          fixed += m1[row + x] >= need;
+        }
+        Level& L = levels_[static_cast<size_t>(l)];
+        L.tile_q[t0 + tx] += specks;
+        L.tile_fixed[t0 + tx] += static_cast<int>(fixed);
       }
-      for (; x < x1; ++x) {
-        f[row + x] = std::min(f[row + x], speck[row + x]);
-        specks += speck[row + x] != 0;
-        fixed += f[row + x] != 0;
-      }
-      tile_q_[t0 + tx] += specks;
-      tile_fixed_[t0 + tx] += static_cast<int>(fixed);
     }
   }
-  for (size_t t = 0; t < tile_q_.size(); ++t) tile_q_[t] /= static_cast<double>(tile_area_[t]);
   std::array<bool, kBlocks> all;
   all.fill(true);
-  share_history_[static_cast<size_t>(samples_)] = fixedShare(all);
+  for (int l = level_; l < n_levels_; ++l) {
+    Level& L = levels_[static_cast<size_t>(l)];
+    for (size_t t = 0; t < L.tile_q.size(); ++t) L.tile_q[t] /= static_cast<double>(tile_area_[t]);
+    L.share_history[static_cast<size_t>(samples_)] = fixedShare(L, all);
+  }
   ++samples_;
   pending_position_ = true;
 }
@@ -236,8 +308,11 @@ void DotDetector::notePosition(bool known) {
     counted[static_cast<size_t>(i)] = independent(b);
     if (counted[static_cast<size_t>(i)]) b.samples[static_cast<size_t>(b.count++)] = b.position;
   }
-  for (size_t t = 0; t < tile_chance_.size(); ++t)
-    if (counted[static_cast<size_t>(tile_block_[t])]) tile_chance_[t] *= tile_q_[t];
+  for (int l = level_; l < n_levels_; ++l) {
+    Level& L = levels_[static_cast<size_t>(l)];
+    for (size_t t = 0; t < L.tile_chance.size(); ++t)
+      if (counted[static_cast<size_t>(tile_block_[t])]) L.tile_chance[t] *= L.tile_q[t];
+  }
 }
 
 void DotDetector::restartMotion() {
@@ -246,12 +321,24 @@ void DotDetector::restartMotion() {
     b.uncertainty.setZero();
     b.count = 0;
   }
-  std::fill(tile_chance_.begin(), tile_chance_.end(), 1.0);
+  for (Level& L : levels_) std::fill(L.tile_chance.begin(), L.tile_chance.end(), 1.0);
   pending_position_ = false;
 }
 
 DotDetector::Verdict DotDetector::decide() {
   if (!armed_ || samples_ <= kStableSamples) return Verdict::kUndecided;
+  // A level's verdict of no dots hands over to the next, fainter one (which has seen every sample too).
+  Verdict v = decideLevel();
+  while (v == Verdict::kNoDots && level_ + 1 < n_levels_) {
+    ++level_;
+    armed_ = true;
+    v = decideLevel();
+  }
+  return v;
+}
+
+DotDetector::Verdict DotDetector::decideLevel() {
+  const Level& L = levels_[static_cast<size_t>(level_)];
   // Every dot is in every sample: fewer fixed specks than the share are no dots (M only ever shrinks).
   const double whole = wholeShare();
   if (whole < min_share_) {
@@ -276,12 +363,12 @@ DotDetector::Verdict DotDetector::decide() {
     return Verdict::kUndecided;
   }
   double chance = 0.0;
-  for (size_t t = 0; t < tile_chance_.size(); ++t)
-    if (use[static_cast<size_t>(tile_block_[t])]) chance += tile_chance_[t] * tile_area_[t];
+  for (size_t t = 0; t < L.tile_chance.size(); ++t)
+    if (use[static_cast<size_t>(tile_block_[t])]) chance += L.tile_chance[t] * tile_area_[t];
   chance /= static_cast<double>(resolved_area);
-  share_ = fixedShare(use);
+  share_ = fixedShare(L, use);
   if (chance > 0.1 * min_share_ || share_ < min_share_) return Verdict::kUndecided;
-  const double earlier = share_history_[static_cast<size_t>(samples_ - 1 - kStableSamples)];
+  const double earlier = L.share_history[static_cast<size_t>(samples_ - 1 - kStableSamples)];
   if (whole < kStableFraction * earlier) return Verdict::kUndecided;  // still falling: chance agreements
   armed_ = false;
   return Verdict::kDots;
@@ -292,7 +379,8 @@ int DotDetector::removalElement(int max_px) {
   if (samples_ == 0) return side;
   const size_t n = static_cast<size_t>(width_) * static_cast<size_t>(height_);
   const uint8_t* img = last_.data;
-  const uint8_t* m = fixed_.data;
+  const uint8_t* lowest = lowest_[0].data;
+  const uint8_t need = static_cast<uint8_t>(n_levels_ - level_);
   // opened_ holds the last sample's opening by `side` (addImage); the next larger one goes to larger_.
   uint8_t* cur = opened_.data;
   uint8_t* next = larger_.data;
@@ -301,7 +389,7 @@ int DotDetector::removalElement(int max_px) {
     uint64_t sum_dots = 0, sum_ground = 0, n_dots = 0;
     for (size_t i = 0; i < n; ++i) {
       const unsigned d = static_cast<unsigned>(cur[i] - next[i]);  // (openings shrink with the element)
-      if (m[i] != 0) {
+      if (lowest[i] >= need) {
         sum_dots += d;
         ++n_dots;
       } else {
@@ -327,10 +415,13 @@ double DotDetector::fillMask(cv::Mat* mask, int misses) {
     std::fill(m, m + n, uint8_t{0});
     return 0.0;
   }
-  // M is the pixels that were specks in every sample (hits == samples); a dot may miss a sample's speck test (weak,
-  // on bright ground), so with `misses` the pixels that missed at most that many are taken too.
-  const int need = std::max(1, samples_ - std::max(0, misses));
-  for (size_t i = 0; i < n; ++i) m[i] = hits_.data[i] >= need ? 255 : 0;
+  // M is the pixels that were specks in every sample (the lowest passes); a dot may miss a sample's speck test
+  // (weak, on bright ground), so with `misses` the pixels that missed at most that many are taken too (the second or
+  // third lowest; while there are no more samples than misses, one is enough: the highest).
+  const int rank = std::clamp(std::min(misses, samples_ - 1), 0, kFillMisses);
+  const uint8_t* lowest = lowest_[static_cast<size_t>(rank)].data;
+  const uint8_t need = static_cast<uint8_t>(n_levels_ - level_);
+  for (size_t i = 0; i < n; ++i) m[i] = lowest[i] >= need ? 255 : 0;
   const uint8_t* img = last_.data;
   uint8_t* grown = larger_.data;
   for (int ring = 0; ring < kMaxFillGrowth; ++ring) {

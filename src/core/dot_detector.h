@@ -17,6 +17,15 @@
 // independent positions span kMotionElements elements along both image axes (or kStraightFactor times that along
 // one: a thin bright line lying along a straight motion stays on its pixels), beyond twice their 1-sigma.
 //
+// Contrast levels: the test runs at `levels` contrasts at once, each half the one before (one opening and one mask
+// per sample, the number of levels each pixel passes; per pixel its three lowest over the samples, so that M of a
+// level, and the pixels that missed one or two samples, are those whose lowest passes reach it; chance products
+// per level). Dots bright against their ground are found at the first; fainter ones
+// (a projector far away, a ground that reflects little infrared) add less than the first contrast and hold no share
+// of its M, so once a level's verdict is no dots the next, fainter level decides (its ground specks are more
+// numerous, its chance products fall more slowly: it needs more samples). A level's verdict of dots counts only
+// after every brighter level said no dots, so dots the first level sees are found by it as with one level.
+//
 // Dots: the resolved blocks cover at least half the image (a climb resolves the rim before the centre), the
 // chance share over them is below a tenth of `min_share`, M's share over them is at least `min_share`, and M's
 // share has stopped falling (a periodic ground can bring its specks back onto the same pixels: such chance
@@ -61,10 +70,16 @@ class DotDetector {
   static bool fits(int width, int height) {
     return width >= 2 * kTilePx * kBlocksX && height >= 2 * kTilePx * kBlocksY;
   }
+  /// Contrast levels at most (configure's `levels`).
+  static constexpr int kMaxLevels = 3;
   /// Arms the detector for raw images of width x height (allocates): specks smaller than `element_px` (odd,
-  /// >= 3) that add at least `contrast` of their surroundings' brightness; dots found when they hold at least
-  /// `min_share` of the image. Throws std::invalid_argument on a bad argument.
-  void configure(int width, int height, int element_px, double contrast, double min_share);
+  /// >= 3) that add at least `contrast` of their surroundings' brightness (at level l: contrast / 2^l, `levels`
+  /// levels); dots found when they hold at least `min_share` of the image. Throws std::invalid_argument on a bad
+  /// argument.
+  void configure(int width, int height, int element_px, double contrast, double min_share, int levels = 1);
+  /// The contrast level deciding now (0 first; after a verdict, the verdict's level): the share, M, the fill mask
+  /// and the opening's side below are that level's.
+  int level() const { return level_; }
 
   /// Still looking (configured, no verdict yet).
   bool armed() const { return armed_; }
@@ -113,13 +128,16 @@ class DotDetector {
   /// while the test runs, when few samples would let the ground's specks in).
   double fillMask(cv::Mat* mask, int misses);
   /// M's share of the whole image after the last sample (0 before any).
-  double wholeShare() const { return samples_ > 0 ? share_history_[static_cast<size_t>(samples_ - 1)] : 0.0; }
+  double wholeShare() const {
+    return samples_ > 0 ? levels_[static_cast<size_t>(level_)].share_history[static_cast<size_t>(samples_ - 1)] : 0.0;
+  }
   /// M's share after the last sample over its share after the one before (1 before two samples): the ground's
   /// chance agreements fall by half or more per independent sample, dots stay.
   double wholeShareRatio() const {
     if (samples_ < 2) return 1.0;
-    const double before = share_history_[static_cast<size_t>(samples_ - 2)];
-    return before > 0.0 ? share_history_[static_cast<size_t>(samples_ - 1)] / before : 1.0;
+    const auto& history = levels_[static_cast<size_t>(level_)].share_history;
+    const double before = history[static_cast<size_t>(samples_ - 2)];
+    return before > 0.0 ? history[static_cast<size_t>(samples_ - 1)] / before : 1.0;
   }
   static constexpr int kMaxFillGrowth = 4;
   static constexpr double kFillTailFraction = 0.05;
@@ -134,29 +152,40 @@ class DotDetector {
     std::array<Vec2, kMaxSamples> samples{};  // positions of the independent samples
     int count = 0;
   };
+  /// One contrast level: its speck test's share and chance products. (Its M: lowest_[0] >= levels - l.)
+  struct Level {
+    int contrast_q8 = 0;   // contrast in 1/256
+    std::array<double, kMaxSamples> share_history{};  // M's share of the whole image after each sample
+    std::vector<double> tile_chance;  // per tile: product of the speck shares of its block's independent samples
+    std::vector<double> tile_q;       // per tile: speck share of the last sample (until notePosition)
+    std::vector<int> tile_fixed;      // per tile: pixels in M after the last sample
+  };
   bool independent(const Block& b) const;
   bool resolved(const Block& b) const;
-  /// Share of M over the pixels of the blocks flagged.
-  double fixedShare(const std::array<bool, kBlocks>& use) const;
+  /// Share of level L's M over the pixels of the blocks flagged.
+  double fixedShare(const Level& L, const std::array<bool, kBlocks>& use) const;
+  /// The verdict of the deciding level (decide() without the levels).
+  Verdict decideLevel();
 
   int width_ = 0, height_ = 0, radius_ = 0;
-  int contrast_q8_ = 0;  // contrast in 1/256
   double min_share_ = 0.0;
   double motion_px_ = 0.0;  // kMotionElements elements, raw px
   double step_px_ = 0.0;    // element + 2 px: the least distance between independent samples
-  cv::Mat opened_, scratch_a_, scratch_b_, fixed_;  // CV_8UC1, width x height
-  cv::Mat hits_;  // CV_8UC1: per pixel, the sampled images in which it was a (dilated) speck
+  cv::Mat opened_, scratch_a_, scratch_b_;  // CV_8UC1, width x height
   cv::Mat last_, larger_;  // the last sampled image (contiguous) and a second opening of it (removalElement)
   bool armed_ = false;
   int samples_ = 0;                                   // images in M
   double share_ = 0.0;                                // see share()
-  std::array<double, kMaxSamples> share_history_{};   // M's share of the whole image after each sample
+  std::array<Level, kMaxLevels> levels_;
+  std::array<int, kMaxLevels> contrast_q8_{};  // the levels' contrasts in 1/256, for speckLevels
+  // Per pixel the lowest, second and third lowest of the (dilated) levels passed over the samples (CV_8UC1; 255
+  // before a sample): M of level l is lowest_[0] >= levels - l; the pixels that missed at most 1 or 2 samples
+  // lowest_[1] and lowest_[2] (fillMask).
+  std::array<cv::Mat, kFillMisses + 1> lowest_;
+  int n_levels_ = 1, level_ = 0;
   std::array<Block, kBlocks> blocks_;
   int tiles_x_ = 0, tiles_y_ = 0;
-  std::vector<double> tile_chance_;  // per tile: product of the speck shares of its block's independent samples
-  std::vector<double> tile_q_;       // per tile: speck share of the last sample (until notePosition)
   std::vector<int> tile_block_;      // per tile: its block
-  std::vector<int> tile_fixed_;      // per tile: pixels in M after the last sample
   std::vector<int> tile_area_;       // per tile: its pixels (the last column and row of tiles may be cut)
   bool pending_position_ = false;    // an image was sampled whose position is not noted yet
 };
@@ -165,6 +194,11 @@ class DotDetector {
 /// src - opened > contrast opened + DotDetector::kNoiseFloorGrey (the contrast in 1/256, contrast_q8 <= 2560),
 /// or src saturated (255) and src - opened > kNoiseFloorGrey. Exact in integers; 16 bytes at a time.
 void speckMask(const uint8_t* src, const uint8_t* opened, size_t n, int contrast_q8, uint8_t* out);
+
+/// speckMask's test at `levels` contrasts (contrast_q8[0..levels), falling) at once: out = the number of them a
+/// pixel passes (a saturated pixel above the floor passes all). Exact in integers; 16 bytes at a time.
+void speckLevels(const uint8_t* src, const uint8_t* opened, size_t n, const int* contrast_q8, int levels,
+                 uint8_t* out);
 
 }  // namespace internal
 }  // namespace diekf

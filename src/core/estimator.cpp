@@ -115,7 +115,7 @@ struct Estimator::Impl {
     if (dot_px > 1 && p.fixed_pattern.dot_detect_share > 0.0 && img_pre.dotRemovalPx() == 0 &&
         p.mode != UpdateMode::kFeature && internal::DotDetector::fits(cam.K.width, cam.K.height)) {
       dots.configure(cam.K.width, cam.K.height, dot_px, p.fixed_pattern.dot_detect_contrast,
-                     p.fixed_pattern.dot_detect_share);
+                     p.fixed_pattern.dot_detect_share, p.fixed_pattern.dot_detect_levels);
     }
     resetFilter();
   }
@@ -268,9 +268,10 @@ struct Estimator::Impl {
     } else if (verdict == internal::DotDetector::Verdict::kNoDots) {
       dot_share = dots.share();
     }
-    if (!dots.armed() && !dot_removal_switched && img_pre.dotFillId() != 0) {
-      setFill(cv::Mat());  // no dots (or no verdict): the interim fill ends
-    } else if (verdict == internal::DotDetector::Verdict::kUndecided && dots.armed() && img.dots_sampled &&
+    if ((!dots.armed() || dots.level() > 0) && !dot_removal_switched && img_pre.dotFillId() != 0) {
+      setFill(cv::Mat());  // no dots at the first contrast (or no verdict): the interim fill ends
+    } else if (verdict == internal::DotDetector::Verdict::kUndecided && dots.armed() && dots.level() == 0 &&
+               img.dots_sampled &&
                params.fixed_pattern.dot_fill && params.fixed_pattern.auto_dot_removal_px > 1 &&
                dots.samples() > internal::DotDetector::kStableSamples) {
       // Interim fill while the test runs: past its first samples M holds the dots and what of the ground's specks

@@ -419,6 +419,8 @@ const std::vector<Entry>& table() {
                      Range{0.0, 1.0, false, true}));
     t.push_back(real("fixed_pattern/dot_detect_contrast", DIEKF_FIELD(double, fixed_pattern.dot_detect_contrast),
                      Range{0.0, 10.0, true, false}));
+    t.push_back(integer("fixed_pattern/dot_detect_levels", DIEKF_FIELD(int, fixed_pattern.dot_detect_levels),
+                        between(1, 3)));
     t.push_back(integer("fixed_pattern/max_dot_removal_px", DIEKF_FIELD(int, fixed_pattern.max_dot_removal_px),
                         between(0, 31)));
     t.push_back(flag("fixed_pattern/dot_fill", DIEKF_FIELD(bool, fixed_pattern.dot_fill)));

@@ -66,6 +66,7 @@ struct Outcome {
   int frame = -1;  // the frame of the verdict
   int samples = 0;
   double share = 0.0;
+  int level = 0;    // the contrast level deciding at the end
   int element = 0;  // the opening's side measured at a verdict of dots (removalElement(21))
   cv::Mat fill;     // the pixels the dots light, at a verdict of dots (fillMask)
   double fill_share = 0.0;
@@ -75,9 +76,10 @@ struct Outcome {
 /// `gain` (empty: none); each frame's ground shift is given to the detector with 1-sigma `sigma_px`, as the
 /// estimator does (sample, motion of the pair, position, verdict).
 template <class Path>
-Outcome fly(const cv::Mat& ground, const cv::Mat& gain, Path path, int frames, double sigma_px = 0.1) {
+Outcome fly(const cv::Mat& ground, const cv::Mat& gain, Path path, int frames, double sigma_px = 0.1,
+            int levels = 1) {
   DotDetector det;
-  det.configure(kW, kH, 5, 0.5, 0.01);
+  det.configure(kW, kH, 5, 0.5, 0.01, levels);
   Outcome out;
   cv::Point prev = path(0);
   cv::Mat view, image;
@@ -107,6 +109,7 @@ Outcome fly(const cv::Mat& ground, const cv::Mat& gain, Path path, int frames, d
     }
     out.samples = det.samples();
     out.share = det.share();
+    out.level = det.level();
   }
   return out;
 }
@@ -165,6 +168,36 @@ TEST(DotDetector, SpeckMaskIsTheDefinitionExactly) {
       specks += speck;
     }
     EXPECT_GT(specks, 0);
+  }
+}
+
+TEST(DotDetector, SpeckLevelsCountTheSpeckMasksPassed) {
+  // The levels' test in one pass equals the number of single-contrast masks a pixel is in, for 1-3 levels whose
+  // contrasts halve (as configure() makes them) and a length with a tail.
+  cv::RNG rng(12);
+  const size_t n = 16 * 70 + 7;
+  std::vector<uint8_t> img(n), opened(n), out(n), mask(n);
+  for (int first_q8 : {128, 256, 700}) {
+    for (int levels = 1; levels <= DotDetector::kMaxLevels; ++levels) {
+      for (size_t i = 0; i < n; ++i) {
+        img[i] = rng.uniform(0, 10) == 0 ? 255 : static_cast<uint8_t>(rng.uniform(0, 256));
+        opened[i] = static_cast<uint8_t>(std::min<int>(img[i], rng.uniform(0, 256)));
+      }
+      std::vector<int> q8;
+      for (int l = 0; l < levels; ++l) q8.push_back(first_q8 >> l);
+      internal::speckLevels(img.data(), opened.data(), n, q8.data(), levels, out.data());
+      std::vector<int> count(n, 0);
+      for (int l = 0; l < levels; ++l) {
+        internal::speckMask(img.data(), opened.data(), n, q8[static_cast<size_t>(l)], mask.data());
+        for (size_t i = 0; i < n; ++i) count[i] += mask[i] != 0;
+      }
+      std::array<int, DotDetector::kMaxLevels + 1> seen{};
+      for (size_t i = 0; i < n; ++i) {
+        ASSERT_EQ(out[i], count[i]) << first_q8 << " / 256, " << levels << " levels, byte " << i;
+        ++seen[static_cast<size_t>(count[i])];
+      }
+      for (int c = 0; c <= levels; ++c) EXPECT_GT(seen[static_cast<size_t>(c)], 0) << c << " of " << levels;
+    }
   }
 }
 
@@ -257,6 +290,41 @@ TEST(DotDetector, GroundSpecksAloneAreNoDots) {
   EXPECT_NE(lattice.verdict, DotDetector::Verdict::kDots);
 }
 
+TEST(DotDetector, FaintDotsAreFoundAtTheNextContrastLevel) {
+  // Dots adding 70 % at their peak stand about 40 % above the 5 px opening (their tails raise it): below the first
+  // level's contrast (50 %), one level finds no dots. With two levels the second (25 %) finds them, after the first
+  // level's verdict (its ground specks, 40 % brighter here, are counted by chance for longer), and fills them.
+  // Bright dots are still decided by the first level, with the same frame and fill as with one level; ground specks
+  // alone, or on a lattice, are no dots at every level.
+  const cv::Mat ground = specklyGround(1000, 700, 1);
+  const cv::Mat faint_gain = projectorGain(1500, 0.7);
+  const Outcome one = fly(ground, faint_gain, circle, 200, 0.1, 1);
+  EXPECT_EQ(one.verdict, DotDetector::Verdict::kNoDots);
+  const Outcome two = fly(ground, faint_gain, circle, 200, 0.1, 2);
+  ASSERT_EQ(two.verdict, DotDetector::Verdict::kDots);
+  EXPECT_EQ(two.level, 1);
+  EXPECT_GT(two.frame, one.frame);
+  const cv::Mat lit = faint_gain > 1.25f;  // where a dot adds more than half its peak
+  const double covered = cv::countNonZero(two.fill & lit) / static_cast<double>(cv::countNonZero(lit));
+  std::printf("faint dots: no dots at frame %d with one level; dots at frame %d at level 1, share %.3f, fill %.1f %% "
+              "of the image covering %.1f %% of the pixels a dot brightens by 25 %%\n",
+              one.frame, two.frame, two.share, 100.0 * two.fill_share, 100.0 * covered);
+  EXPECT_GT(covered, 0.95);
+  const Outcome bright1 = fly(ground, projectorGain(1500, 1.5), circle, 200, 0.1, 1);
+  const Outcome bright2 = fly(ground, projectorGain(1500, 1.5), circle, 200, 0.1, 2);
+  ASSERT_EQ(bright2.verdict, DotDetector::Verdict::kDots);
+  EXPECT_EQ(bright2.level, 0);
+  EXPECT_EQ(bright2.frame, bright1.frame);
+  EXPECT_EQ(cv::countNonZero(bright2.fill != bright1.fill), 0);
+  for (int levels = 2; levels <= DotDetector::kMaxLevels; ++levels) {
+    const Outcome none = fly(specklyGround(1000, 700, 2), cv::Mat(), circle, 200, 0.1, levels);
+    EXPECT_EQ(none.verdict, DotDetector::Verdict::kNoDots) << levels << " levels";
+    EXPECT_EQ(none.level, levels - 1);
+    const Outcome lattice = fly(periodicGround(1000, 700, 12), cv::Mat(), circle, 200, 0.1, levels);
+    EXPECT_NE(lattice.verdict, DotDetector::Verdict::kDots) << levels << " levels";
+  }
+}
+
 TEST(DotDetector, AHoveringCameraCostsOneSampleAndGivesNoVerdict) {
   const Outcome hover = fly(specklyGround(1000, 700, 3), projectorGain(1500, 1.5),
                             [](int) { return cv::Point(120, 110); }, 150);
@@ -278,6 +346,8 @@ TEST(DotDetector, RejectsBadArguments) {
   EXPECT_THROW(det.configure(kW, kH, 5, 0.0, 0.01), std::invalid_argument);   // no contrast
   EXPECT_THROW(det.configure(kW, kH, 5, 0.5, 0.0), std::invalid_argument);    // no share
   EXPECT_THROW(det.configure(100, 60, 5, 0.5, 0.01), std::invalid_argument);  // too small
+  EXPECT_THROW(det.configure(kW, kH, 5, 0.5, 0.01, 0), std::invalid_argument);  // no level
+  EXPECT_THROW(det.configure(kW, kH, 5, 0.5, 0.01, DotDetector::kMaxLevels + 1), std::invalid_argument);
   EXPECT_FALSE(det.armed());
   det.configure(kW, kH, 5, 0.5, 0.01);
   EXPECT_TRUE(det.armed());

@@ -141,6 +141,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          a.fixed_pattern.auto_dot_removal_px == b.fixed_pattern.auto_dot_removal_px &&
          a.fixed_pattern.dot_detect_share == b.fixed_pattern.dot_detect_share &&
          a.fixed_pattern.dot_detect_contrast == b.fixed_pattern.dot_detect_contrast &&
+         a.fixed_pattern.dot_detect_levels == b.fixed_pattern.dot_detect_levels &&
          a.fixed_pattern.max_dot_removal_px == b.fixed_pattern.max_dot_removal_px &&
          a.fixed_pattern.dot_fill == b.fixed_pattern.dot_fill &&
          a.fixed_pattern.discount_biased_updates == b.fixed_pattern.discount_biased_updates &&
@@ -242,6 +243,7 @@ std::string perturbed(const std::string& key, const YAML::Node& def) {
   if (key == "photometric/brightness_model") return "gain";
   if (key == "line_delay_s") return "3.3e-05";  // s per row: a 16 ms readout of 480 rows
   if (key == "fixed_pattern/vignetting_file") return "flat_field.png";  // a path (read by the estimator, not here)
+  if (key == "fixed_pattern/dot_detect_levels") return "1";  // (1..3)
   if (def.IsSequence()) return "[0.1, 0.2, 0.9]";
   const std::string s = def.Scalar();
   if (s == "true") return "false";
