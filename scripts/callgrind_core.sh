@@ -22,5 +22,5 @@ echo -n "prediction step: "
 $PER_CALL --function 'diekf::predict(*' -- "$BENCH" --benchmark_filter='BM_PredictStep$'
 for args in 90/0 90/1 180/0 376/0; do
   echo -n "Estimator frame ${args} (IMU + image): "
-  $PER_CALL --min-times 0.01,0.1 --function '*feedFrame*' -- "$BENCH" --benchmark_filter="BM_EstimatorFrame/${args}\$"
+  $PER_CALL --min-times 0.1,0.5 --function '*feedFrame*' -- "$BENCH" --benchmark_filter="BM_EstimatorFrame/${args}\$"
 done
