@@ -18,42 +18,12 @@ void ensureBytes(cv::Mat& m, int rows, int cols) {
 }
 }  // namespace
 
-void speckMask(const uint8_t* src, const uint8_t* opened, size_t n, int contrast_q8, uint8_t* out) {
-  // Speck where I - O > contrast O + floor, or where I is saturated and I - O > floor. Exact integer arithmetic
-  // (the same on every platform): with the contrast in 1/256, c = 256 c_hi + c_lo, 256 (I - O) > c O + 256 floor
-  // holds exactly when I - O > c_hi O + ((c_lo O) >> 8) + floor (I - O is an integer; O <= I for an opening).
-  const uint8_t* o = opened;
-  uint8_t* speck = out;
-  const int c_hi = contrast_q8 >> 8, c_lo = contrast_q8 & 255;
-  size_t i = 0;
-  {
-    using namespace cv;
-    const v_uint16x8 vhi = v_setall_u16(static_cast<uint16_t>(c_hi)), vlo = v_setall_u16(static_cast<uint16_t>(c_lo));
-    const v_uint16x8 vfloor = v_setall_u16(static_cast<uint16_t>(DotDetector::kNoiseFloorGrey));
-    const v_uint8x16 v255 = v_setall_u8(255);
-    for (; i + 16 <= n; i += 16) {
-      const v_uint8x16 vi = v_load(src + i), vo = v_load(o + i);
-      v_uint16x8 i0, i1, o0, o1;
-      v_expand(vi, i0, i1);
-      v_expand(vo, o0, o1);
-      const v_uint16x8 t0 = i0 - o0, t1 = i1 - o1;
-      const v_uint16x8 thr0 = v_mul_wrap(o0, vhi) + v_shr<8>(v_mul_wrap(o0, vlo)) + vfloor;
-      const v_uint16x8 thr1 = v_mul_wrap(o1, vhi) + v_shr<8>(v_mul_wrap(o1, vlo)) + vfloor;
-      const v_uint8x16 bright = v_pack(v_reinterpret_as_u16(t0 > thr0), v_reinterpret_as_u16(t1 > thr1));
-      const v_uint8x16 above = v_pack(v_reinterpret_as_u16(t0 > vfloor), v_reinterpret_as_u16(t1 > vfloor));
-      v_store(speck + i, bright | ((vi == v255) & above));
-    }
-  }
-  for (; i < n; ++i) {
-    const int top = static_cast<int>(src[i]) - static_cast<int>(o[i]);
-    const int thr = c_hi * o[i] + ((c_lo * o[i]) >> 8) + DotDetector::kNoiseFloorGrey;
-    speck[i] = top > thr || (src[i] == 255 && top > DotDetector::kNoiseFloorGrey) ? 255 : 0;
-  }
-}
-
 void speckLevels(const uint8_t* src, const uint8_t* opened, size_t n, const int* contrast_q8, int levels,
                  uint8_t* out) {
-  // speckMask's test at each contrast, the passes counted (the thresholds fall with the contrast: nested).
+  // A speck where I - O > contrast O + floor, or where I is saturated and I - O > floor; the levels passed
+  // counted. Exact integer arithmetic (the same on every platform): with the contrast in 1/256,
+  // c = 256 c_hi + c_lo, 256 (I - O) > c O + 256 floor holds exactly when I - O > c_hi O + ((c_lo O) >> 8) + floor
+  // (I - O is an integer; O <= I for an opening).
   size_t i = 0;
   {
     using namespace cv;
@@ -87,6 +57,11 @@ void speckLevels(const uint8_t* src, const uint8_t* opened, size_t n, const int*
     }
     out[i] = static_cast<uint8_t>(src[i] == 255 && top > DotDetector::kNoiseFloorGrey ? levels : count);
   }
+}
+
+void speckMask(const uint8_t* src, const uint8_t* opened, size_t n, int contrast_q8, uint8_t* out) {
+  speckLevels(src, opened, n, &contrast_q8, 1, out);
+  for (size_t i = 0; i < n; ++i) out[i] = static_cast<uint8_t>(-static_cast<int>(out[i]));  // 1 -> 255
 }
 
 void DotDetector::configure(int width, int height, int element_px, double contrast, double min_share, int levels) {

@@ -192,7 +192,7 @@ class DotDetector {
 
 /// The speck mask of an image `src` and its opening `opened` (n bytes each) into `out` (255: speck, 0: not):
 /// src - opened > contrast opened + DotDetector::kNoiseFloorGrey (the contrast in 1/256, contrast_q8 <= 2560),
-/// or src saturated (255) and src - opened > kNoiseFloorGrey. Exact in integers; 16 bytes at a time.
+/// or src saturated (255) and src - opened > kNoiseFloorGrey (speckLevels at one level). Exact in integers.
 void speckMask(const uint8_t* src, const uint8_t* opened, size_t n, int contrast_q8, uint8_t* out);
 
 /// speckMask's test at `levels` contrasts (contrast_q8[0..levels), falling) at once: out = the number of them a
