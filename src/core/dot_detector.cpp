@@ -95,8 +95,7 @@ void DotDetector::configure(int width, int height, int element_px, double contra
   level_ = 0;
   for (int l = 0; l < levels; ++l) {
     Level& L = levels_[static_cast<size_t>(l)];
-    L.contrast_q8 = std::max(1, static_cast<int>(std::lround(std::ldexp(contrast, -l) * 256.0)));
-    contrast_q8_[static_cast<size_t>(l)] = L.contrast_q8;
+    contrast_q8_[static_cast<size_t>(l)] = std::max(1, static_cast<int>(std::lround(std::ldexp(contrast, -l) * 256.0)));
     L.tile_chance.assign(tiles, 1.0);
     L.tile_q.assign(tiles, 1.0);
     L.tile_fixed.assign(tiles, 0);

@@ -152,9 +152,9 @@ class DotDetector {
     std::array<Vec2, kMaxSamples> samples{};  // positions of the independent samples
     int count = 0;
   };
-  /// One contrast level: its speck test's share and chance products. (Its M: lowest_[0] >= levels - l.)
+  /// One contrast level: its speck test's share and chance products. (Its contrast: contrast_q8_[l]; its M:
+  /// lowest_[0] >= levels - l.)
   struct Level {
-    int contrast_q8 = 0;   // contrast in 1/256
     std::array<double, kMaxSamples> share_history{};  // M's share of the whole image after each sample
     std::vector<double> tile_chance;  // per tile: product of the speck shares of its block's independent samples
     std::vector<double> tile_q;       // per tile: speck share of the last sample (until notePosition)
