@@ -57,6 +57,9 @@ struct FrameResult {
   /// Share of the raw image (%) whose projector dots are filled from the ground around them (fixed_pattern/dot_fill,
   /// once the raw-image test found dots); 0: none.
   double dot_fill_pct = 0.0;
+  /// Share of the raw image (%) divided by the projector dots' gain learned from the motion (fixed_pattern/dot_gain;
+  /// then only the dots' cores stay filled, dot_fill_pct); 0: not (yet).
+  double dot_gain_pct = 0.0;
   /// The projector-dot test on the raw images (fixed_pattern/dot_detect_share; docs/noise_model.md section 11): the
   /// share of the image held by bright specks that stayed on the same pixels while the ground moved, at its verdict
   /// (the dots were found when it reached dot_detect_share); -1 while the test runs, when it is off, or when it gave up

@@ -101,13 +101,24 @@ class ImagePreprocessor {
   void setDotFill(const cv::Mat& mask);
   /// Share of the raw image filled (setDotFill; 0: no fill).
   double dotFillShare() const { return dot_fill_share_; }
-  /// Which fill the images resampled from now on go through: a new number for every setDotFill with a mask, 0 for
-  /// none (PreprocessedFrame::dot_fill_id).
-  int dotFillId() const { return fill_.empty() ? 0 : fill_id_; }
+  /// Which fill the images resampled from now on go through: a new number for every setDotFill with a mask and every
+  /// setDotGain, 0 for neither (PreprocessedFrame::dot_fill_id).
+  int dotFillId() const { return fill_.empty() && dot_gain_.empty() ? 0 : fill_id_; }
   /// Per working pixel (CV_32FC1, working size), the share of its resampling footprint on filled raw pixels (0..1;
   /// empty without a fill): what of it is the fill's interpolation, not the ground's own texture.
   const cv::Mat& dotFillCoverage() const { return dot_fill_coverage_; }
   static constexpr int kMaxFillReachPx = 12;
+  /// Divides the raw images resampled from now on by an IR projector's dots' learned gain (docs/noise_model.md
+  /// section 11, "Dots divided out"): `inv_gain_q12` (CV_16UC1 at the calibration's resolution) holds per raw pixel
+  /// 4096 / gain (4096: unchanged); applied before the fill (setDotFill), whose taps then read divided pixels. An
+  /// empty Mat switches it off. Copies the table (allocates); no allocation per image. Each call starts a new
+  /// dotFillId() (images divided differently are not a pair). Throws std::invalid_argument for a table of another
+  /// size or type.
+  void setDotGain(const cv::Mat& inv_gain_q12);
+  /// Whether the raw images are divided by a learned gain (setDotGain).
+  bool dotGainOn() const { return !dot_gain_.empty(); }
+  /// Share of the raw image divided by a gain other than 1 (setDotGain; 0: none).
+  double dotGainShare() const { return dot_gain_share_; }
 
  private:
   // ---- Resampling lookup table (built once in the constructor; see image_preprocessor.cpp). ----
@@ -174,7 +185,9 @@ class ImagePreprocessor {
   double dot_fill_share_ = 0.0;
   int fill_id_ = 0;                 // setDotFill's calls with a mask
   cv::Mat dot_fill_coverage_;       // see dotFillCoverage()
-  cv::Mat dots_removed_;            // the raw image opened by it, or with its dots filled (setDotFill)
+  cv::Mat dot_gain_;                // setDotGain's inverse gains, Q12 (empty: none)
+  double dot_gain_share_ = 0.0;     // see dotGainShare()
+  cv::Mat dots_removed_;            // the raw image opened by it, or with its dots divided and filled
   cv::Mat dots_scratch_;            // two raw-size scratch images of the opening
   ResampledImage stage_;            // process()'s own stage-1 buffers
   cv::Mat blur_tmp_;                // CV_32FC1 H x W: horizontal pass of the blur

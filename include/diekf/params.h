@@ -210,6 +210,11 @@ struct FixedPatternParams {
   /// dots a few grey levels of remains fixed in the image (an opening only rises where a dot lit the minimum of a
   /// window) and takes fine bright texture from the ground; the fill touches only the dots' pixels.
   bool dot_fill = true;
+  /// With dot_fill: after the verdict, learn the dots' gain per raw pixel from the ground's motion (the current
+  /// image's pixels against the reference's where the warp puts them, away from the dots) and, once learned, divide
+  /// the raw images by it, filling only the dots' saturating cores (docs/noise_model.md section 11, "Dots divided
+  /// out"). The fill's interpolation is fixed in the image and biases the distance; the division keeps the ground.
+  bool dot_gain = true;
   /// Optional offline flat field: a cv::FileStorage file (YAML/XML) with a matrix `gain` (relative response per
   /// raw pixel at the calibration resolution, any scale); empty: none. Divided out before the online model.
   std::string vignetting_file;

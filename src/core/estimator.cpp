@@ -5,7 +5,9 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <limits>
 #include <sstream>
+#include <utility>
 
 #include "diekf/grey_image.h"
 #include "diekf/fixed_pattern.h"
@@ -14,6 +16,7 @@
 #include "diekf/photometric_update.h"
 #include "diekf/stamp_check.h"
 #include "dot_detector.h"
+#include "dot_gain.h"
 #include "health_monitor.h"
 #include "image_update.h"
 #include "imu_propagator.h"
@@ -60,6 +63,8 @@ struct PendingImage {
   ResampledImage stage;  // the image resampled to the working size on arrival (reused buffers; no raw copy kept)
   double resample_ms = 0.0;  // time of that stage, added to the frame's update_ms
   bool dots_sampled = false; // the projector-dot detector sampled the raw image (DotDetector::addImage)
+  cv::Mat raw;               // a copy of the raw grey image while the dots' gain is learned (DotGainLearner)
+  bool raw_kept = false;     // `raw` holds this image
 };
 
 constexpr size_t kResultCapacity = 64;  // unread results kept (oldest dropped): nobody reads, memory bounded
@@ -249,13 +254,16 @@ struct Estimator::Impl {
       dot_share = dots.share();
       char why[kMessageCapacity];
       if (params.fixed_pattern.dot_fill && params.fixed_pattern.auto_dot_removal_px > 1) {
-        // The pixels the dots light (their tails too) filled from the ground around them.
+        // The pixels the dots light (their tails too) filled from the ground around them; their gain learned from
+        // the motion meanwhile, to divide them out instead (learnDotGain).
         const double filled = dots.fillMask(&dot_mask);
         std::snprintf(why, sizeof(why),
                       "projector dots found (fixed bright specks on %.1f %% of the image): raw images filled over "
                       "%.1f %% of the image",
                       100.0 * dots.share(), 100.0 * filled);
         switchOnDotRemoval(img.t_s, why, 0, &dot_mask);
+        if (params.fixed_pattern.dot_gain && dot_removal_switched && img_pre.dotFillId() != 0)
+          dot_gain.start(dot_mask);
       } else {
         // The opening's side from the dots' own extent on the last sample (their tails, clusters).
         const int side = dots.removalElement(params.fixed_pattern.max_dot_removal_px);
@@ -293,6 +301,50 @@ struct Estimator::Impl {
         if (first) restarts.setInitialScaleCovariance(&P);
       }
     }
+  }
+
+  /// Learns the projector dots' gain from the pair just updated (docs/noise_model.md section 11, "Dots divided out";
+  /// DotGainLearner): the raw pixels of the current image mapped into the reference's by the updated state (the
+  /// warp at the update's time, through the lens distortion, on the learner's grid). Once every pixel of the dots'
+  /// region has its samples, the raw images are divided by the gains from then on and only the dots' cores stay
+  /// filled. `pair_ok`: the pair was updated and accepted.
+  void learnDotGain(const PendingImage& img, bool pair_ok) {
+    if (!dot_gain.learning()) return;
+    if (!pair_ok || !img.raw_kept || !ref_raw_valid || !health.converged()) return;
+    const PinholeK& K = camera.K;
+    const Vec3 gyro = update.lastGyroMean();
+    const double interval_s = update.lastInterval(), lag_s = img.t_s - imu.stateTime();
+    Vec2* target = dot_gain.gridTargets();
+    for (int j = 0; j < dot_gain.gridRows(); ++j) {
+      for (int i = 0; i < dot_gain.gridCols(); ++i) {
+        Vec2& t = target[j * dot_gain.gridCols() + i];
+        Vec2 xn;
+        if (!camera.unproject(Vec2(i * internal::DotGainLearner::kGridPx, j * internal::DotGainLearner::kGridPx),
+                              &xn)) {
+          t = Vec2::Constant(std::numeric_limits<double>::quiet_NaN());
+          continue;
+        }
+        const Vec2 p_r = warpToReference(x, K, gyro, interval_s, K.fx * xn.x() + K.cx, K.fy * xn.y() + K.cy,
+                                         nullptr, lag_s);
+        const Vec2 xd = camera.distort(Vec2((p_r.x() - K.cx) / K.fx, (p_r.y() - K.cy) / K.fy));
+        t = Vec2(K.fx * xd.x() + K.cx, K.fy * xd.y() + K.cy);
+      }
+    }
+    dot_gain.observe(img.raw.data, ref_raw.data);
+    if (!dot_gain.ready()) return;
+    cv::Mat inv_gain, core;
+    const double core_share = dot_gain.result(&inv_gain, &core);
+    dot_gain.stop();
+    ref_raw.release();
+    ref_raw_valid = false;
+    img_pre.setDotGain(inv_gain);
+    setFill(core);
+    char msg[kMessageCapacity];
+    std::snprintf(msg, sizeof(msg),
+                  "projector dots: their gain learned, raw images divided by it; the dots' cores filled over %.1f %% "
+                  "of the image",
+                  100.0 * core_share);
+    warn(msg);
   }
 
   /// Fills the raw pixels of `mask` from now on (empty: no fill), and weighs the working pixels under it
@@ -494,6 +546,7 @@ struct Estimator::Impl {
       pair_updated = true;
     }
     detectDots(img, pair_updated, usable && !have_reference);
+    learnDotGain(img, pair_updated && stats.applied && !stats.gated);
     const double t_update_s = imu.stateTime();
     if (state_initialized && imu.stateTime() < img.t_s) imu.propagateTo(img.t_s, &x, &P);  // from the midpoint
     internal::ScaleInitializer::ImageVartheta image_vartheta;
@@ -520,6 +573,8 @@ struct Estimator::Impl {
       ref_t_d_s = img_t_d_s;
       ref_index = 1 - ref_index;
       have_reference = true;
+      ref_raw_valid = img.raw_kept;
+      if (img.raw_kept) std::swap(ref_raw, img.raw);  // (the slot keeps the older buffer: no allocation)
     }
 
     const auto t1 = std::chrono::steady_clock::now();
@@ -537,6 +592,7 @@ struct Estimator::Impl {
     r.fixed_pattern_contrast_share = fixed_pattern.contrastShare();
     r.dot_removal_px = img_pre.dotRemovalPx();
     r.dot_fill_pct = 100.0 * img_pre.dotFillShare();
+    r.dot_gain_pct = 100.0 * img_pre.dotGainShare();
     r.projector_dot_share = dot_share;
     health.countUpdate(stats.applied);
 
@@ -707,6 +763,9 @@ struct Estimator::Impl {
   double last_noise_sigma = 0.0;     // the last applied update's per-pixel noise 1-sigma (0: none yet)
   cv::Mat combined_confidence;       // fill_confidence times the pattern's (pixelConfidence)
   bool dot_removal_switched = false; // the opening or the fill switched on for good (switchOnDotRemoval)
+  internal::DotGainLearner dot_gain;  // the dots' gain, learned after the verdict (learnDotGain)
+  cv::Mat ref_raw;                   // the reference image's raw copy while the gain is learned
+  bool ref_raw_valid = false;        // ref_raw is the current reference's
   double interim_m_share = 0.0;      // M's share when the interim fill was last made
   /// The interim fill is made while M holds at most this share of the image (more: the ground's specks, a ground the
   /// test cannot tell yet).
@@ -850,6 +909,8 @@ bool Estimator::addImage(double t_cam_s, const cv::Mat& image) {
     if (!grey8) toGrey8(image, ChannelOrder::kBgr, &m.grey_scratch);
     const cv::Mat& grey = grey8 ? image : m.grey_scratch;
     m.img_pre.resample(grey, &slot.stage);
+    slot.raw_kept = m.dot_gain.learning();
+    if (slot.raw_kept) grey.copyTo(slot.raw);  // (contiguous; allocated once per slot)
     slot.dots_sampled = m.dots.wantsImage();
     if (slot.dots_sampled) m.dots.addImage(grey);
     slot.resample_ms = std::chrono::duration<double, std::milli>(std::chrono::steady_clock::now() - t0).count();

@@ -30,6 +30,7 @@
 #include "diekf/image_preprocessor.h"
 #include "diekf/fixed_pattern.h"
 #include "morphology.h"
+#include "dot_gain.h"
 
 #include <algorithm>
 #include <cmath>
@@ -558,6 +559,22 @@ void ImagePreprocessor::setDotRemoval(int px) {
   dot_removal_px_ = px > 1 ? px : 0;  // (an opening over 1 px changes nothing)
 }
 
+void ImagePreprocessor::setDotGain(const cv::Mat& inv_gain_q12) {
+  if (inv_gain_q12.empty()) {
+    if (!dot_gain_.empty()) ++fill_id_;
+    dot_gain_.release();
+    dot_gain_share_ = 0.0;
+    return;
+  }
+  if (inv_gain_q12.type() != CV_16UC1 || inv_gain_q12.cols != raw_K_.width || inv_gain_q12.rows != raw_K_.height) {
+    throw std::invalid_argument("ImagePreprocessor::setDotGain: expected a CV_16UC1 " + std::to_string(raw_K_.width) +
+                                "x" + std::to_string(raw_K_.height) + " table, got " + describe(inv_gain_q12));
+  }
+  dot_gain_ = inv_gain_q12.clone();  // (continuous)
+  dot_gain_share_ = static_cast<double>(cv::countNonZero(dot_gain_ != 4096)) / static_cast<double>(dot_gain_.total());
+  ++fill_id_;
+}
+
 void ImagePreprocessor::setDotFill(const cv::Mat& mask) {
   fill_.clear();
   dot_fill_share_ = 0.0;
@@ -629,18 +646,24 @@ void ImagePreprocessor::resample(const cv::Mat& raw, ResampledImage* stage) {
     raw.copyTo(raw_copy_);
     src = raw_copy_.data;
   }
-  if (!fill_.empty()) {
-    // The pixels an IR projector's dots light, filled from the ground around them (setDotFill).
+  if (!fill_.empty() || !dot_gain_.empty()) {
+    // The pixels an IR projector's dots light, divided by their learned gain (setDotGain) and filled from the
+    // ground around them (setDotFill).
     ensure(dots_removed_, raw.rows, raw.cols, CV_8UC1);
     uint8_t* out = dots_removed_.data;
-    // Row by row: short copies move the bytes with vector instructions (one long copy becomes a string move,
-    // which instruction counts weigh by the byte).
-    const size_t row_bytes = static_cast<size_t>(raw.cols);
-    for (int y = 0; y < raw.rows; ++y) std::memcpy(out + y * row_bytes, src + y * row_bytes, row_bytes);
+    const size_t n = static_cast<size_t>(raw.cols) * static_cast<size_t>(raw.rows);
+    if (!dot_gain_.empty()) {
+      internal::divideByGain(src, reinterpret_cast<const uint16_t*>(dot_gain_.data), n, out);
+    } else {
+      // Row by row: short copies move the bytes with vector instructions (one long copy becomes a string move,
+      // which instruction counts weigh by the byte).
+      const size_t row_bytes = static_cast<size_t>(raw.cols);
+      for (int y = 0; y < raw.rows; ++y) std::memcpy(out + y * row_bytes, src + y * row_bytes, row_bytes);
+    }
     for (const FillPixel& f : fill_) {
-      // Q15 weights summing to 2^15: at most 255, rounded.
-      const int32_t v = f.w[0] * src[f.tap[0]] + f.w[1] * src[f.tap[1]] + f.w[2] * src[f.tap[2]] +
-                        f.w[3] * src[f.tap[3]];
+      // Q15 weights summing to 2^15: at most 255, rounded. (The taps lie outside the mask: never filled.)
+      const int32_t v = f.w[0] * out[f.tap[0]] + f.w[1] * out[f.tap[1]] + f.w[2] * out[f.tap[2]] +
+                        f.w[3] * out[f.tap[3]];
       out[f.at] = static_cast<uint8_t>((v + (1 << 14)) >> 15);
     }
     src = out;

@@ -424,6 +424,7 @@ const std::vector<Entry>& table() {
     t.push_back(integer("fixed_pattern/max_dot_removal_px", DIEKF_FIELD(int, fixed_pattern.max_dot_removal_px),
                         between(0, 31)));
     t.push_back(flag("fixed_pattern/dot_fill", DIEKF_FIELD(bool, fixed_pattern.dot_fill)));
+    t.push_back(flag("fixed_pattern/dot_gain", DIEKF_FIELD(bool, fixed_pattern.dot_gain)));
     t.push_back({"fixed_pattern/vignetting_file", [](const ParamSource& s, EstimatorParams& p) {
                    std::string path;
                    if (s.get("fixed_pattern/vignetting_file", &path)) p.fixed_pattern.vignetting_file = path;

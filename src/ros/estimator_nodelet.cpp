@@ -837,6 +837,7 @@ void EstimatorNodelet::publishResult(const diekf::FrameResult& r) {
     last_fixed_pattern_contrast_share_ = r.fixed_pattern_contrast_share;
     last_dot_removal_px_ = r.dot_removal_px;
     last_dot_fill_pct_ = r.dot_fill_pct;
+    last_dot_gain_pct_ = r.dot_gain_pct;
     last_projector_dot_share_ = r.projector_dot_share;
     fixed_pattern_active_ = r.fixed_pattern_active;
     update_ms_sum_ += r.update_ms;
@@ -914,6 +915,8 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
   stat.add("camera-fixed pattern's share of the image contrast", last_fixed_pattern_contrast_share_);
   stat.add("projector dot removal (opening of the raw images, px; 0 = off)", last_dot_removal_px_);
   stat.add("projector dots filled (share of the raw image, %; 0 = off)", last_dot_fill_pct_);
+  stat.add("projector dots divided by their learned gain (share of the raw image, %; 0 = not yet or off)",
+           last_dot_gain_pct_);
   stat.add("projector dots: share of fixed bright specks at the raw-image test (-1 = running or off)",
            last_projector_dot_share_);
   stat.add("gated updates", gated_updates_);

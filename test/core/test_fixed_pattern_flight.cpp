@@ -254,11 +254,14 @@ struct DotTestRun {
   double opened_at_s = -1.0;   // first result with the raw images opened or their dots filled (-1: never)
   double fill_pct = 0.0;       // the share of the raw image filled at the verdict (0: none)
   bool named = false;          // a status message named the dots found by the raw-image test
+  double gain_at_s = -1.0;     // the first result whose raw image was divided by the dots' learned gain (-1: none)
+  double gain_pct = 0.0;       // its share of the raw image divided, %
+  double fill_after_gain_pct = 0.0;  // the share still filled then (the dots' cores), %
 };
 
 /// The synthetic flight seen by a 752 x 480 camera (the MYNT EYE's size, where the raw-image test runs), with or
 /// without the simulator's projector (1500 dots of sigma 1.2 px, gain 1 + 1.5 x the dot), for `duration_s`.
-DotTestRun flyForTheRawImageTest(bool with_dots, double duration_s) {
+DotTestRun flyForTheRawImageTest(bool with_dots, double duration_s, const EstimatorParams& base = EstimatorParams()) {
   const SyntheticFlight flight;
   const CameraModel cam = syntheticCamera(4.0);
   cv::Mat gain(cam.K.height, cam.K.width, CV_32FC1, cv::Scalar(1.f));
@@ -274,7 +277,7 @@ DotTestRun flyForTheRawImageTest(bool with_dots, double duration_s) {
     }
     gain = 1.0 + 1.5 * dots;
   }
-  EstimatorParams params;
+  EstimatorParams params = base;
   params.preprocess.working_width_px = 90;
   Estimator estimator(cam, params);
   DotTestRun run;
@@ -300,11 +303,17 @@ DotTestRun flyForTheRawImageTest(bool with_dots, double duration_s) {
       }
       if (run.opened_at_s < 0.0 && (r.dot_removal_px > 0 || r.dot_fill_pct > 0.0)) run.opened_at_s = r.t_s;
       if (r.message.find("projector dots found") != std::string::npos) run.named = true;
+      if (run.gain_at_s < 0.0 && r.dot_gain_pct > 0.0) {
+        run.gain_at_s = r.t_s;
+        run.gain_pct = r.dot_gain_pct;
+        run.fill_after_gain_pct = r.dot_fill_pct;
+      }
     }
   }
   std::printf("[raw-image dot test] dots %s: verdict at %.2f s, share %.4f, opened or filled at %.2f s (%.1f %% "
-              "filled)\n",
-              with_dots ? "on" : "off", run.verdict_at_s, run.share, run.opened_at_s, run.fill_pct);
+              "filled); divided by the learned gain from %.2f s (%.1f %% divided, %.1f %% filled)\n",
+              with_dots ? "on" : "off", run.verdict_at_s, run.share, run.opened_at_s, run.fill_pct, run.gain_at_s,
+              run.gain_pct, run.fill_after_gain_pct);
   return run;
 }
 
@@ -327,6 +336,22 @@ TEST(FixedPatternFlight, TheRawImageTestFindsProjectorDotsInTheFirstSeconds) {
   EXPECT_LT(none.share, EstimatorParams{}.fixed_pattern.dot_detect_share);
   EXPECT_LT(none.opened_at_s, 0.0);
   EXPECT_FALSE(none.named);
+}
+
+// Once the filter has converged, the dots' gain is learned from the ground's motion (fixed_pattern/dot_gain, on by
+// default; docs/noise_model.md section 11, "Dots divided out") and the raw images are divided by it: only the dots'
+// cores stay filled. (Started at the flight's distance so that it converges at once: the flight above converges at
+// 4.6 s; learned here at 4.5 s.)
+TEST(FixedPatternFlight, TheDotsGainIsLearnedAndDividedOut) {
+  EstimatorParams params;
+  params.init.alpha0_inv_m = 1.0 / SyntheticFlight().height_m;
+  params.init.sigma_alpha0_inv_m = 0.05;
+  const DotTestRun dots = flyForTheRawImageTest(true, 5.5, params);
+  ASSERT_GT(dots.verdict_at_s, 0.0);
+  ASSERT_GT(dots.gain_at_s, dots.verdict_at_s);
+  EXPECT_GT(dots.gain_pct, dots.fill_pct);  // the dots' region (their fill grown by two pixels), divided
+  EXPECT_LT(dots.gain_pct, 60.0);
+  EXPECT_LT(dots.fill_after_gain_pct, 0.6 * dots.fill_pct);  // the cores only (7.9 % against 17.4 %)
 }
 
 /// Flies the benchmark's position hold (periodic_flight.h) for 20 s through an Estimator at 180 px: the IMU of the

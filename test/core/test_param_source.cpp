@@ -144,6 +144,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          a.fixed_pattern.dot_detect_levels == b.fixed_pattern.dot_detect_levels &&
          a.fixed_pattern.max_dot_removal_px == b.fixed_pattern.max_dot_removal_px &&
          a.fixed_pattern.dot_fill == b.fixed_pattern.dot_fill &&
+         a.fixed_pattern.dot_gain == b.fixed_pattern.dot_gain &&
          a.fixed_pattern.discount_biased_updates == b.fixed_pattern.discount_biased_updates &&
          a.fixed_pattern.vignetting_file == b.fixed_pattern.vignetting_file;
 }

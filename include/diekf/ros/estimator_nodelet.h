@@ -178,6 +178,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
   double last_fixed_pattern_contrast_share_ = 0.0;
   int last_dot_removal_px_ = 0;
   double last_dot_fill_pct_ = 0.0;
+  double last_dot_gain_pct_ = 0.0;
   double last_projector_dot_share_ = -1.0;
   bool fixed_pattern_active_ = false;
   double last_time_offset_ms_ = 0.0, last_sigma_time_offset_ms_ = 0.0;
