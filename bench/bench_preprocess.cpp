@@ -5,8 +5,10 @@
 #include <cmath>
 
 #include <opencv2/core.hpp>
+#include <opencv2/imgproc.hpp>
 
 #include "diekf/image_preprocessor.h"
+#include "../src/core/dot_gain.h"
 #include "../test/core/opencv_resample_route.h"
 
 namespace {
@@ -33,9 +35,11 @@ cv::Mat texturedRaw(int w, int h) {
 }
 
 /// Times ImagePreprocessor::process with `params` on the textured 752x480 raw image (with the projector dots'
-/// fill over `fill` when not empty).
-void timePreprocess(benchmark::State& state, const diekf::PreprocessParams& params, const cv::Mat& fill = cv::Mat()) {
+/// fill over `fill` and their division by `inv_gain_q12` when not empty).
+void timePreprocess(benchmark::State& state, const diekf::PreprocessParams& params, const cv::Mat& fill = cv::Mat(),
+                    const cv::Mat& inv_gain_q12 = cv::Mat()) {
   diekf::ImagePreprocessor pre(myntCamera(), params);
+  pre.setDotGain(inv_gain_q12);
   pre.setDotFill(fill);
   const cv::Mat raw = texturedRaw(752, 480);
   diekf::PreprocessedFrame frame;
@@ -48,6 +52,21 @@ void timePreprocess(benchmark::State& state, const diekf::PreprocessParams& para
     benchmark::ClobberMemory();
   }
   state.counters["px"] = static_cast<double>(frame.intensity.total());
+  if (!fill.empty()) state.counters["filled_pct"] = 100.0 * pre.dotFillShare();
+  if (!inv_gain_q12.empty()) state.counters["divided_pct"] = 100.0 * pre.dotGainShare();
+}
+
+/// 1500-ish discs of radius 3 px over `share` of the 752 x 480 image (nonzero: the discs).
+cv::Mat discMask(double share) {
+  cv::Mat mask(480, 752, CV_8UC1, cv::Scalar(0));
+  cv::RNG rng(3);
+  while (cv::countNonZero(mask) < share * mask.total()) {
+    const cv::Point c(rng.uniform(0, 752), rng.uniform(0, 480));
+    for (int y = std::max(0, c.y - 3); y <= std::min(479, c.y + 3); ++y)
+      for (int x = std::max(0, c.x - 3); x <= std::min(751, c.x + 3); ++x)
+        if ((x - c.x) * (x - c.x) + (y - c.y) * (y - c.y) <= 9) mask.at<uint8_t>(y, x) = 255;
+  }
+  return mask;
 }
 
 void BM_PreprocessFrame(benchmark::State& state) {
@@ -81,19 +100,52 @@ void BM_PreprocessFrameFilled(benchmark::State& state) {
   diekf::PreprocessParams params;
   params.working_width_px = 180;
   params.working_height_px = 116;
-  cv::Mat mask(480, 752, CV_8UC1, cv::Scalar(0));
-  cv::RNG rng(3);
-  const double want = static_cast<double>(state.range(0)) / 100.0;
-  while (cv::countNonZero(mask) < want * mask.total()) {
-    const cv::Point c(rng.uniform(0, 752), rng.uniform(0, 480));
-    for (int y = std::max(0, c.y - 3); y <= std::min(479, c.y + 3); ++y)
-      for (int x = std::max(0, c.x - 3); x <= std::min(751, c.x + 3); ++x)
-        if ((x - c.x) * (x - c.x) + (y - c.y) * (y - c.y) <= 9) mask.at<uint8_t>(y, x) = 255;
-  }
-  timePreprocess(state, params, mask);
+  timePreprocess(state, params, discMask(static_cast<double>(state.range(0)) / 100.0));
 }
 
 BENCHMARK(BM_PreprocessFrameFilled)->Arg(10)->Arg(17)->Arg(25)->Unit(benchmark::kMillisecond);
+
+// Once the dots' gain is learned (fixed_pattern/dot_gain): the raw image divided by it, and only the dots' cores
+// filled (the discs' centres, 3 % of the image, as on the simulator's grass flight 4 with 1500 dots); argument: the
+// fill mask's share in % before (the divided region is it grown by two pixels, as DotGainLearner's).
+void BM_PreprocessFrameDivided(benchmark::State& state) {
+  diekf::PreprocessParams params;
+  params.working_width_px = 180;
+  params.working_height_px = 116;
+  const cv::Mat mask = discMask(static_cast<double>(state.range(0)) / 100.0);
+  cv::Mat region, core;
+  cv::dilate(mask, region, cv::Mat(), cv::Point(-1, -1), 2);
+  cv::erode(mask, core, cv::Mat(), cv::Point(-1, -1), 2);
+  cv::Mat inv(480, 752, CV_16UC1, cv::Scalar(4096));
+  inv.setTo(3000, region);
+  timePreprocess(state, params, core, inv);
+}
+
+BENCHMARK(BM_PreprocessFrameDivided)->Arg(17)->Unit(benchmark::kMillisecond);
+
+// One image pair of the dots' gain learning (DotGainLearner::observe, while the gain is learned: the first seconds
+// after the filter has converged on a flight with a projector): the region of BM_PreprocessFrameDivided, the ground
+// moved by (2.3, -1.4) px between the two images. The same pair again and again: its pixels are learned after
+// kMinSamples calls and skipped from then on, so this times the pass over the region, not a typical pair (8.6 M
+// instructions per pair on a simulated projector flight, docs/performance.md).
+void BM_DotGainObserve(benchmark::State& state) {
+  const cv::Mat mask = discMask(static_cast<double>(state.range(0)) / 100.0);
+  diekf::internal::DotGainLearner learner;
+  learner.start(mask);
+  const cv::Mat cur = texturedRaw(752, 480), ref = texturedRaw(752, 480);
+  diekf::Vec2* t = learner.gridTargets();
+  for (int j = 0; j < learner.gridRows(); ++j)
+    for (int i = 0; i < learner.gridCols(); ++i)
+      t[j * learner.gridCols() + i] = diekf::Vec2(i * diekf::internal::DotGainLearner::kGridPx + 2.3,
+                                                  j * diekf::internal::DotGainLearner::kGridPx - 1.4);
+  for (auto _ : state) {
+    learner.observe(cur.data, ref.data);
+    benchmark::ClobberMemory();
+  }
+  state.counters["region_pct"] = 100.0 * learner.regionShare();
+}
+
+BENCHMARK(BM_DotGainObserve)->Arg(17)->Unit(benchmark::kMillisecond);
 
 }  // namespace
 
