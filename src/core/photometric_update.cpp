@@ -2299,7 +2299,12 @@ double PhotometricUpdate::reliefVariance(const PinholeK& K, const Vec3& mu, doub
       const v_float32x4 v_vmu = v_setall_f32(vmu);
       v_float32x4 a_u = zero, a_ue = zero, a_ue2 = zero, a_w = zero, a_ut = zero;
       for (; i + 4 <= Wc; i += 4) {
+#if CV_SIMD128_64F
         const v_float32x4 qx = v_cvt_f32(v_load(qxs + i), v_load(qxs + i + 2));
+#else  // (32-bit ARM's NEON has no double lanes: the same roundings one by one)
+        const v_float32x4 qx(static_cast<float>(qxs[i]), static_cast<float>(qxs[i + 1]), static_cast<float>(qxs[i + 2]),
+                             static_cast<float>(qxs[i + 3]));
+#endif
         v_float32x4 S, J;
         v_load_deinterleave(sj + 2 * i, S, J);
         const v_float32x4 valid = J > zero;

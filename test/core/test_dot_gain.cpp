@@ -33,7 +33,9 @@ TEST(DotGain, DivideByGainIsTheRoundedQuotient) {
   for (size_t i = 0; i < n; ++i) {
     const long want = std::min(255L, std::lround(std::floor((src[i] * static_cast<double>(inv[i]) + 2048.0) / 4096.0)));
     ASSERT_EQ(out[i], want) << "at " << i << ": " << int(src[i]) << " x " << inv[i] << " / 4096";
-    if (i % 5 == 0) ASSERT_EQ(out[i], src[i]);
+    if (i % 5 == 0) {
+      ASSERT_EQ(out[i], src[i]);
+    }
     saturated += want == 255 && src[i] * static_cast<long>(inv[i]) / 4096 > 255;
   }
   EXPECT_GT(saturated, 10);  // the saturation was exercised
