@@ -67,6 +67,7 @@ void DotGainLearner::start(const cv::Mat& fill_mask) {
   grid_.assign(static_cast<size_t>(grid_cols_) * static_cast<size_t>(grid_rows_), Vec2::Zero());
   row_map_.assign(2 * static_cast<size_t>(grid_cols_), 0.f);
   pairs_ = 0;
+  learned_ = 0;
   learning_ = true;
 }
 
@@ -94,10 +95,7 @@ bool DotGainLearner::ready() const {
 }
 
 double DotGainLearner::readyShare() const {
-  if (at_.empty()) return 0.0;
-  size_t n = 0;
-  for (uint16_t s : samples_) n += s >= kMinSamples;
-  return static_cast<double>(n) / static_cast<double>(at_.size());
+  return at_.empty() ? 0.0 : static_cast<double>(learned_) / static_cast<double>(at_.size());
 }
 
 void DotGainLearner::observe(const uint8_t* cur, const uint8_t* ref) {
@@ -179,6 +177,7 @@ void DotGainLearner::observe(const uint8_t* cur, const uint8_t* ref) {
         inv_gain[i] = std::clamp(sum_ref_[k] / sum_cur_[k], static_cast<float>(1.0 / kMaxGain),
                                  static_cast<float>(kMaxGain));
         known_.data[i] = 1;
+        ++learned_;
       }
     }
   }

@@ -100,6 +100,7 @@ class DotGainLearner {
   int grid_cols_ = 0, grid_rows_ = 0;
   bool learning_ = false;
   int pairs_ = 0;
+  size_t learned_ = 0;              // region pixels with kMinSamples (readyShare)
   cv::Mat region_;                  // CV_8UC1: 1 in the region
   cv::Mat inv_gain_;                // CV_32FC1: 1 / the gain where known (1 outside the region)
   cv::Mat known_;                   // CV_8UC1: 1 where the gain is known (outside the region, or kMinSamples)

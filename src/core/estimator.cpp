@@ -262,8 +262,7 @@ struct Estimator::Impl {
                       "%.1f %% of the image",
                       100.0 * dots.share(), 100.0 * filled);
         switchOnDotRemoval(img.t_s, why, 0, &dot_mask);
-        if (params.fixed_pattern.dot_gain && dot_removal_switched && img_pre.dotFillId() != 0)
-          dot_gain.start(dot_mask);
+        if (params.fixed_pattern.dot_gain && dot_removal_switched && img_pre.dotFillId() != 0) startDotGain();
       } else {
         // The opening's side from the dots' own extent on the last sample (their tails, clusters).
         const int side = dots.removalElement(params.fixed_pattern.max_dot_removal_px);
@@ -303,6 +302,21 @@ struct Estimator::Impl {
     }
   }
 
+  /// Starts learning the dots' gain over the fill's mask (dot_mask), with the learner's grid points unprojected once
+  /// (the undistorted normalised coordinates of each; NaN where the lens model has none).
+  void startDotGain() {
+    dot_gain.start(dot_mask);
+    dot_gain_rays.resize(static_cast<size_t>(dot_gain.gridCols()) * static_cast<size_t>(dot_gain.gridRows()));
+    for (int j = 0; j < dot_gain.gridRows(); ++j) {
+      for (int i = 0; i < dot_gain.gridCols(); ++i) {
+        Vec2 xn;
+        if (!camera.unproject(Vec2(i * internal::DotGainLearner::kGridPx, j * internal::DotGainLearner::kGridPx), &xn))
+          xn = Vec2::Constant(std::numeric_limits<double>::quiet_NaN());
+        dot_gain_rays[static_cast<size_t>(j * dot_gain.gridCols() + i)] = xn;
+      }
+    }
+  }
+
   /// Learns the projector dots' gain from the pair just updated (docs/noise_model.md section 11, "Dots divided out";
   /// DotGainLearner): the raw pixels of the current image mapped into the reference's by the updated state (the
   /// warp at the update's time, through the lens distortion, on the learner's grid). Once every pixel of the dots'
@@ -315,26 +329,24 @@ struct Estimator::Impl {
     const Vec3 gyro = update.lastGyroMean();
     const double interval_s = update.lastInterval(), lag_s = img.t_s - imu.stateTime();
     Vec2* target = dot_gain.gridTargets();
-    for (int j = 0; j < dot_gain.gridRows(); ++j) {
-      for (int i = 0; i < dot_gain.gridCols(); ++i) {
-        Vec2& t = target[j * dot_gain.gridCols() + i];
-        Vec2 xn;
-        if (!camera.unproject(Vec2(i * internal::DotGainLearner::kGridPx, j * internal::DotGainLearner::kGridPx),
-                              &xn)) {
-          t = Vec2::Constant(std::numeric_limits<double>::quiet_NaN());
-          continue;
-        }
-        const Vec2 p_r = warpToReference(x, K, gyro, interval_s, K.fx * xn.x() + K.cx, K.fy * xn.y() + K.cy,
-                                         nullptr, lag_s);
-        const Vec2 xd = camera.distort(Vec2((p_r.x() - K.cx) / K.fx, (p_r.y() - K.cy) / K.fy));
-        t = Vec2(K.fx * xd.x() + K.cx, K.fy * xd.y() + K.cy);
+    const size_t n = dot_gain_rays.size();
+    for (size_t k = 0; k < n; ++k) {
+      const Vec2& xn = dot_gain_rays[k];
+      if (!std::isfinite(xn.x())) {
+        target[k] = xn;
+        continue;
       }
+      const Vec2 p_r =
+          warpToReference(x, K, gyro, interval_s, K.fx * xn.x() + K.cx, K.fy * xn.y() + K.cy, nullptr, lag_s);
+      const Vec2 xd = camera.distort(Vec2((p_r.x() - K.cx) / K.fx, (p_r.y() - K.cy) / K.fy));
+      target[k] = Vec2(K.fx * xd.x() + K.cx, K.fy * xd.y() + K.cy);
     }
     dot_gain.observe(img.raw.data, ref_raw.data);
     if (!dot_gain.ready()) return;
     cv::Mat inv_gain, core;
     const double core_share = dot_gain.result(&inv_gain, &core);
     dot_gain.stop();
+    std::vector<Vec2>().swap(dot_gain_rays);
     ref_raw.release();
     ref_raw_valid = false;
     img_pre.setDotGain(inv_gain);
@@ -764,6 +776,7 @@ struct Estimator::Impl {
   cv::Mat combined_confidence;       // fill_confidence times the pattern's (pixelConfidence)
   bool dot_removal_switched = false; // the opening or the fill switched on for good (switchOnDotRemoval)
   internal::DotGainLearner dot_gain;  // the dots' gain, learned after the verdict (learnDotGain)
+  std::vector<Vec2> dot_gain_rays;    // its grid points' normalised coordinates (startDotGain)
   cv::Mat ref_raw;                   // the reference image's raw copy while the gain is learned
   bool ref_raw_valid = false;        // ref_raw is the current reference's
   double interim_m_share = 0.0;      // M's share when the interim fill was last made
