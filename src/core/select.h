@@ -1,7 +1,7 @@
 // Internal: the k-th smallest of n floats (none NaN), as std::nth_element finds it, in fewer steps: a histogram of
 // the values' top 11 bits (an order-preserving integer key: sign, exponent and the mantissa's first 2 bits, i.e.
 // quarter octaves) finds the bin that holds rank k, and only that bin's values are then selected among. For the
-// image medians of the outlier weights (photometric_update.cpp): 1300 values at 180 px, where nth_element's
+// image medians of the outlier weights (outlier_weights.cpp): 1300 values at 180 px, where nth_element's
 // data-dependent branches made it 3 % of a frame's time.
 #pragma once
 
