@@ -1319,6 +1319,12 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     brightness << 1.0, 0.0;
   }
   PassSums sums;
+  // The time states before the update (offset, readout, focal scale), kept when the frame may not move them.
+  constexpr int kTimeStates = ErrIdx::kFs - ErrIdx::kTd + 1;
+  const double t_d_before_s = x->t_d_s, readout_before_s = x->readout_s, focal_scale_before = x->focal_scale;
+  const Eigen::Matrix<double, kTimeStates, kTimeStates> P_time_before =
+      P->block<kTimeStates, kTimeStates>(ErrIdx::kTd, ErrIdx::kTd);
+  bool time_states_frozen = false;
   // Every pass writes the residual image; the RMS and the valid ratio are those of the last linearisation.
   auto linearize_at = [&](const State& x_j, internal::ObsMat* A, internal::ObsVec* b, internal::ObsVec* m,
                           internal::ExtraColumn* readout, internal::CalibrationColumns* calib) {
@@ -1430,6 +1436,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     if (freeze) {
       m->setZero();
       calib->setZero();
+      time_states_frozen = true;
     }
     if (rolling && sums.has_moments && !freeze) {
       // The readout's column w_y S m_rows (section 3.7) next to the observed ones, the rotation error
@@ -1465,6 +1472,16 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   };
   const internal::IterationResult it = internal::iterateInformationForm(
       params_.max_passes, params_.stop_threshold, linearize_at, x, P);
+  if (it.ok && time_states_frozen) {
+    // Without their columns the frame still moved the time states through their correlations with the observed
+    // ones. Held instead as consider states (Schmidt): their gain rows zero, so their mean and their own block of
+    // the covariance stay the prior's; the other states' update and the cross-covariances are the Kalman update's
+    // (their gains do not involve the time states' rows).
+    x->t_d_s = t_d_before_s;
+    x->readout_s = readout_before_s;
+    x->focal_scale = focal_scale_before;
+    P->block<kTimeStates, kTimeStates>(ErrIdx::kTd, ErrIdx::kTd) = P_time_before;
+  }
   use_weight_map_ = false;
   active_map_ = nullptr;
   ref_map_ = nullptr;

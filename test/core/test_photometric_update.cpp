@@ -1024,6 +1024,50 @@ TEST_F(PhotometricScene, AnImprobableFrameDoesNotMoveTheTimeStates) {
   EXPECT_NE(x_loose.t_d_s, 0.0) << "a probable frame moves the offset";
 }
 
+TEST_F(PhotometricScene, AnImprobableFrameHoldsCorrelatedTimeStates) {
+  // As above, with the time states correlated with vartheta (a filter that has estimated them for a while): an
+  // improbable frame must leave the offset, the readout and the focal scale and their covariance block as they were
+  // (consider states), while vartheta and its cross-covariance with them are updated.
+  PhotometricParams params;
+  params.max_passes = 1;
+  params.gate_nis = 0.0;
+  ImageTiming timing;
+  timing.estimate_offset = true;
+  timing.rates_valid = true;
+  timing.gravity_mps2 = 9.81;
+  timing.accel_C = Vec3(0.8, -0.5, -9.81);      // m/s^2
+  timing.rate_change_C = Vec3(0.3, -0.2, 0.1);  // rad/s
+  PhotometricUpdate update(params, PreprocessParams{});
+  State x = startState(0.0);
+  ErrorCov P = priorCov() * 1e-4;  // improbable: vartheta 0 against the truth with a 1-sigma of a few mm/s
+  P(ErrIdx::kTd, ErrIdx::kTd) = 0.002 * 0.002;     // s^2
+  P(ErrIdx::kRo, ErrIdx::kRo) = 0.003 * 0.003;     // s^2
+  P(ErrIdx::kFs, ErrIdx::kFs) = 0.01 * 0.01;       // unitless
+  for (int k = 0; k < 3; ++k) {
+    const int t = ErrIdx::kTd + k, v = ErrIdx::kVartheta + k;
+    P(t, v) = P(v, t) = 0.6 * std::sqrt(P(t, t) * P(v, v));  // correlation 0.6
+  }
+  ASSERT_GT(P.ldlt().vectorD().minCoeff(), 0.0);
+  const State x0 = x;
+  const ErrorCov P0 = P;
+  const UpdateStats st = update.update(scene_->ref, scene_->cur, scene_->K, scene_->w_C, scene_->dt_s, &x, &P, 0.0,
+                                       timing);
+  ASSERT_TRUE(st.applied);
+  ASSERT_GT(st.nis, 15.507);
+  EXPECT_EQ(x.t_d_s, x0.t_d_s);
+  EXPECT_EQ(x.readout_s, x0.readout_s);
+  EXPECT_EQ(x.focal_scale, x0.focal_scale);
+  const auto time_block = [](const ErrorCov& M) { return M.block<3, 3>(ErrIdx::kTd, ErrIdx::kTd); };
+  EXPECT_EQ((time_block(P) - time_block(P0)).cwiseAbs().maxCoeff(), 0.0);
+  EXPECT_GT((x.vartheta - x0.vartheta).norm(), 0.0) << "the frame still updates the state";
+  EXPECT_GT((P.block<3, 3>(ErrIdx::kTd, ErrIdx::kVartheta) - P0.block<3, 3>(ErrIdx::kTd, ErrIdx::kVartheta))
+                .cwiseAbs()
+                .maxCoeff(),
+            0.0)
+      << "the cross-covariance follows vartheta's update";
+  EXPECT_GT(P.ldlt().vectorD().minCoeff(), 0.0) << "the covariance stays positive definite";
+}
+
 TEST_F(PhotometricScene, RotationModelErrorDiscountsTheGyroRotation) {
   // The gyro's interval rotation off by 0.1 rad/s about the camera's x and y axes (a scale-factor, focal length
   // or timing error of the rotation, far outside the b_w prior). Without the rotation model error the image must
