@@ -1,5 +1,6 @@
 // Internal: the expected value of a quantity from a noisy reading of it (regression calibration), shared by the
-// rolling-shutter rows and the time offset (stateRateMap, interval_warp.cpp) and the prediction's distance column (imu_propagator.cpp).
+// rolling-shutter rows and the time offset (stateRateMap, interval_warp.cpp) and the prediction's distance column
+// (imu_propagator.cpp).
 #pragma once
 
 #include "diekf/types.h"
