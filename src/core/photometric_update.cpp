@@ -1328,23 +1328,28 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   // Every pass writes the residual image; the RMS and the valid ratio are those of the last linearisation.
   auto linearize_at = [&](const State& x_j, internal::ObsMat* A, internal::ObsVec* b, internal::ObsVec* m,
                           internal::ExtraColumn* readout, internal::CalibrationColumns* calib) {
+    // The time states of the iterate; once the frame holds them (from its first pass, below), the prior's: its later
+    // passes see them where the update leaves them.
+    const double t_d_j = time_states_frozen ? t_d_before_s : x_j.t_d_s;
+    const double readout_j = time_states_frozen ? readout_before_s : x_j.readout_s;
+    const double focal_scale_j = time_states_frozen ? focal_scale_before : x_j.focal_scale;
     // A time offset changed by e within the update: the image sees the state and the gyro window of e later.
     *m = timeOffsetMap(x_j, gyro_mean_C, timing, dt_s);
-    const State x_seen = shiftedAlong(x_j, *m, x_j.t_d_s - t_d_prior_s);
+    const State x_seen = shiftedAlong(x_j, *m, t_d_j - t_d_prior_s);
     // The iterate's focal lengths (section 3.8).
-    const PinholeK K_j = scaledFocal(K, x_j.focal_scale);
+    const PinholeK K_j = scaledFocal(K, focal_scale_j);
     calib->m[0] = timing.estimate_focal_scale ? focalScaleMap(x_seen, K_j, gyro_mean_C, dt_s, state_lag_s)
                                               : ObservedVec::Zero();
     // Rolling shutter: every row with the motion at its own time (the readout of the iterate); while the readout is
     // estimated, from the expected rates given their readings (docs/algorithm.md section 3.7).
     const bool rolling = timing.rates_valid && timing.row_weight != nullptr &&
-                         (x_j.readout_s != 0.0 || timing.estimate_readout);
+                         (readout_j != 0.0 || timing.estimate_readout);
     const ObservedVec m_rows =
         rolling ? stateRateMap(x_seen, gyro_mean_C, timing, dt_s, timing.estimate_readout) : ObservedVec::Zero();
     // One sweep at this iterate with the current brightness, then the brightness's step (state held).
     auto sweep_here = [&]() {
       const int n_valid = accumulate(cur, K_j, gyro_mean_C, dt_s, state_lag_s, x_seen, huber_sigma, &sums,
-                                     rolling ? &m_rows : nullptr, rolling ? &timing : nullptr, x_j.readout_s,
+                                     rolling ? &m_rows : nullptr, rolling ? &timing : nullptr, readout_j,
                                      &brightness);
       if (sums.has_brightness && sums.brightness_step.size() == brightness.size()) {
         brightness += sums.brightness_step;
