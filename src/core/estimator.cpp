@@ -20,6 +20,7 @@
 #include "health_monitor.h"
 #include "image_update.h"
 #include "imu_propagator.h"
+#include "interval_warp.h"
 #include "restart_policy.h"
 #include "scale_initializer.h"
 #include "ring.h"
@@ -328,6 +329,7 @@ struct Estimator::Impl {
     const PinholeK& K = camera.K;
     const Vec3 gyro = update.lastGyroMean();
     const double interval_s = update.lastInterval(), lag_s = img.t_s - imu.stateTime();
+    const internal::IntervalWarp warp(x, gyro, interval_s, lag_s);  // (pixel-independent: once for the grid)
     Vec2* target = dot_gain.gridTargets();
     const size_t n = dot_gain_rays.size();
     for (size_t k = 0; k < n; ++k) {
@@ -336,8 +338,7 @@ struct Estimator::Impl {
         target[k] = xn;
         continue;
       }
-      const Vec2 p_r =
-          warpToReference(x, K, gyro, interval_s, K.fx * xn.x() + K.cx, K.fy * xn.y() + K.cy, nullptr, lag_s);
+      const Vec2 p_r = internal::warpWith(warp, K, K.fx * xn.x() + K.cx, K.fy * xn.y() + K.cy, nullptr);
       const Vec2 xd = camera.distort(Vec2((p_r.x() - K.cx) / K.fx, (p_r.y() - K.cy) / K.fy));
       target[k] = Vec2(K.fx * xd.x() + K.cx, K.fy * xd.y() + K.cy);
     }

@@ -65,6 +65,7 @@ IntervalWarp::IntervalWarp(const State& x, const Vec3& gyro_mean_C, double dt_s,
 
 using internal::IntervalWarp;
 using internal::kMinDepthRatio;
+using internal::warpWith;
 
 ObservedVec stateRateMap(const State& x, const Vec3& gyro_mean_C, const ImageTiming& in, double dt_s,
                          bool expected) {
@@ -147,11 +148,9 @@ State shiftedAlong(const State& x, const ObservedVec& m, double delta_s) {
   return out;
 }
 
-namespace {
-/// The warp of pixel (px, py) with the interval's part `iw` built: the reference pixel, its Jacobian over the
-/// observed columns (J, may be null) and its derivative over the focal-length scale (d_focal, may be null).
+namespace internal {
 Vec2 warpWith(const IntervalWarp& iw, const PinholeK& K, double px, double py, WarpJacobian* J, Vec2* d_focal,
-              bool translation_only = false) {
+              bool translation_only) {
   const Vec3 q((px - K.cx) / K.fx, (py - K.cy) / K.fy, 1.0);
   const Vec3 Q = iw.H * q;
   if (!iw.ok || !(Q.z() > kMinDepthRatio)) {
@@ -196,7 +195,7 @@ Vec2 warpWith(const IntervalWarp& iw, const PinholeK& K, double px, double py, W
   }
   return p_r;
 }
-}  // namespace
+}  // namespace internal
 
 Vec2 warpToReference(const State& x, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s, double px,
                      double py, WarpJacobian* J, double state_lag_s) {

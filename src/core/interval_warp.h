@@ -1,8 +1,11 @@
 // The warp of one image pair (docs/algorithm.md section 3.2): the state-dependent, pixel-independent part of it,
-// shared by the pixel-wise functions of interval_warp.cpp and the photometric update's single-precision sweep.
+// shared by the pixel-wise functions of interval_warp.cpp, the photometric update's single-precision sweep and the
+// dots' gain learner's grid (Estimator).
 // Internal to the core.
 #pragma once
 
+#include "diekf/camera_model.h"
+#include "diekf/photometric_update.h"  // WarpJacobian
 #include "diekf/state.h"
 #include "diekf/types.h"
 
@@ -30,6 +33,12 @@ struct IntervalWarp {
   /// state_lag_s before the current image (clamped to [0, dt_s]).
   IntervalWarp(const State& x, const Vec3& gyro_mean_C, double dt_s, double state_lag_s);
 };
+
+/// The warp of pixel (px, py) with the interval's part `iw` built once for all pixels: the reference pixel, its
+/// Jacobian over the observed columns (J, may be null) and its derivative over the focal-length scale (d_focal, may be
+/// null; `translation_only`: less the rotation's part). NaN where the ray leaves the reference camera.
+Vec2 warpWith(const IntervalWarp& iw, const PinholeK& K, double px, double py, WarpJacobian* J, Vec2* d_focal = nullptr,
+              bool translation_only = false);
 
 }  // namespace internal
 }  // namespace diekf

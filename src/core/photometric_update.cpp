@@ -1321,7 +1321,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   PassSums sums;
   // The time states before the update (offset, readout, focal scale), kept when the frame may not move them.
   constexpr int kTimeStates = ErrIdx::kFs - ErrIdx::kTd + 1;
-  const double t_d_before_s = x->t_d_s, readout_before_s = x->readout_s, focal_scale_before = x->focal_scale;
+  const double readout_before_s = x->readout_s, focal_scale_before = x->focal_scale;  // (the offset: t_d_prior_s)
   const Eigen::Matrix<double, kTimeStates, kTimeStates> P_time_before =
       P->block<kTimeStates, kTimeStates>(ErrIdx::kTd, ErrIdx::kTd);
   bool time_states_frozen = false;
@@ -1330,7 +1330,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
                           internal::ExtraColumn* readout, internal::CalibrationColumns* calib) {
     // The time states of the iterate; once the frame holds them (from its first pass, below), the prior's: its later
     // passes see them where the update leaves them.
-    const double t_d_j = time_states_frozen ? t_d_before_s : x_j.t_d_s;
+    const double t_d_j = time_states_frozen ? t_d_prior_s : x_j.t_d_s;
     const double readout_j = time_states_frozen ? readout_before_s : x_j.readout_s;
     const double focal_scale_j = time_states_frozen ? focal_scale_before : x_j.focal_scale;
     // A time offset changed by e within the update: the image sees the state and the gyro window of e later.
@@ -1482,7 +1482,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     // ones. Held instead as consider states (Schmidt): their gain rows zero, so their mean and their own block of
     // the covariance stay the prior's; the other states' update and the cross-covariances are the Kalman update's
     // (their gains do not involve the time states' rows).
-    x->t_d_s = t_d_before_s;
+    x->t_d_s = t_d_prior_s;
     x->readout_s = readout_before_s;
     x->focal_scale = focal_scale_before;
     P->block<kTimeStates, kTimeStates>(ErrIdx::kTd, ErrIdx::kTd) = P_time_before;
