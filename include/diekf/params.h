@@ -279,6 +279,7 @@ struct EstimatorParams {
   bool estimate_time_offset = true;             ///< the camera-IMU time offset as a filter state (else fixed at 0)
   double max_time_offset_s = 0.05;              ///< bound of the estimated offset around the calibration's, s
   double time_offset_start_s = 2.0;             ///< converged this long before the offset is estimated, s
+  bool time_offset_consider = true;             ///< until then, the offset a consider state (its column, held)
   bool estimate_readout = true;                 ///< the rolling-shutter readout time as a filter state
   double max_readout_s = 0.05;                  ///< bound of the estimated readout (either sign), s
   double readout_start_sigma_time_offset_s = 0.003;  ///< the readout is estimated once the offset's 1-sigma is below, s

@@ -78,6 +78,9 @@ using BrightnessVec = Eigen::Matrix<double, Eigen::Dynamic, 1, 0, PhotometricPar
 /// time offset and the rolling shutter need.
 struct ImageTiming {
   bool estimate_offset = false;       ///< the update estimates x.t_d_s (its column: timeOffsetMap)
+  /// The offset's column is in the update but x.t_d_s is held (a consider state, Schmidt): its uncertainty widens
+  /// the innovation and its cross-covariance with the other states builds up before it is estimated.
+  bool consider_offset = false;
   bool rates_valid = false;           ///< accel_C and rate_change_C are filled (stateRateMap is not zero)
   Vec3 accel_C = Vec3::Zero();        ///< filtered specific force at the state's time (bias not removed), m/s^2
   Vec3 rate_change_C = Vec3::Zero();  ///< filtered rate at the current image minus at the reference image, rad/s

@@ -81,6 +81,8 @@ ImageTiming ImageUpdate::timingFor(double t_img_s, const ImuPropagator& imu, con
   ImageTiming timing;
   const bool settled = health.converged() && t_img_s - health.convergedSince() >= params_.time_offset_start_s;
   timing.estimate_offset = params_.estimate_time_offset && settled;
+  timing.consider_offset = params_.estimate_time_offset && !settled && health.converged() &&
+                           params_.time_offset_consider;
   timing.row_weight = readout_row_weight_.data();
   timing.rows = static_cast<int>(readout_row_weight_.size());
   timing.pixel_weight = &readout_pixel_weight_;
@@ -90,7 +92,7 @@ ImageTiming ImageUpdate::timingFor(double t_img_s, const ImuPropagator& imu, con
   const double gate_s = params_.readout_start_sigma_time_offset_s;
   timing.estimate_readout = params_.estimate_readout && settled &&
                             (!params_.estimate_time_offset || P(ErrIdx::kTd, ErrIdx::kTd) < gate_s * gate_s);
-  timing.rates_valid = timing.estimate_offset || timing.estimate_readout || x.readout_s != 0.0;
+  timing.rates_valid = timing.estimate_offset || timing.consider_offset || timing.estimate_readout || x.readout_s != 0.0;
   // The focal-length scale (section 3.8) from the same time on: it is seen through the dynamics of the states it
   // is taken for (the gyro bias and vartheta), which must have converged first.
   timing.estimate_focal_scale = params_.estimate_focal_scale && settled;

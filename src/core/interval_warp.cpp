@@ -90,7 +90,7 @@ ObservedVec timeOffsetMap(const State& x, const Vec3& gyro_mean_C, const ImageTi
   // The readings' expected values given their noise (as for the readout's rows): in slow flight the rate change
   // between the images is mostly the gyro's noise, and with the readings as they are the offset was pulled toward
   // its current value with a 1-sigma that fell regardless (errors in the variables; docs/algorithm.md section 3.6).
-  return in.estimate_offset ? stateRateMap(x, gyro_mean_C, in, dt_s, true) : ObservedVec::Zero();
+  return in.estimate_offset || in.consider_offset ? stateRateMap(x, gyro_mean_C, in, dt_s, true) : ObservedVec::Zero();
 }
 
 std::vector<float> readoutRowWeights(const CameraModel& cam, const PinholeK& K_working) {

@@ -1477,7 +1477,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   };
   const internal::IterationResult it = internal::iterateInformationForm(
       params_.max_passes, params_.stop_threshold, linearize_at, x, P);
-  if (it.ok && time_states_frozen) {
+  if (it.ok && (time_states_frozen || timing.consider_offset)) {
     // Without their columns the frame still moved the time states through their correlations with the observed
     // ones. Held instead as consider states (Schmidt): their gain rows zero, so their mean and their own block of
     // the covariance stay the prior's; the other states' update and the cross-covariances are the Kalman update's

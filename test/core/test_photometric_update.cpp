@@ -1068,6 +1068,55 @@ TEST_F(PhotometricScene, AnImprobableFrameHoldsCorrelatedTimeStates) {
   EXPECT_GT(P.ldlt().vectorD().minCoeff(), 0.0) << "the covariance stays positive definite";
 }
 
+TEST_F(PhotometricScene, AConsideredOffsetWidensTheUpdateWithoutMoving) {
+  // Before the offset is estimated (docs/algorithm.md section 3.6) it is a consider state: its column is in the
+  // update, its estimate and variance are held. For the other states that is the Kalman update with the offset
+  // estimated (Schmidt): the same mean, covariance and cross-covariance; and it is more cautious than the update
+  // without the column, whose cross-covariance with the offset stays zero.
+  PhotometricParams params;
+  params.max_passes = 1;
+  ImageTiming timing;
+  timing.rates_valid = true;
+  timing.gravity_mps2 = 9.81;
+  timing.accel_C = Vec3(0.8, -0.5, -9.81);      // m/s^2
+  timing.rate_change_C = Vec3(0.3, -0.2, 0.1);  // rad/s between the images: the offset is seen
+  auto run = [&](bool estimate, bool consider, State* x, ErrorCov* P) {
+    PhotometricUpdate update(params, PreprocessParams{});
+    ImageTiming t = timing;
+    t.estimate_offset = estimate;
+    t.consider_offset = consider;
+    *x = startState(0.0);
+    *P = priorCov();
+    (*P)(ErrIdx::kTd, ErrIdx::kTd) = 0.01 * 0.01;  // s^2: the offset's prior as configured by default
+    return update.update(scene_->ref, scene_->cur, scene_->K, scene_->w_C, scene_->dt_s, x, P, 0.0, t);
+  };
+  State x_est, x_con, x_off;
+  ErrorCov P_est, P_con, P_off;
+  const UpdateStats s_est = run(true, false, &x_est, &P_est);
+  const UpdateStats s_con = run(false, true, &x_con, &P_con);
+  const UpdateStats s_off = run(false, false, &x_off, &P_off);
+  ASSERT_TRUE(s_est.applied && s_con.applied && s_off.applied);
+  ASSERT_LT(s_est.nis, 15.507) << "a probable frame: the estimated offset is not held";
+  EXPECT_NE(x_est.t_d_s, 0.0) << "estimated, the frame moves the offset";
+  EXPECT_EQ(x_con.t_d_s, 0.0) << "considered, it does not";
+  EXPECT_EQ(P_con(ErrIdx::kTd, ErrIdx::kTd), 0.01 * 0.01);
+  // The other states: the estimated update's.
+  EXPECT_LT((x_con.vartheta - x_est.vartheta).norm(), 1e-9 * (1.0 + x_est.vartheta.norm()));
+  EXPECT_LT((x_con.b_w - x_est.b_w).norm(), 1e-9);
+  ErrorCov diff = P_con - P_est;
+  diff(ErrIdx::kTd, ErrIdx::kTd) = 0.0;
+  EXPECT_LT(diff.cwiseAbs().maxCoeff(), 1e-9 * P_est.cwiseAbs().maxCoeff());
+  const double cross = P_con.block<1, 3>(ErrIdx::kTd, ErrIdx::kVartheta).norm();
+  EXPECT_GT(cross, 0.0) << "the cross-covariance builds up";
+  EXPECT_EQ((P_off.block<1, 3>(ErrIdx::kTd, ErrIdx::kVartheta).norm()), 0.0);
+  // More cautious than ignoring the offset: a larger posterior variance of vartheta.
+  const double var_con = P_con.block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta).trace();
+  const double var_off = P_off.block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta).trace();
+  std::printf("tr P_vartheta: considered %.4g, ignored %.4g; |P_td,vartheta| %.3g\n", var_con, var_off, cross);
+  EXPECT_GT(var_con, var_off);
+  EXPECT_LT(s_con.nis, s_off.nis) << "the offset's uncertainty is in the innovation's covariance";
+}
+
 TEST_F(PhotometricScene, RotationModelErrorDiscountsTheGyroRotation) {
   // The gyro's interval rotation off by 0.1 rad/s about the camera's x and y axes (a scale-factor, focal length
   // or timing error of the rotation, far outside the b_w prior). Without the rotation model error the image must
