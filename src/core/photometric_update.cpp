@@ -1481,7 +1481,8 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     // Without their columns the frame still moved the time states through their correlations with the observed
     // ones. Held instead as consider states (Schmidt): their gain rows zero, so their mean and their own block of
     // the covariance stay the prior's; the other states' update and the cross-covariances are the Kalman update's
-    // (their gains do not involve the time states' rows).
+    // (their gains do not involve the time states' rows). An offset not yet estimated (consider_offset) is held the
+    // same way, with its column in the update (the readout and the focal scale are not estimated then either).
     x->t_d_s = t_d_prior_s;
     x->readout_s = readout_before_s;
     x->focal_scale = focal_scale_before;
