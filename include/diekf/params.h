@@ -26,6 +26,9 @@ struct InitParams {
   double sigma_time_offset_s = 0.01;            ///< 1-sigma of the camera-IMU time offset around the calibration's, s
   double sigma_readout_s = 0.01;                ///< 1-sigma of the rolling-shutter readout around the configured, s
   double sigma_focal_scale = 0.02;              ///< 1-sigma of the focal length's relative error (calibration), unitless
+  /// 1-sigma per axis of the calibration's camera pointing: the camera-IMU rotation and the principal point (which
+  /// tilts the rays as a small rotation does), rad (photometric.camera_rotation_in_covariance)
+  double sigma_camera_rotation_rad = 0.0087;
   double tracking_max_relative_sigma_d = 0.15;  ///< status turns tracking once sigma_d / d falls below this
   bool scale_batch = false;                     ///< hold alpha until the images see translation, then solve the
                                                 ///< scale in one batch (docs/algorithm.md section 7.1)
@@ -132,6 +135,11 @@ struct PhotometricParams {
   /// together: velocity unchanged): a focal length off by e reads the translation's flow, and so the distance, off
   /// by e. The filter's own covariance is not changed (docs/noise_model.md section 9).
   bool focal_scale_in_covariance = true;
+  /// Add the calibration's pointing uncertainty (init.sigma_camera_rotation_rad) to the reported covariance: the
+  /// camera-IMU rotation and the principal point are not estimated, and a pointing off by the small rotation dtheta
+  /// turns the estimated velocity, plane normal and gravity direction by dtheta in the camera frame (dv = dtheta x v;
+  /// the distance unchanged). The filter's own covariance is not changed (docs/noise_model.md section 9).
+  bool camera_rotation_in_covariance = true;
   /// Brightness change of the pair (docs/noise_model.md section 12): kNormalised compares the images as they are
   /// (each standardised to zero mean and unit variance on its own); kGain compares the current image with g I_r and kAffine with g I_r + o, the
   /// pair's gain g (and offset o) estimated in the update's Gauss-Newton passes and marginalised from the

@@ -683,6 +683,10 @@ struct Estimator::Impl {
     // The calibration's focal length, when not estimated: a scale error of the translation's flow (section 9).
     if (params.photometric.focal_scale_in_covariance && !params.estimate_focal_scale)
       addScaleAmbiguity(x, params.init.sigma_focal_scale * params.init.sigma_focal_scale, &r.covariance);
+    // The calibration's camera pointing (camera-IMU rotation, principal point): v, mu and g turned together.
+    if (params.photometric.camera_rotation_in_covariance)
+      addFrameRotationUncertainty(x, params.init.sigma_camera_rotation_rad * params.init.sigma_camera_rotation_rad,
+                                  &r.covariance);
     r.resets = restarts.count();
     // Into a ring slot (the oldest unread result is dropped when full), reusing the slot's string buffers.
     FrameResult& slot = results.emplaceSlot();

@@ -289,6 +289,8 @@ const std::vector<Entry>& table() {
     t.push_back(real("init/sigma_time_offset_s", DIEKF_FIELD(double, init.sigma_time_offset_s), positive(1.0)));
     t.push_back(real("init/sigma_readout_s", DIEKF_FIELD(double, init.sigma_readout_s), positive(1.0)));
     t.push_back(real("init/sigma_focal_scale", DIEKF_FIELD(double, init.sigma_focal_scale), positive(0.5)));
+    t.push_back(real("init/sigma_camera_rotation_rad", DIEKF_FIELD(double, init.sigma_camera_rotation_rad),
+                     positive(0.5)));
     t.push_back(real("init/tracking_max_relative_sigma_d", DIEKF_FIELD(double, init.tracking_max_relative_sigma_d),
                      positive()));
     t.push_back(flag("init/scale_batch", DIEKF_FIELD(bool, init.scale_batch)));
@@ -381,6 +383,8 @@ const std::vector<Entry>& table() {
     t.push_back(flag("photometric/relief_in_covariance", DIEKF_FIELD(bool, photometric.relief_in_covariance)));
     t.push_back(flag("photometric/focal_scale_in_covariance",
                      DIEKF_FIELD(bool, photometric.focal_scale_in_covariance)));
+    t.push_back(flag("photometric/camera_rotation_in_covariance",
+                     DIEKF_FIELD(bool, photometric.camera_rotation_in_covariance)));
     t.push_back(named("photometric/brightness_model", DIEKF_FIELD(BrightnessModel, photometric.brightness_model),
                       &parseBrightnessModel));
     t.push_back(integer("photometric/brightness_row_knots", DIEKF_FIELD(int, photometric.brightness_row_knots),

@@ -77,4 +77,16 @@ void addScaleAmbiguity(const State& x, double relative_var, ErrorCov* P) {
   P->noalias() += relative_var * g * g.transpose();
 }
 
+void addFrameRotationUncertainty(const State& x, double var_rad2, ErrorCov* P) {
+  if (!(var_rad2 > 0.0)) return;
+  // Error of the state per unit rotation dtheta of the frame: d vartheta = dtheta x vartheta = -[vartheta]x dtheta;
+  // a unit vector n turned by dtheta is n [+] N^T dtheta (n [+] d = exp(N d) n, N orthonormal and perpendicular
+  // to n: the rotation about n itself leaves it).
+  Eigen::Matrix<double, kErrorDim, 3> G = Eigen::Matrix<double, kErrorDim, 3>::Zero();
+  G.block<3, 3>(ErrIdx::kVartheta, 0) = -skew(x.vartheta);
+  G.block<2, 3>(ErrIdx::kMu, 0) = x.mu.N().transpose();
+  G.block<2, 3>(ErrIdx::kG, 0) = x.g.N().transpose();
+  P->noalias() += var_rad2 * G * G.transpose();
+}
+
 }  // namespace diekf

@@ -91,6 +91,28 @@ TEST_P(EndToEnd, DistanceAndVelocityConvergeOnSyntheticFlight) {
 // IMU 100 ms ahead of the images, and 100 ms behind them.
 INSTANTIATE_TEST_SUITE_P(Interleavings, EndToEnd, ::testing::Values(-0.1, 0.1));
 
+// A 4 s run of the synthetic flight (500 Hz IMU, 30 Hz images), every result kept.
+std::vector<FrameResult> runShortFlight(const SyntheticFlight& flight, const CameraModel& cam,
+                                        const EstimatorParams& params) {
+  Estimator estimator(cam, params);
+  std::vector<FrameResult> out;
+  cv::Mat image;
+  const double imu_rate_hz = 500.0, cam_rate_hz = 30.0, duration_s = 4.0;
+  int k = 0;
+  for (int j = 0; j < static_cast<int>(duration_s * cam_rate_hz); ++j) {
+    const double t_img = j / cam_rate_hz;
+    for (; k / imu_rate_hz <= t_img + 0.02; ++k) {
+      const double t = k / imu_rate_hz;
+      estimator.addImu({t, flight.accel_I(t), flight.gyro_I(t)});
+    }
+    renderFlightImage(flight, cam, t_img, &image);
+    estimator.addImage(t_img, image);
+    FrameResult r;
+    while (estimator.popResult(&r)) out.push_back(r);
+  }
+  return out;
+}
+
 TEST(EndToEndCovariance, TheFocalLengthsUncertaintyWidensTheReportedDistanceOnly) {
   // The same short flight with and without the calibration's focal-length uncertainty in the reported
   // covariance: the estimates are the same to the bit, the velocity's 1-sigma too, and the distance's variance
@@ -101,23 +123,7 @@ TEST(EndToEndCovariance, TheFocalLengthsUncertaintyWidensTheReportedDistanceOnly
     EstimatorParams params;
     params.preprocess.working_width_px = 90;
     params.photometric.focal_scale_in_covariance = focal_in_covariance;
-    Estimator estimator(cam, params);
-    std::vector<FrameResult> out;
-    cv::Mat image;
-    const double imu_rate_hz = 500.0, cam_rate_hz = 30.0, duration_s = 4.0;
-    int k = 0;
-    for (int j = 0; j < static_cast<int>(duration_s * cam_rate_hz); ++j) {
-      const double t_img = j / cam_rate_hz;
-      for (; k / imu_rate_hz <= t_img + 0.02; ++k) {
-        const double t = k / imu_rate_hz;
-        estimator.addImu({t, flight.accel_I(t), flight.gyro_I(t)});
-      }
-      renderFlightImage(flight, cam, t_img, &image);
-      estimator.addImage(t_img, image);
-      FrameResult r;
-      while (estimator.popResult(&r)) out.push_back(r);
-    }
-    return out;
+    return runShortFlight(flight, cam, params);
   };
   const std::vector<FrameResult> on = run(true), off = run(false);
   ASSERT_EQ(on.size(), off.size());
@@ -132,6 +138,38 @@ TEST(EndToEndCovariance, TheFocalLengthsUncertaintyWidensTheReportedDistanceOnly
     EXPECT_LT((on[i].sigma_velocity_mps() - off[i].sigma_velocity_mps()).norm(),
               1e-9 + 1e-9 * off[i].sigma_velocity_mps().norm());
   }
+}
+
+TEST(EndToEndCovariance, TheCameraRotationsUncertaintyWidensTheReportedVelocityNotTheDistance) {
+  // The same short flight with and without the calibration's pointing uncertainty in the reported covariance:
+  // the estimates are the same to the bit, the distance's 1-sigma too, and each velocity axis's variance grows
+  // by sigma^2 (|v|^2 - v_i^2) exactly (the diagonal of sigma^2 [v]x [v]x^T: a frame turned by dtheta turns v).
+  const SyntheticFlight flight;
+  const CameraModel cam = syntheticCamera();
+  auto run = [&](bool rotation_in_covariance) {
+    EstimatorParams params;
+    params.preprocess.working_width_px = 90;
+    params.photometric.camera_rotation_in_covariance = rotation_in_covariance;
+    return runShortFlight(flight, cam, params);
+  };
+  const std::vector<FrameResult> on = run(true), off = run(false);
+  ASSERT_EQ(on.size(), off.size());
+  ASSERT_GT(on.size(), 90u);
+  const double s2 = std::pow(EstimatorParams().init.sigma_camera_rotation_rad, 2);
+  double widest = 0.0;
+  for (size_t i = 0; i < on.size(); ++i) {
+    ASSERT_EQ(on[i].state.alpha, off[i].state.alpha);
+    ASSERT_EQ(on[i].state.vartheta, off[i].state.vartheta);
+    EXPECT_EQ(on[i].sigma_distance_m(), off[i].sigma_distance_m());
+    const Vec3 v = on[i].state.velocity_mps();
+    const Vec3 s_on = on[i].sigma_velocity_mps(), s_off = off[i].sigma_velocity_mps();
+    for (int k = 0; k < 3; ++k) {
+      const double grown = s_on[k] * s_on[k] - s_off[k] * s_off[k];
+      EXPECT_NEAR(grown, s2 * (v.squaredNorm() - v[k] * v[k]), 1e-12 + 1e-9 * s_off[k] * s_off[k]);
+      widest = std::max(widest, grown);
+    }
+  }
+  EXPECT_GT(widest, 0.0);
 }
 
 }  // namespace

@@ -106,6 +106,46 @@ TEST(DerivedUncertainty, ScaleAmbiguityWidensTheDistanceNotTheVelocity) {
   EXPECT_EQ((R - P).cwiseAbs().maxCoeff(), 0.0);
 }
 
+// The calibration's pointing (camera-IMU rotation, principal point) as an uncertain small rotation of the frame:
+// the covariance added equals the spread of the state turned by a rotation of that variance, found by finite
+// differences (vartheta, mu and g turned together); the velocity's covariance grows by var [v]x [v]x^T, the
+// distance's and the other states' not.
+TEST(DerivedUncertainty, FrameRotationTurnsVelocityNormalAndGravityTogether) {
+  const State x = sampleState();
+  const ErrorCov P = sampleCovariance();
+  ErrorCov Q = P;
+  const double var = 0.01 * 0.01;
+  addFrameRotationUncertainty(x, var, &Q);
+  ErrorCov Q_fd = P;
+  const double h = 1e-6;
+  for (int k = 0; k < 3; ++k) {
+    const Eigen::Matrix3d R = Eigen::AngleAxisd(h, Vec3::Unit(k)).toRotationMatrix();
+    State turned = x;
+    turned.vartheta = R * x.vartheta;
+    turned.mu = UnitVector(R * x.mu.vector());
+    turned.g = UnitVector(R * x.g.vector());
+    const ErrorVec column = turned.boxminus(x) / h;
+    Q_fd.noalias() += var * column * column.transpose();
+  }
+  EXPECT_LT((Q - Q_fd).cwiseAbs().maxCoeff(), 1e-9);
+  const Vec3 v = x.velocity_mps();
+  EXPECT_LT((velocityCovariance(x, Q) - velocityCovariance(x, P) - var * skew(v) * skew(v).transpose())
+                .cwiseAbs()
+                .maxCoeff(),
+            1e-12);
+  EXPECT_EQ(Q(ErrIdx::kAlpha, ErrIdx::kAlpha), P(ErrIdx::kAlpha, ErrIdx::kAlpha));
+  const ErrorCov D = Q - P;
+  const double mu_grown = D.block<2, 2>(ErrIdx::kMu, ErrIdx::kMu).trace();
+  const double g_grown = D.block<2, 2>(ErrIdx::kG, ErrIdx::kG).trace();
+  const double bias_grown = D.block<6, 6>(ErrIdx::kBa, ErrIdx::kBa).cwiseAbs().maxCoeff();
+  EXPECT_NEAR(mu_grown, 2.0 * var, 1e-12);  // both tangent axes turn, by var each
+  EXPECT_NEAR(g_grown, 2.0 * var, 1e-12);
+  EXPECT_EQ(bias_grown, 0.0);
+  ErrorCov R = P;
+  addFrameRotationUncertainty(x, 0.0, &R);
+  EXPECT_EQ((R - P).cwiseAbs().maxCoeff(), 0.0);
+}
+
 FilterStatus frame(HealthMonitor* m, double t_s, const State& x, const ErrorCov& P, std::string* msg,
                    const std::string& reset_here = "", double accel_mps2 = 0.0) {
   static const std::string empty;

@@ -62,7 +62,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          ia.sigma_mu0_rad == ib.sigma_mu0_rad && ia.sigma_g0_rad == ib.sigma_g0_rad &&
          ia.sigma_ba0_mps2 == ib.sigma_ba0_mps2 && ia.sigma_bw0_radps == ib.sigma_bw0_radps &&
          ia.sigma_time_offset_s == ib.sigma_time_offset_s && ia.sigma_readout_s == ib.sigma_readout_s &&
-         ia.sigma_focal_scale == ib.sigma_focal_scale &&
+         ia.sigma_focal_scale == ib.sigma_focal_scale && ia.sigma_camera_rotation_rad == ib.sigma_camera_rotation_rad &&
          ia.tracking_max_relative_sigma_d == ib.tracking_max_relative_sigma_d &&
          ia.warm_restart == ib.warm_restart && ia.warm_restart_max_age_s == ib.warm_restart_max_age_s &&
          ia.scale_batch == ib.scale_batch && ia.scale_window_s == ib.scale_window_s &&
@@ -95,6 +95,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          ha.parallax_tolerance == hb.parallax_tolerance && ha.parallax_time_constant_s == hb.parallax_time_constant_s &&
          ha.relief_in_covariance == hb.relief_in_covariance &&
          ha.focal_scale_in_covariance == hb.focal_scale_in_covariance &&
+         ha.camera_rotation_in_covariance == hb.camera_rotation_in_covariance &&
          ha.brightness_model == hb.brightness_model && ha.brightness_row_knots == hb.brightness_row_knots &&
          ha.light_change_threshold == hb.light_change_threshold &&
          da.max_step_sigma == db.max_step_sigma && da.degraded_hold_s == db.degraded_hold_s &&
