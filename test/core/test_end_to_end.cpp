@@ -6,6 +6,7 @@
 #include <cmath>
 #include <cstdio>
 #include <cstdlib>
+#include <functional>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -113,19 +114,26 @@ std::vector<FrameResult> runShortFlight(const SyntheticFlight& flight, const Cam
   return out;
 }
 
+// A 4 s run of the synthetic flight (500 Hz IMU, 30 Hz images) at 90 px, every result kept, once with a setting
+// on and once off (`set` switches it in the parameters).
+void runOnAndOff(const std::function<void(EstimatorParams*, bool)>& set, std::vector<FrameResult>* on,
+                 std::vector<FrameResult>* off) {
+  const SyntheticFlight flight;
+  const CameraModel cam = syntheticCamera();
+  for (const bool flag : {true, false}) {
+    EstimatorParams params;
+    params.preprocess.working_width_px = 90;
+    set(&params, flag);
+    *(flag ? on : off) = runShortFlight(flight, cam, params);
+  }
+}
+
 TEST(EndToEndCovariance, TheFocalLengthsUncertaintyWidensTheReportedDistanceOnly) {
   // The same short flight with and without the calibration's focal-length uncertainty in the reported
   // covariance: the estimates are the same to the bit, the velocity's 1-sigma too, and the distance's variance
   // grows by (sigma_focal_scale d)^2 exactly (a focal length off by e reads the distance off by e).
-  const SyntheticFlight flight;
-  const CameraModel cam = syntheticCamera();
-  auto run = [&](bool focal_in_covariance) {
-    EstimatorParams params;
-    params.preprocess.working_width_px = 90;
-    params.photometric.focal_scale_in_covariance = focal_in_covariance;
-    return runShortFlight(flight, cam, params);
-  };
-  const std::vector<FrameResult> on = run(true), off = run(false);
+  std::vector<FrameResult> on, off;
+  runOnAndOff([](EstimatorParams* p, bool flag) { p->photometric.focal_scale_in_covariance = flag; }, &on, &off);
   ASSERT_EQ(on.size(), off.size());
   ASSERT_GT(on.size(), 90u);
   const double sf = EstimatorParams().init.sigma_focal_scale;
@@ -144,15 +152,8 @@ TEST(EndToEndCovariance, TheCameraRotationsUncertaintyWidensTheReportedVelocityN
   // The same short flight with and without the calibration's pointing uncertainty in the reported covariance:
   // the estimates are the same to the bit, the distance's 1-sigma too, and each velocity axis's variance grows
   // by sigma^2 (|v|^2 - v_i^2) exactly (the diagonal of sigma^2 [v]x [v]x^T: a frame turned by dtheta turns v).
-  const SyntheticFlight flight;
-  const CameraModel cam = syntheticCamera();
-  auto run = [&](bool rotation_in_covariance) {
-    EstimatorParams params;
-    params.preprocess.working_width_px = 90;
-    params.photometric.camera_rotation_in_covariance = rotation_in_covariance;
-    return runShortFlight(flight, cam, params);
-  };
-  const std::vector<FrameResult> on = run(true), off = run(false);
+  std::vector<FrameResult> on, off;
+  runOnAndOff([](EstimatorParams* p, bool flag) { p->photometric.camera_rotation_in_covariance = flag; }, &on, &off);
   ASSERT_EQ(on.size(), off.size());
   ASSERT_GT(on.size(), 90u);
   const double s2 = std::pow(EstimatorParams().init.sigma_camera_rotation_rad, 2);
