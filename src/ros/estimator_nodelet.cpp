@@ -27,6 +27,17 @@ namespace {
 
 constexpr double kWarnPeriodS = 5.0;  // ROS_WARN_THROTTLE period, s
 
+/// Appends `item` to a bounded queue, dropping the oldest entries beyond `max_size`; true if any was dropped.
+template <typename Queue, typename Item>
+bool pushDroppingOldest(Queue* queue, const Item& item, int max_size) {
+  queue->push_back(item);
+  bool dropped = false;
+  while (static_cast<int>(queue->size()) > max_size) {
+    queue->pop_front();
+    dropped = true;
+  }
+  return dropped;
+}
 
 }  // namespace
 
@@ -407,11 +418,7 @@ void EstimatorNodelet::imuCallback(const sensor_msgs::ImuConstPtr& msg) {
   bool overflow = false;
   {
     std::lock_guard<std::mutex> lock(queue_mutex_);
-    imu_queue_.push_back(sample);
-    while (static_cast<int>(imu_queue_.size()) > settings_.imu_queue_size) {
-      imu_queue_.pop_front();
-      overflow = true;
-    }
+    overflow = pushDroppingOldest(&imu_queue_, sample, settings_.imu_queue_size);
   }
   queue_cv_.notify_one();
   std::lock_guard<std::mutex> lock(stats_mutex_);
@@ -464,11 +471,7 @@ void EstimatorNodelet::imageCallback(const sensor_msgs::ImageConstPtr& msg) {
   bool overflow = false;
   {
     std::lock_guard<std::mutex> lock(queue_mutex_);
-    image_queue_.push_back(msg);
-    while (static_cast<int>(image_queue_.size()) > settings_.image_queue_size) {
-      image_queue_.pop_front();
-      overflow = true;
-    }
+    overflow = pushDroppingOldest(&image_queue_, msg, settings_.image_queue_size);
   }
   queue_cv_.notify_one();
   std::lock_guard<std::mutex> lock(stats_mutex_);
