@@ -40,6 +40,7 @@ struct FrameResult {
   double nis = 0.0;                  ///< normalised innovation squared of the update (chi-square(8)); 0: none
   double noise_sigma = 0.0;          ///< per-pixel photometric noise 1-sigma used (normalised units); 0: none
   double noise_correlation = 0.0;    ///< pixels per independent measurement used; 0: none
+  double noise_floor_sigma = 0.0;    ///< the sensor noise's part of the residual 1-sigma (normalised units); 0: none
   double nis_scale = 1.0;            ///< innovation-based noise inflation used (>= 1)
   double gate_inflation = 1.0;       ///< noise inflation applied by the innovation gate (1: passed)
   double outlier_fraction = 0.0;     ///< share of the pixels' weight removed by the outlier weights and the

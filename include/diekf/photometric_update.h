@@ -27,6 +27,10 @@ struct UpdateStats {
   double residual_sigma = 0.0;   ///< robust scale of the residual at the last linearisation (normalised units)
   double correlation = 0.0;      ///< score-correlation factor of the last linearisation (pixels per independent one)
   double noise_sigma = 0.0;      ///< per-pixel noise 1-sigma used in this update (normalised units)
+  /// The sensor noise's share of the residual: 1-sigma of the pair's residual from sensor noise alone
+  /// (sensor_noise_grey through the resampling and blur, both images), normalised units (docs/noise_model.md
+  /// section 2). Near 0 on well-textured ground; it approaches sqrt(2) as the ground's contrast sinks into the noise.
+  double noise_floor_sigma = 0.0;
   double noise_correlation = 0.0;  ///< pixels per independent measurement used in this update
   double nis = 0.0;              ///< normalised innovation squared of the first pass (chi-square(8) if consistent)
   double nis_scale = 1.0;        ///< innovation-based noise inflation used in this update (>= 1)

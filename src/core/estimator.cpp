@@ -704,6 +704,7 @@ struct Estimator::Impl {
     r->nis = std::isfinite(stats.nis) ? stats.nis : 0.0;
     r->noise_sigma = std::isfinite(stats.noise_sigma) ? stats.noise_sigma : 0.0;
     r->noise_correlation = std::isfinite(stats.noise_correlation) ? stats.noise_correlation : 0.0;
+    r->noise_floor_sigma = std::isfinite(stats.noise_floor_sigma) ? stats.noise_floor_sigma : 0.0;
     r->gate_inflation = std::isfinite(stats.gate_inflation) ? stats.gate_inflation : 1.0;
     r->nis_scale = std::isfinite(stats.nis_scale) ? stats.nis_scale : 1.0;
     r->outlier_fraction = std::isfinite(stats.outlier_fraction) ? stats.outlier_fraction : 0.0;

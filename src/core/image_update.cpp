@@ -11,6 +11,11 @@
 namespace diekf {
 namespace internal {
 
+double maxPhotometricRms(double max_rms, double noise_floor_sigma) {
+  const double floor_var = std::clamp(noise_floor_sigma * noise_floor_sigma, 0.0, 2.0);  // unrelated images: 2
+  return std::sqrt(floor_var + 0.5 * max_rms * max_rms * (2.0 - floor_var));
+}
+
 PhotometricParams ImageUpdate::photometricParamsFor(const EstimatorParams& p) {
   PhotometricParams pp = p.photometric;
   if (p.mode == UpdateMode::kEkf) pp.max_passes = 1;
@@ -155,14 +160,14 @@ UpdateStats ImageUpdate::apply(const PreprocessedFrame& ref, const PreprocessedF
     // alpha's step in prior sigmas: d must never jump by many sigma in one frame.
     const double step_sigma =
         std::abs(x.alpha - x_prior.alpha) / std::sqrt(std::max(1e-300, P_prior(ErrIdx::kAlpha, ErrIdx::kAlpha)));
-    if (stats.applied && !(stats.rms_residual <= params_.divergence.max_photometric_rms)) {
+    const double max_rms = maxPhotometricRms(params_.divergence.max_photometric_rms, stats.noise_floor_sigma);
+    if (stats.applied && !(stats.rms_residual <= max_rms)) {
       // The images do not fit the plane model (occlusion, unrelated or corrupt image): keep the prior.
       x = x_prior;
       P = P_prior;
       stats.applied = false;
       std::ostringstream os;
-      os << "update rejected: photometric RMS " << stats.rms_residual << " above "
-         << params_.divergence.max_photometric_rms;
+      os << "update rejected: photometric RMS " << stats.rms_residual << " above " << max_rms;
       *skip_reason = os.str();
       health->noteDegraded(t_img_s, *skip_reason);
     } else if (stats.applied && !(step_sigma <= params_.divergence.max_step_sigma)) {

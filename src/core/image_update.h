@@ -20,6 +20,13 @@
 namespace diekf {
 namespace internal {
 
+/// The photometric RMS above which an applied update is undone, for images whose sensor noise alone leaves a
+/// residual of `noise_floor_sigma` (UpdateStats::noise_floor_sigma; both normalised units, where unrelated images
+/// give sqrt(2)). `max_rms` (divergence.max_photometric_rms) holds for noise-free images: it allows the ground's
+/// residual max_rms^2 / 2 of unrelated images'. The same share of the ground's part, with the noise's part added:
+/// limit^2 = floor^2 + (max_rms^2 / 2) (2 - floor^2) (docs/noise_model.md section 4).
+double maxPhotometricRms(double max_rms, double noise_floor_sigma);
+
 class ImageUpdate {
  public:
   /// `params` must outlive the update (the estimator's own copy); `pre` is the estimator's preprocessor (its

@@ -1389,6 +1389,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     stats.rms_residual = valid > 0 ? std::sqrt(sums.sum_r2 / valid) : 0.0;
     stats.residual_sigma = sums.robust_sigma;
     stats.correlation = sums.correlation;
+    stats.noise_floor_sigma = std::sqrt(floor_var);
     if (!(valid > 0 && stats.valid_ratio >= params_.min_valid_ratio)) return false;
     if (pass == 0) {
       double var, corr;

@@ -335,7 +335,7 @@ int run(const RunnerOptions& o) {
   if (o.frames_csv) {
     frames.open(out_dir / "frames.csv");
     if (!frames) throw RunError("cannot write " + (out_dir / "frames.csv").string());
-    frames << "t,applied,passes,photometric_rms,valid_ratio,nis,noise_sigma,noise_correlation,nis_scale,gate_inflation,outlier_fraction,time_offset_ms,sigma_time_offset_ms,readout_ms,sigma_readout_ms,focal_scale_pct,sigma_focal_scale_pct,"
+    frames << "t,applied,passes,photometric_rms,valid_ratio,nis,noise_sigma,noise_correlation,noise_floor_sigma,nis_scale,gate_inflation,outlier_fraction,time_offset_ms,sigma_time_offset_ms,readout_ms,sigma_readout_ms,focal_scale_pct,sigma_focal_scale_pct,"
               "fixed_pattern_active,fixed_pattern_fraction,fixed_pattern_contrast_share,brightness_gain,brightness_offset,relief_pct,"
               "dot_removal_px,dot_fill_pct,dot_gain_pct,projector_dot_share,row_banding_pct,row_gains,light_change,status,message\n";
     frames.precision(12);
@@ -352,7 +352,8 @@ int run(const RunnerOptions& o) {
           if (ch == ',' || ch == '\n' || ch == '"') ch = ';';
         frames << result.t_s << ',' << (result.update_applied ? 1 : 0) << ',' << result.passes << ','
                << result.photometric_rms << ',' << result.valid_ratio << ',' << result.nis << ','
-               << result.noise_sigma << ',' << result.noise_correlation << ',' << result.nis_scale << ',' << result.gate_inflation << ','
+               << result.noise_sigma << ',' << result.noise_correlation << ',' << result.noise_floor_sigma << ','
+               << result.nis_scale << ',' << result.gate_inflation << ','
                << result.outlier_fraction << ',' << 1e3 * result.state.t_d_s << ','
                << 1e3 * std::sqrt(std::max(0.0, result.covariance(diekf::ErrIdx::kTd, diekf::ErrIdx::kTd))) << ','
                << 1e3 * result.state.readout_s << ','

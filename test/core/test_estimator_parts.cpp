@@ -25,6 +25,22 @@ using internal::HealthMonitor;
 using internal::ImuPropagator;
 using internal::RestartPolicy;
 
+// The photometric RMS limit keeps the noise-free limit's share of unrelated images' residual for the ground's part
+// and adds the sensor noise's (docs/noise_model.md section 4).
+TEST(PhotometricRmsLimit, WidensWithTheSensorNoisesShareOnly) {
+  using internal::maxPhotometricRms;
+  EXPECT_DOUBLE_EQ(maxPhotometricRms(0.8, 0.0), 0.8);              // noise-free images: the configured limit
+  EXPECT_NEAR(maxPhotometricRms(0.8, 0.1), 0.8, 0.005);            // textured ground: hardly wider
+  EXPECT_DOUBLE_EQ(maxPhotometricRms(0.8, std::sqrt(2.0)), std::sqrt(2.0));  // pure noise: unrelated images' RMS
+  EXPECT_DOUBLE_EQ(maxPhotometricRms(0.8, 5.0), std::sqrt(2.0));   // floor clamped at unrelated images'
+  // With the floor's variance f, the ground's part (limit^2 - f) is 0.32 of unrelated images' ground part (2 - f).
+  for (double f : {0.1, 0.5, 1.0, 1.5}) {
+    const double limit = maxPhotometricRms(0.8, std::sqrt(f));
+    EXPECT_NEAR((limit * limit - f) / (2.0 - f), 0.32, 1e-12) << f;
+    EXPECT_LT(limit, std::sqrt(2.0));
+  }
+}
+
 TEST(StampCheck, ClassifiesAgainstTheJumpThreshold) {
   EXPECT_EQ(classifyStampStep(10.0, 10.01, 1.0), StampStep::kForward);
   EXPECT_EQ(classifyStampStep(10.0, 10.0, 1.0), StampStep::kDuplicate);

@@ -169,6 +169,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
   uint64_t images_skipped_measuring_ = 0;      ///< images dropped while the IMU rate was being measured
   double last_update_ms_ = 0.0, update_ms_sum_ = 0.0, update_ms_max_ = 0.0;
   double last_nis_ = 0.0, last_noise_sigma_ = 0.0, last_noise_correlation_ = 0.0, last_outlier_fraction_ = 0.0;
+  double last_noise_floor_sigma_ = 0.0;  // FrameResult::noise_floor_sigma of the last update
   double last_relief_pct_ = 0.0;  // FrameResult::relief_sigma of the last applied update, %
   double last_brightness_gain_ = 1.0, last_brightness_offset_ = 0.0;  ///< the pair's (photometric/brightness_model)
   double last_row_banding_pct_ = 0.0;  ///< FrameResult::row_banding, %
