@@ -7,6 +7,7 @@
 #include <filesystem>
 #include <fstream>
 #include <iomanip>
+#include <limits>
 #include <map>
 #include <memory>
 #include <ostream>
@@ -81,6 +82,8 @@ std::string simulateUsage() {
         "  --flicker-prob P         per-frame probability of an abrupt brightness jump  [0]\n"
         "  --flicker-amplitude R    relative size of a jump                             [0.25]\n"
         "  --drop-prob P            per-frame probability of a dropped image            [0]\n"
+        "  --stamp-jitter-ms J      image stamps taken on arrival: each delayed by      [0]\n"
+        "                           |N(0, J)| ms more (in order; the mean is an offset)\n"
         "  --mains-flicker-hz F     lighting modulated at F (100 or 120 Hz: twice the    [0]\n"
         "                           mains); each row integrates its part of the cycle\n"
         "                           (bands that move between images with a rolling shutter)\n"
@@ -188,6 +191,7 @@ ParseResult parseSimulateArgs(const std::vector<std::string>& args_in, Simulatio
       {"--flicker-prob", {&opt->flicker_prob, 0, 1}},
       {"--flicker-amplitude", {&opt->flicker_amplitude, 0, 0.9}},
       {"--drop-prob", {&opt->drop_prob, 0, 0.9}},
+      {"--stamp-jitter-ms", {&opt->stamp_jitter_ms, 0, 50}},
       {"--mains-flicker-hz", {&opt->mains_flicker_hz, 0, 1000}},
       {"--mains-flicker-depth", {&opt->mains_flicker_depth, 0, 1}},
       {"--pose-rate", {&opt->pose_rate_hz, 100, 10000}},
@@ -554,7 +558,8 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
   const double exposure_s = opt.exposure_ms * 1e-3;
   const double frame_dt = 1.0 / opt.fps;
   // Last frame: its last row's exposure and its stamp within the sequence.
-  const double frame_tail_s = 0.5 * exposure_s + 0.5 * readout_s + std::max(0.0, stamp_offset_s);
+  const double jitter_s = opt.stamp_jitter_ms * 1e-3;  // 1-sigma of the arrival delay, s
+  const double frame_tail_s = 0.5 * exposure_s + 0.5 * readout_s + std::max(0.0, stamp_offset_s) + 5.0 * jitter_s;
   const int n_frames = std::max(0, static_cast<int>(std::floor((opt.duration_s - frame_tail_s) / frame_dt)));
   const double pose_dt = 1.0 / opt.pose_rate_hz;
   std::size_t next_imu = 0, next_pose_idx = 0;
@@ -590,9 +595,19 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
   const double flicker_w = 2.0 * M_PI * opt.mains_flicker_hz;  // rad/s
   std::mt19937 flicker_rng(static_cast<std::uint32_t>(opt.seed * 104729u + 17u));
   const double flicker_phase = 2.0 * M_PI * std::uniform_real_distribution<double>(0.0, 1.0)(flicker_rng);
+  // Arrival delays of the stamps: their own generator, drawn for every frame (the other draws stay as they were).
+  std::mt19937_64 jitter_rng(opt.seed * 2654435761ull + 99991ull);
+  std::normal_distribution<double> jitter_normal(0.0, 1.0);
+  std::int64_t last_stamp_ns = std::numeric_limits<std::int64_t>::min();
   for (int f = 0; f < n_frames; ++f) {
     const double t = (f + 1) * frame_dt;  // true mid-exposure time of the middle row (s)
-    flushUntil(t + stamp_offset_s);       // the image's stamp
+    const double delay_s = jitter_s > 0.0 ? jitter_s * std::abs(jitter_normal(jitter_rng)) : 0.0;
+    // The image's stamp: capture time, offset and arrival delay, kept in order (a host stamps in arrival order).
+    std::int64_t stamp = clock.toNs(t) + stamp_offset_ns + std::llround(delay_s * 1e9);
+    if (jitter_s > 0.0 && last_stamp_ns != std::numeric_limits<std::int64_t>::min())
+      stamp = std::max(stamp, last_stamp_ns + 500000);
+    last_stamp_ns = stamp;
+    flushUntil(jitter_s > 0.0 ? static_cast<double>(stamp - clock.start_ns) * 1e-9 : t + stamp_offset_s);
     // Brightness for this frame (draws happen for every frame so dropping does not change the others).
     double gain = 1.0 + opt.gain_ramp * std::sin(2.0 * M_PI * t / opt.gain_ramp_period_s);
     const bool flicker = uni(rng) < opt.flicker_prob;
@@ -660,7 +675,6 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
       img = renderer.renderBands(bands, plane, tex, gain, sensor, noise_seed, effects);
     }
     if (patterns && gain > 0.0) mean_radiance = cv::mean(img)[0] / gain;
-    const std::int64_t stamp = clock.toNs(t) + stamp_offset_ns;
     if (opt.camera_info) bag.writeCameraInfo(stamp, written, static_cast<std::uint32_t>(f));
     bag.writeImage(stamp, img, static_cast<std::uint32_t>(f));
     ++sum.frames_written;
