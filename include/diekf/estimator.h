@@ -25,6 +25,10 @@ const char* toString(FilterStatus status);
 struct FrameResult {
   double t_s = 0.0;                  ///< the image's time on the IMU clock (stamp + timeshift + stamp convention + estimated offset), s
   double stamp_s = 0.0;              ///< the image's stamp as given to addImage, s
+  /// The stamp less the frame clock's time for it (input/stamp_smoothing; 0 while the clock is not fitted or the
+  /// smoothing is off), s: the part of the arrival delay removed.
+  double stamp_correction_s = 0.0;
+  double stamp_jitter_s = 0.0;       ///< the frame clock's robust 1-sigma of the stamps about its line, s (0: not fitted)
   State state;                       ///< posterior state
   /// Covariance of the posterior state: the filter's, plus, along the scale direction of (alpha, vartheta), the
   /// plane's ambiguity over a scene that is not one plane (relief_sigma; photometric/relief_in_covariance) and the

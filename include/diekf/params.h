@@ -265,6 +265,10 @@ struct InputParams {
   double max_gyro_radps = 35.0;                 ///< IMU samples with a larger |rate| are rejected, rad/s
   double gap_accel_sigma_mps2 = 3.0;            ///< unknown acceleration during a bridged IMU gap, 1-sigma, m/s^2
   double gap_gyro_sigma_radps = 0.5;            ///< unknown rate change during a bridged IMU gap, 1-sigma, rad/s
+  /// Image stamps taken on arrival at a host jitter by a few ms: each frame's time from the camera's frame clock
+  /// fitted to the stamps (docs/algorithm.md section 3.6, "Jittered image stamps"); exact stamps pass unchanged.
+  bool stamp_smoothing = true;
+  int stamp_smoothing_frames = 128;             ///< frames the frame clock is fitted over (8-128)
 };
 
 /// What an image's stamp marks (EstimatorParams::image_stamp).

@@ -17,6 +17,7 @@
 #include "diekf/stamp_check.h"
 #include "dot_detector.h"
 #include "dot_gain.h"
+#include "frame_clock.h"
 #include "health_monitor.h"
 #include "image_update.h"
 #include "imu_propagator.h"
@@ -61,6 +62,8 @@ namespace {
 struct PendingImage {
   double t_s = 0.0;      // IMU clock
   double stamp_s = 0.0;  // the stamp it was given (camera clock)
+  double stamp_correction_s = 0.0;  // the stamp less the frame clock's time (FrameResult::stamp_correction_s)
+  double stamp_jitter_s = 0.0;      // the frame clock's 1-sigma (FrameResult::stamp_jitter_s)
   ResampledImage stage;  // the image resampled to the working size on arrival (reused buffers; no raw copy kept)
   double resample_ms = 0.0;  // time of that stage, added to the frame's update_ms
   bool dots_sampled = false; // the projector-dot detector sampled the raw image (DotDetector::addImage)
@@ -453,6 +456,8 @@ struct Estimator::Impl {
     FrameResult r;
     r.t_s = img.t_s;
     r.stamp_s = img.stamp_s;
+    r.stamp_correction_s = img.stamp_correction_s;
+    r.stamp_jitter_s = img.stamp_jitter_s;
     std::string restart_reason;  // set when the filter restarts at this image
     char msg[kMessageCapacity] = "";  // the result's message, formatted without allocation
 
@@ -817,6 +822,7 @@ struct Estimator::Impl {
   bool have_raw_imu = false;
   double last_raw_imu_t_s = 0.0;
   double last_image_t_s = -HUGE_VAL;
+  internal::FrameClock frame_clock{params.input.stamp_smoothing_frames};  // image stamps -> frame times
   std::string warning;
 };
 
@@ -919,8 +925,12 @@ bool Estimator::addImage(double t_cam_s, const cv::Mat& image) {
       if (m.images[0].dots_sampled) m.dots.notePosition(false);
     }
     PendingImage& slot = m.images.emplaceSlot();
-    slot.t_s = t_s;
+    // The frame's time from the camera's frame clock (arrival jitter removed; exact stamps unchanged).
+    const double t_frame_s = m.params.input.stamp_smoothing ? m.frame_clock.frameTime(t_s) : t_s;
+    slot.t_s = t_frame_s;
     slot.stamp_s = t_cam_s;
+    slot.stamp_correction_s = t_s - t_frame_s;
+    slot.stamp_jitter_s = m.params.input.stamp_smoothing && m.frame_clock.fitted() ? m.frame_clock.jitter_s() : 0.0;
     // The first stage of the preprocessing now, straight from the caller's pixels (8-bit grey: no copy);
     // other types through the package's one grey conversion (grey_image.h) into a reused buffer.
     const auto t0 = std::chrono::steady_clock::now();

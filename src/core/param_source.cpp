@@ -473,6 +473,8 @@ const std::vector<Entry>& table() {
                      between(0.0, 1000.0)));
     t.push_back(real("input/gap_gyro_sigma_radps", DIEKF_FIELD(double, input.gap_gyro_sigma_radps),
                      between(0.0, 100.0)));
+    t.push_back(flag("input/stamp_smoothing", DIEKF_FIELD(bool, input.stamp_smoothing)));
+    t.push_back(integer("input/stamp_smoothing_frames", DIEKF_FIELD(int, input.stamp_smoothing_frames), between(8, 128)));
     // queueing
     t.push_back(real("max_imu_gap_s", DIEKF_FIELD(double, max_imu_gap_s), positive()));
     t.push_back(integer("max_queued_images", DIEKF_FIELD(int, max_queued_images), between(1, 10000)));

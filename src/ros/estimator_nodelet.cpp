@@ -829,6 +829,7 @@ void EstimatorNodelet::publishResult(const diekf::FrameResult& r) {
     last_noise_sigma_ = r.noise_sigma;
     last_noise_correlation_ = r.noise_correlation;
     last_noise_floor_sigma_ = r.noise_floor_sigma;
+    last_stamp_jitter_s_ = r.stamp_jitter_s;
     if (r.gate_inflation > 1.0) ++gated_updates_;
     last_outlier_fraction_ = r.outlier_fraction;
     last_relief_pct_ = 1e2 * r.relief_sigma;
@@ -904,6 +905,7 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
   stat.add("photometric noise sigma (normalised intensity)", last_noise_sigma_);
   stat.add("pixels per independent measurement", last_noise_correlation_);
   stat.add("sensor noise part of the residual sigma (normalised intensity)", last_noise_floor_sigma_);
+  stat.add("image stamp jitter about the frame clock (ms)", 1e3 * last_stamp_jitter_s_);
   stat.add("outlier weight removed (share of the image)", last_outlier_fraction_);
   stat.add("scene relief about the plane (distance 1-sigma added, %)", last_relief_pct_);
   if (params_.photometric.brightness_model != diekf::BrightnessModel::kNormalised) {

@@ -116,6 +116,8 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          a.input.min_image_contrast_grey == b.input.min_image_contrast_grey &&
          a.input.min_unclipped_ratio == b.input.min_unclipped_ratio &&
          a.input.max_accel_mps2 == b.input.max_accel_mps2 && a.input.max_gyro_radps == b.input.max_gyro_radps &&
+         a.input.stamp_smoothing == b.input.stamp_smoothing &&
+         a.input.stamp_smoothing_frames == b.input.stamp_smoothing_frames &&
          a.max_imu_gap_s == b.max_imu_gap_s &&
          a.max_queued_images == b.max_queued_images &&
          a.update_at_interval_midpoint == b.update_at_interval_midpoint &&
@@ -247,6 +249,7 @@ std::string perturbed(const std::string& key, const YAML::Node& def) {
   if (key == "line_delay_s") return "3.3e-05";  // s per row: a 16 ms readout of 480 rows
   if (key == "fixed_pattern/vignetting_file") return "flat_field.png";  // a path (read by the estimator, not here)
   if (key == "fixed_pattern/dot_detect_levels") return "1";  // (1..3)
+  if (key == "input/stamp_smoothing_frames") return "64";  // (8..128)
   if (def.IsSequence()) return "[0.1, 0.2, 0.9]";
   const std::string s = def.Scalar();
   if (s == "true") return "false";

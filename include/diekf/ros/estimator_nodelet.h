@@ -170,6 +170,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
   double last_update_ms_ = 0.0, update_ms_sum_ = 0.0, update_ms_max_ = 0.0;
   double last_nis_ = 0.0, last_noise_sigma_ = 0.0, last_noise_correlation_ = 0.0, last_outlier_fraction_ = 0.0;
   double last_noise_floor_sigma_ = 0.0;  // FrameResult::noise_floor_sigma of the last update
+  double last_stamp_jitter_s_ = 0.0;     // FrameResult::stamp_jitter_s of the last image
   double last_relief_pct_ = 0.0;  // FrameResult::relief_sigma of the last applied update, %
   double last_brightness_gain_ = 1.0, last_brightness_offset_ = 0.0;  ///< the pair's (photometric/brightness_model)
   double last_row_banding_pct_ = 0.0;  ///< FrameResult::row_banding, %
