@@ -930,7 +930,7 @@ bool Estimator::addImage(double t_cam_s, const cv::Mat& image) {
     slot.t_s = t_frame_s;
     slot.stamp_s = t_cam_s;
     slot.stamp_correction_s = t_s - t_frame_s;
-    slot.stamp_jitter_s = m.params.input.stamp_smoothing && m.frame_clock.fitted() ? m.frame_clock.jitter_s() : 0.0;
+    slot.stamp_jitter_s = m.frame_clock.fitted() ? m.frame_clock.jitter_s() : 0.0;  // (never fitted when off)
     // The first stage of the preprocessing now, straight from the caller's pixels (8-bit grey: no copy);
     // other types through the package's one grey conversion (grey_image.h) into a reused buffer.
     const auto t0 = std::chrono::steady_clock::now();

@@ -7,7 +7,6 @@ namespace diekf {
 namespace internal {
 
 namespace {
-constexpr int kMaxWindow = 128;
 constexpr double kExactS = 1e-6;        // stamps this close to the line are taken as they are, s
 constexpr double kMinJitterS = 2e-4;    // floor of the robust scale when telling a real change from a delay, s
 constexpr double kMaxJitterS = 0.02;    // a fit scattered more than this is not a steady clock, s
@@ -16,8 +15,7 @@ constexpr int kMinFitFrames = 4;        // frames before the line is used (its e
 }  // namespace
 
 FrameClock::FrameClock(int window_frames)
-    : frames_(static_cast<size_t>(std::clamp(window_frames, 8, kMaxWindow))),
-      window_(std::clamp(window_frames, 8, kMaxWindow)) {}
+    : frames_(static_cast<size_t>(std::clamp(window_frames, 8, kMaxWindow))) {}
 
 void FrameClock::reset() {
   frames_.clear();
@@ -62,20 +60,27 @@ bool FrameClock::fitLine(double limit, double* a, double* b) const {
   return std::isfinite(*a) && std::isfinite(*b) && *b > 0.0;
 }
 
+double FrameClock::robustSigma(double a, double b) {
+  const size_t n = frames_.size();
+  for (size_t i = 0; i < n; ++i) residuals_[i] = std::abs(frames_[i].t - (a + b * frames_[i].k));
+  std::nth_element(residuals_, residuals_ + n / 2, residuals_ + n);
+  return 1.4826 * residuals_[n / 2];
+}
+
 double FrameClock::frameTime(double t_s) {
   fitted_ = false;
   last_delay_s_ = 0.0;
   if (!std::isfinite(t_s)) return t_s;
   if (!frames_.empty() && !(t_s - t0_ > frames_.back().t)) reset();  // not after the last stamp: start again
   if (frames_.empty()) t0_ = t_s;
-  double t = t_s - t0_;
-  if (!frames_.empty() && period_s_ > 0.0 && t - frames_.back().t > kGapPeriods * period_s_) {
-    const double keep = last_out_s_;
-    reset();  // a long gap: the count across it is not to be trusted
-    last_out_s_ = keep;
-    t0_ = t_s;
-    t = 0.0;
-  }
+  const double t = t_s - t0_;
+  const auto out = [&](double time_s) {
+    const double v = std::max(time_s, last_out_s_ + kExactS);  // the frames' order is kept
+    last_out_s_ = v;
+    return v;
+  };
+  // A long gap: the count across it is not to be trusted.
+  if (!frames_.empty() && period_s_ > 0.0 && t - frames_.back().t > kGapPeriods * period_s_) return out(restartAt(t_s));
   // The frame's count: from the last accepted line, else one more than the last (counts are redone from the median
   // interval until a line is accepted). The line runs through the stamps' mean delay and delays are one-sided, so
   // a stamp up to 3/4 of a period above the line or 1/4 below it counts as that frame.
@@ -83,11 +88,6 @@ double FrameClock::frameTime(double t_s) {
   if (period_s_ > 0.0 && !frames_.empty()) k = std::max(k, std::round((t - line_a_) / period_s_ - 0.25));
   frames_.push({k, t});
   const size_t n = frames_.size();
-  const auto out = [&](double time_s) {
-    const double v = std::max(time_s, last_out_s_ + kExactS);  // the frames' order is kept
-    last_out_s_ = v;
-    return v;
-  };
   if (n < 4) return out(t_s);
 
   // Another frame rate (a camera switching modes, a restarted driver): the median of the last 16 intervals is no
@@ -119,13 +119,9 @@ double FrameClock::frameTime(double t_s) {
   // Fit, then again without the frames beyond 3 robust sigmas (the largest delays).
   double a = 0.0, b = T;
   if (!fitLine(-1.0, &a, &b)) return out(t_s);
-  for (size_t i = 0; i < n; ++i) residuals_[i] = std::abs(frames_[i].t - (a + b * frames_[i].k));
-  std::nth_element(residuals_, residuals_ + n / 2, residuals_ + n);
-  const double sigma = std::max(kMinJitterS, 1.4826 * residuals_[n / 2]);
+  const double sigma = std::max(kMinJitterS, robustSigma(a, b));
   if (!fitLine(3.0 * sigma, &a, &b)) return out(t_s);
-  for (size_t i = 0; i < n; ++i) residuals_[i] = std::abs(frames_[i].t - (a + b * frames_[i].k));
-  std::nth_element(residuals_, residuals_ + n / 2, residuals_ + n);
-  const double jitter = 1.4826 * residuals_[n / 2];
+  const double jitter = robustSigma(a, b);
 
   // A real change of the camera's timing (another frame rate, a restarted driver) leaves a run of frames off the
   // line on one side: start the clock again from this frame. A single far stamp is a long delay: the line's time.

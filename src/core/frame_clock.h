@@ -37,16 +37,19 @@ class FrameClock {
 
  private:
   struct Frame {
-    double k = 0.0;  // frame count from the window's oldest frame
+    double k = 0.0;  // frame count (from the oldest frame until a line is accepted, then from the line)
     double t = 0.0;  // stamp less the first stamp, s
   };
   /// Starts the clock again at the frame stamped t_s (the times given out stay in order); returns t_s.
   double restartAt(double t_s);
   /// Least-squares line over the frames with weight (|residual| <= limit, all when limit < 0): t = a + b k.
   bool fitLine(double limit, double* a, double* b) const;
+  /// Robust 1-sigma of the frames about the line t = a + b k: 1.4826 times the median absolute residual.
+  double robustSigma(double a, double b);
+
+  static constexpr int kMaxWindow = 128;
 
   Ring<Frame> frames_;
-  int window_;
   double t0_ = 0.0;        // first stamp of the clock, s (times are kept relative to it)
   double period_s_ = 0.0;  // the frame period of the last accepted line, s (0: none yet)
   double line_a_ = 0.0;    // that line's time at count 0, s (relative to t0_)
@@ -55,7 +58,7 @@ class FrameClock {
   double last_delay_s_ = 0.0;
   double jitter_s_ = 0.0;
   bool fitted_ = false;
-  double residuals_[128];  // scratch of the robust scale (window <= 128)
+  double residuals_[kMaxWindow];  // scratch of the medians
 };
 
 }  // namespace internal

@@ -78,7 +78,9 @@ TEST(FrameClock, OneLongDelayTakesTheLinesTime) {
   FrameClock clock(64);
   for (size_t i = 0; i < f.stamp.size(); ++i) {
     const double out = clock.frameTime(f.stamp[i]);
-    if (i >= 100) EXPECT_NEAR(out - f.capture[i], 0.0008, 0.0015) << i;
+    if (i >= 100) {
+      EXPECT_NEAR(out - f.capture[i], 0.0008, 0.0015) << i;
+    }
   }
 }
 
