@@ -500,6 +500,51 @@ TEST_F(RealismSim, MainsFlickerBandsTheRowsOfARollingShutter) {
   EXPECT_GT(mean_hi - mean_lo, 0.15);
 }
 
+// A webcam's image processor (--gamma, --jpeg-quality): the gamma encodes each grey level as 255 (s / 255)^(1/G),
+// and the JPEG round trip changes the image by a fraction of its contrast.
+TEST_F(RealismSim, GammaAndJpegAreAWebcamsEncoding) {
+  SimulationOptions o = tinyOptions((dir_->path() / "linear").string());
+  o.sensor.noise = false;
+  const BagImages linear = readBag(runSimulation(o, nullptr).bag_path);
+  SimulationOptions g = o;
+  g.output_dir = (dir_->path() / "gamma").string();
+  g.sensor.gamma = 2.2;
+  const BagImages encoded = readBag(runSimulation(g, nullptr).bag_path);
+  SimulationOptions q = o;
+  q.output_dir = (dir_->path() / "jpeg").string();
+  q.jpeg_quality = 75;
+  const BagImages jpeg = readBag(runSimulation(q, nullptr).bag_path);
+  ASSERT_GT(linear.data.size(), 20u);
+  ASSERT_EQ(encoded.data.size(), linear.data.size());
+  ASSERT_EQ(jpeg.data.size(), linear.data.size());
+  EXPECT_EQ(encoded.stamps_ns, linear.stamps_ns);
+  EXPECT_EQ(jpeg.stamps_ns, linear.stamps_ns);
+  double abs_change = 0.0, abs_contrast = 0.0;
+  std::size_t n = 0, changed = 0;
+  for (std::size_t i = 0; i < linear.data.size(); ++i) {
+    ASSERT_EQ(encoded.data[i].size(), linear.data[i].size());
+    ASSERT_EQ(jpeg.data[i].size(), linear.data[i].size());
+    const double mean = meanOf(linear.data[i]);
+    for (std::size_t k = 0; k < linear.data[i].size(); ++k) {
+      // The linear image is the signal rounded: the encoded one is its curve within half a grey level of input.
+      const double s = linear.data[i][k];
+      const double lo = 255.0 * std::pow(std::max(s - 0.5, 0.0) / 255.0, 1.0 / 2.2);
+      const double hi = 255.0 * std::pow(std::min(s + 0.5, 255.0) / 255.0, 1.0 / 2.2);
+      EXPECT_GE(encoded.data[i][k], std::floor(lo));
+      EXPECT_LE(encoded.data[i][k], std::ceil(hi) + 1.0);
+      const double d = std::abs(static_cast<double>(jpeg.data[i][k]) - s);
+      abs_contrast += std::abs(s - mean);
+      abs_change += d;
+      changed += d >= 2.0;
+      ++n;
+    }
+  }
+  EXPECT_GT(meanOf(encoded.data[0]), meanOf(linear.data[0]) + 20.0);  // mid-greys brightened
+  EXPECT_GT(changed, n / 50) << "the JPEG round trip changes the images";
+  EXPECT_LT(abs_change, 0.3 * abs_contrast) << "by a fraction of the image's own contrast";
+  EXPECT_NEAR(meanOf(jpeg.data[0]), meanOf(linear.data[0]), 1.5);
+}
+
 TEST_F(RealismSim, RealisticPresetRunsAndRecordsItsValues) {
   SimulationOptions o = tinyOptions((dir_->path() / "realistic").string());
   std::string err;

@@ -31,6 +31,9 @@ struct SensorOptions {
   /// Black level (pedestal, grey levels) added to the signal after the gain: a gain change (auto-exposure) then
   /// changes the image affinely, gain x signal + black level, not by a pure factor. 0: none.
   double black_level_dn = 0.0;
+  /// Camera response (the gamma encoding of webcams' image processors): the signal s (grey levels, noise and
+  /// black level included) is written as 255 (s / 255)^(1 / gamma). 1: linear (machine-vision cameras).
+  double gamma = 1.0;
   bool noise = true;
   /// Camera-fixed patterns (not owned, width x height of the renderer, or null): the signal of pixel i is
   /// gain ((1 - v r^2) fixed_gain[i] radiance[i] + fixed_add[i]) before noise (shadow, projector dots, lens dirt).

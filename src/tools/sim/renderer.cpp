@@ -532,6 +532,8 @@ void Renderer::sensorRows(const float* radiance, double gain, const SensorOption
   const float read2 = static_cast<float>(opt.read_noise_dn * opt.read_noise_dn);
   const float shot = static_cast<float>(opt.shot_noise_dn);
   const float black = static_cast<float>(opt.black_level_dn);
+  const bool encode = opt.gamma != 1.0;
+  const float inv_gamma = static_cast<float>(1.0 / opt.gamma);
   for (int v = row0; v < row1; ++v) {
     const std::size_t off = mix(noise_seed * 1000003ull + static_cast<std::uint64_t>(v)) % (kNoiseTableSize - width_);
     const float* nz = &noise_table_[off];
@@ -546,7 +548,9 @@ void Renderer::sensorRows(const float* radiance, double gain, const SensorOption
       if (fg) s *= fg[u];
       if (fa) s += gv * fa[u];
       if (opt.noise) s += nz[u] * std::sqrt(read2 + shot * std::max(s, 0.0f));
-      row[u] = static_cast<unsigned char>(std::clamp(s + black + 0.5f, 0.0f, 255.0f));
+      s = std::clamp(s + black, 0.0f, 255.0f);
+      if (encode) s = 255.0f * std::pow(s * (1.0f / 255.0f), inv_gamma);
+      row[u] = static_cast<unsigned char>(std::min(s + 0.5f, 255.0f));
     }
   }
 }

@@ -17,6 +17,7 @@
 #include <stdexcept>
 
 #include <opencv2/core/persistence.hpp>
+#include <opencv2/imgcodecs.hpp>
 
 namespace diekf {
 namespace sim {
@@ -88,6 +89,10 @@ std::string simulateUsage() {
         "                           mains); each row integrates its part of the cycle\n"
         "                           (bands that move between images with a rolling shutter)\n"
         "  --mains-flicker-depth A  its modulation depth, 1 + A sin(2 pi F t), 0..1     [0.2]\n"
+        "  --gamma G                camera response: grey = 255 (signal / 255)^(1/G)     [1]\n"
+        "                           (webcams' image processors encode with about 2.2)\n"
+        "  --jpeg-quality Q         images JPEG-compressed at quality Q, 1..100, as      [0]\n"
+        "                           MJPEG webcams deliver them (0: uncompressed)\n"
         "  --no-camera-info         do not write /mynteye/left/camera_info\n"
         "Realistic camera (written to DIR/realism.yaml; rendering and IMU use the true camera):\n"
         "  --realism clean|realistic  preset of the options below (explicit ones win)   [clean]\n"
@@ -194,6 +199,8 @@ ParseResult parseSimulateArgs(const std::vector<std::string>& args_in, Simulatio
       {"--stamp-jitter-ms", {&opt->stamp_jitter_ms, 0, 50}},
       {"--mains-flicker-hz", {&opt->mains_flicker_hz, 0, 1000}},
       {"--mains-flicker-depth", {&opt->mains_flicker_depth, 0, 1}},
+      {"--gamma", {&opt->sensor.gamma, 0.2, 5}},
+      {"--jpeg-quality", {&opt->jpeg_quality, 0, 100}},
       {"--pose-rate", {&opt->pose_rate_hz, 100, 10000}},
       {"--start-stamp", {&opt->start_stamp_s, 1, 4e9}},
       {"--accel-noise-density", {&opt->imu_noise.accel_noise_density, 0, 10}},
@@ -599,6 +606,7 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
   std::mt19937_64 jitter_rng(opt.seed * 2654435761ull + 99991ull);
   std::normal_distribution<double> jitter_normal(0.0, 1.0);
   std::int64_t last_stamp_ns = std::numeric_limits<std::int64_t>::min();
+  std::vector<unsigned char> jpeg_bytes;
   for (int f = 0; f < n_frames; ++f) {
     const double t = (f + 1) * frame_dt;  // true mid-exposure time of the middle row (s)
     const double delay_s = jitter_s > 0.0 ? jitter_s * std::abs(jitter_normal(jitter_rng)) : 0.0;
@@ -673,6 +681,11 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
           [&](double ts) { return cameraPose(traj.evaluate(ts), cam); }, t, renderer.height(), readout_s, exposure_s,
           n_sub, 1);
       img = renderer.renderBands(bands, plane, tex, gain, sensor, noise_seed, effects);
+    }
+    if (opt.jpeg_quality > 0.0) {
+      const std::vector<int> jpeg_params{cv::IMWRITE_JPEG_QUALITY, static_cast<int>(std::lround(opt.jpeg_quality))};
+      if (!cv::imencode(".jpg", img, jpeg_bytes, jpeg_params)) throw std::runtime_error("JPEG encoding failed");
+      img = cv::imdecode(jpeg_bytes, cv::IMREAD_GRAYSCALE);
     }
     if (patterns && gain > 0.0) mean_radiance = cv::mean(img)[0] / gain;
     if (opt.camera_info) bag.writeCameraInfo(stamp, written, static_cast<std::uint32_t>(f));
