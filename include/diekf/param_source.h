@@ -84,7 +84,9 @@ void loadEstimatorParams(const ParamSource& source, EstimatorParams* params, con
 /// Every key loadEstimatorParams reads, in table order (one per field of EstimatorParams).
 std::vector<std::string> estimatorParamKeys();
 
-/// Noise densities and rate from a Kalibr IMU YAML (imu0 or top-level keys). Throws naming file and key.
+/// Noise densities and rate from a Kalibr IMU YAML (imu0 or top-level keys). Throws naming file and key. The
+/// decimation factor is re-derived for the file's rate so that the prediction keeps the rate `imu` had
+/// (input_rate_hz / decimation_factor: 100 Hz by default).
 void loadKalibrImuYaml(const std::string& path, ImuParams* imu);
 
 }  // namespace diekf

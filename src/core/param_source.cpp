@@ -657,6 +657,10 @@ void loadKalibrImuYaml(const std::string& path, ImuParams* imu) {
   out.gyro_noise_density = read("gyroscope_noise_density");
   out.gyro_random_walk = read("gyroscope_random_walk");
   out.input_rate_hz = read("update_rate");
+  // The prediction keeps its rate (imu/input_rate_hz / imu/decimation_factor as configured, 100 Hz by default):
+  // an IMU at 200 Hz is decimated by 2, not by the 5 meant for 500 Hz (which would predict at 40 Hz).
+  const double prediction_hz = imu->input_rate_hz / std::max(1, imu->decimation_factor);
+  out.decimation_factor = std::max(1, static_cast<int>(std::lround(out.input_rate_hz / prediction_hz)));
   *imu = out;
 }
 

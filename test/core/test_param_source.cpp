@@ -331,7 +331,29 @@ TEST(KalibrImu, SampleFileParses) {
   EXPECT_EQ(imu.gyro_noise_density, 1.7e-3);
   EXPECT_EQ(imu.gyro_random_walk, 2.0e-5);
   EXPECT_EQ(imu.input_rate_hz, 500.0);
+  EXPECT_EQ(imu.decimation_factor, 5);
   EXPECT_EQ(imu.lowpass_cutoff_hz, 33.0);  // not an IMU-file key: untouched
+}
+
+// The file's rate changes the decimation, not the prediction's rate: 100 Hz from a 200, 500 or 1000 Hz IMU (at
+// 200 Hz the configured factor of 5 would predict at 40 Hz), and a factor set for 500 Hz prediction stays that.
+TEST(KalibrImu, RateKeepsThePredictionRate) {
+  const auto decimationFor = [](const char* rate, int configured_factor) {
+    TempYaml f("imu_rate",
+               std::string("accelerometer_noise_density: 0.03\naccelerometer_random_walk: 0.004\n"
+                           "gyroscope_noise_density: 0.002\ngyroscope_random_walk: 3.0e-5\nupdate_rate: ") +
+                   rate + "\n");
+    ImuParams imu;
+    imu.decimation_factor = configured_factor;
+    loadKalibrImuYaml(f.path(), &imu);
+    return imu.decimation_factor;
+  };
+  EXPECT_EQ(decimationFor("200", 5), 2);
+  EXPECT_EQ(decimationFor("500", 5), 5);
+  EXPECT_EQ(decimationFor("1000", 5), 10);
+  EXPECT_EQ(decimationFor("100", 5), 1);
+  EXPECT_EQ(decimationFor("50", 5), 1);  // never below one
+  EXPECT_EQ(decimationFor("200", 1), 1);  // 500 Hz prediction asked for: every sample of the 200 Hz IMU
 }
 
 TEST(KalibrImu, TopLevelKeysAndErrors) {

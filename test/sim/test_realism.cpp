@@ -545,6 +545,37 @@ TEST_F(RealismSim, GammaAndJpegAreAWebcamsEncoding) {
   EXPECT_NEAR(meanOf(jpeg.data[0]), meanOf(linear.data[0]), 1.5);
 }
 
+// An IMU at another rate (--imu-rate) and its stamps taken on arrival at a host (--imu-stamp-jitter-ms): the
+// stamps keep their order, each is late by |N(0, J)| (mean 0.8 J) or by what keeps the order, and imu.yaml
+// carries the rate.
+TEST_F(RealismSim, ImuRateAndArrivalStampsOfAHostReadIMU) {
+  SimulationOptions o = tinyOptions((dir_->path() / "imu200").string());
+  o.imu_noise.rate_hz = 200.0;
+  const BagImages exact = readBag(runSimulation(o, nullptr).bag_path);
+  SimulationOptions j = o;
+  j.output_dir = (dir_->path() / "imu200_jitter").string();
+  j.imu_stamp_jitter_ms = 1.0;
+  const BagImages late = readBag(runSimulation(j, nullptr).bag_path);
+  const YAML::Node imu_yaml = YAML::LoadFile((dir_->path() / "imu200" / "imu.yaml").string());
+  EXPECT_DOUBLE_EQ(imu_yaml["update_rate"].as<double>(), 200.0);
+  ASSERT_GT(exact.imu_ns.size(), 250u);
+  ASSERT_EQ(late.imu_ns.size(), exact.imu_ns.size());
+  std::vector<std::int64_t> sorted_exact = exact.imu_ns, sorted_late = late.imu_ns;
+  std::sort(sorted_exact.begin(), sorted_exact.end());
+  std::sort(sorted_late.begin(), sorted_late.end());
+  for (std::size_t i = 1; i < sorted_exact.size(); ++i) EXPECT_EQ(sorted_exact[i] - sorted_exact[i - 1], 5000000);
+  double delay_sum = 0.0;
+  for (std::size_t i = 0; i < sorted_late.size(); ++i) {
+    const std::int64_t delay = sorted_late[i] - sorted_exact[i];
+    EXPECT_GE(delay, 0);
+    EXPECT_LT(delay, 6000000);
+    if (i > 0) EXPECT_GE(sorted_late[i] - sorted_late[i - 1], 50000);
+    delay_sum += delay * 1e-6;  // ms
+  }
+  EXPECT_NEAR(delay_sum / sorted_late.size(), 0.8, 0.15);  // E|N(0, 1 ms)| = 0.80 ms
+  EXPECT_EQ(late.stamps_ns, exact.stamps_ns);  // the images' stamps stay exact
+}
+
 TEST_F(RealismSim, RealisticPresetRunsAndRecordsItsValues) {
   SimulationOptions o = tinyOptions((dir_->path() / "realistic").string());
   std::string err;

@@ -43,6 +43,9 @@ struct SimulationOptions {
   /// Image stamps taken at arrival on a host (USB cameras): each stamp is delayed by |N(0, J)| more, ms (0: the
   /// capture time plus the time offset exactly). The stamps stay in order, at least 0.5 ms apart.
   double stamp_jitter_ms = 0.0;
+  /// IMU stamps taken at arrival on a host (an IMU read over USB or a serial link): each stamp is delayed by
+  /// |N(0, J)| more, ms (0: the sample times exactly). In order, at least 0.05 ms apart.
+  double imu_stamp_jitter_ms = 0.0;
   /// Mains-powered lighting whose brightness is modulated at this frequency (twice the mains frequency: 100 or
   /// 120 Hz); with a rolling shutter each row integrates its own part of the cycle: horizontal bands that move
   /// from one image to the next. 0: steady light.

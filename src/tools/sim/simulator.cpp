@@ -146,6 +146,9 @@ std::string simulateUsage() {
         "  --no-vibration           no propeller vibration (on by default)\n"
         "  --no-distortion          a pinhole camera (the MYNT EYE's lens distortion off)\n"
         "  --no-imu-noise           exact IMU readings (no noise, bias, vibration)\n"
+        "  --imu-rate HZ            IMU sample rate (imu.yaml's update_rate)             [500]\n"
+        "  --imu-stamp-jitter-ms J  IMU stamps taken on arrival at a host: each delayed [0]\n"
+        "                           by |N(0, J)| ms more (in order, 0.05 ms apart at least)\n"
         "  --accel-noise-density X  m/s^2/sqrt(Hz)                                      [2e-3]\n"
         "  --accel-random-walk X    m/s^3/sqrt(Hz)                                      [4e-4]\n"
         "  --gyro-noise-density X   rad/s/sqrt(Hz)                                      [1.7e-4]\n"
@@ -207,6 +210,8 @@ ParseResult parseSimulateArgs(const std::vector<std::string>& args_in, Simulatio
       {"--accel-random-walk", {&opt->imu_noise.accel_random_walk, 0, 10}},
       {"--gyro-noise-density", {&opt->imu_noise.gyro_noise_density, 0, 10}},
       {"--gyro-random-walk", {&opt->imu_noise.gyro_random_walk, 0, 10}},
+      {"--imu-rate", {&opt->imu_noise.rate_hz, 50, 2000}},
+      {"--imu-stamp-jitter-ms", {&opt->imu_stamp_jitter_ms, 0, 20}},
       {"--rolling-shutter-ms", {&opt->realism.rolling_shutter_ms, 0, 100}},
       {"--time-offset-ms", {&opt->realism.time_offset_ms, -100, 100}},
       {"--intrinsics-error", {&opt->realism.intrinsics_error_pct, -10, 10}},
@@ -571,6 +576,11 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
   const double pose_dt = 1.0 / opt.pose_rate_hz;
   std::size_t next_imu = 0, next_pose_idx = 0;
   std::uint32_t imu_seq = 0;
+  // Arrival delays of the IMU stamps: their own generator (the other draws stay as they were).
+  const double imu_jitter_s = opt.imu_stamp_jitter_ms * 1e-3;  // 1-sigma of the arrival delay, s
+  std::mt19937_64 imu_jitter_rng(opt.seed * 40503ull + 7877ull);
+  std::normal_distribution<double> imu_jitter_normal(0.0, 1.0);
+  std::int64_t last_imu_stamp_ns = std::numeric_limits<std::int64_t>::min();
   // Writes IMU and pose messages with t <= t_until, in stamp order.
   const auto flushUntil = [&](double t_until) {
     while (true) {
@@ -580,7 +590,14 @@ SimulationSummary runSimulation(const SimulationOptions& opt, std::ostream* prog
       if (t_next > t_until + 1e-12 || t_next >= 1e300) break;
       if (t_imu <= t_pose) {
         const ImuSample& s = imu.samples[next_imu++];
-        bag.writeImu(clock.toNs(s.t_s), s.accel_mps2, s.gyro_radps, imu_seq++);
+        std::int64_t stamp_ns = clock.toNs(s.t_s);
+        if (imu_jitter_s > 0.0) {
+          stamp_ns += std::llround(imu_jitter_s * std::abs(imu_jitter_normal(imu_jitter_rng)) * 1e9);
+          if (last_imu_stamp_ns != std::numeric_limits<std::int64_t>::min())
+            stamp_ns = std::max(stamp_ns, last_imu_stamp_ns + 50000);
+          last_imu_stamp_ns = stamp_ns;
+        }
+        bag.writeImu(stamp_ns, s.accel_mps2, s.gyro_radps, imu_seq++);
       } else {
         const KinematicState k = traj.evaluate(t_pose);
         bag.writePose(clock.toNs(t_pose), k.R_WI, k.p_W, static_cast<std::uint32_t>(next_pose_idx));
