@@ -21,6 +21,10 @@
 
 namespace diekf {
 
+/// The low-pass order the preprocessing uses for `p`: `aliased_lowpass_order` (if higher) when the IMU rate is
+/// below twice `max_vibration_hz`, where vibration aliases into the low band; else `lowpass_order` (0: off).
+int effectiveLowpassOrder(const ImuParams& p);
+
 class ImuPreprocessor {
  public:
   /// Throws std::invalid_argument on an unusable configuration (rate <= 0, cutoff outside (0, rate/2),

@@ -48,6 +48,12 @@ struct ImuParams {
   double input_rate_hz = 500.0;                 ///< nominal raw IMU rate, Hz
   double lowpass_cutoff_hz = 20.0;              ///< Butterworth cutoff, Hz
   int lowpass_order = 2;                        ///< Butterworth order (even, 2..8; 0 disables filtering)
+  /// Highest propeller vibration frequency expected, Hz (small drones: rotors at 100-200 Hz). An IMU sampling
+  /// below twice it folds the vibration into 0..input_rate_hz/2, where `lowpass_order` attenuates it too little.
+  double max_vibration_hz = 200.0;
+  /// Butterworth order (even, 0..8) used instead of `lowpass_order`, if higher, when input_rate_hz is below
+  /// 2 max_vibration_hz (the MYNT EYE S's default 200 Hz IMU); 0: always `lowpass_order`.
+  int aliased_lowpass_order = 4;
   int decimation_factor = 5;                    ///< keep every n-th filtered sample (500 Hz -> 100 Hz)
   bool compensate_filter_delay = true;          ///< shift output stamps back by the filter's group delay
   bool lever_arm_compensation = true;           ///< add w x (w x r) for the IMU-camera translation

@@ -8,6 +8,12 @@
 
 namespace diekf {
 
+int effectiveLowpassOrder(const ImuParams& p) {
+  if (p.lowpass_order <= 0) return p.lowpass_order;
+  const bool aliased = p.input_rate_hz < 2.0 * p.max_vibration_hz;
+  return aliased ? std::max(p.lowpass_order, p.aliased_lowpass_order) : p.lowpass_order;
+}
+
 ImuPreprocessor::ImuPreprocessor(const Eigen::Isometry3d& T_cam_imu, const ImuParams& params)
     : params_(params) {
   if (!(params.input_rate_hz > 0.0)) {
@@ -18,10 +24,13 @@ ImuPreprocessor::ImuPreprocessor(const Eigen::Isometry3d& T_cam_imu, const ImuPa
     throw std::invalid_argument("ImuPreprocessor: decimation_factor must be >= 1, got " +
                                 std::to_string(params.decimation_factor));
   }
-  if (params.lowpass_order < 0) {
-    throw std::invalid_argument("ImuPreprocessor: lowpass_order must be >= 0, got " +
-                                std::to_string(params.lowpass_order));
+  if (params.lowpass_order < 0 || params.aliased_lowpass_order < 0) {
+    throw std::invalid_argument("ImuPreprocessor: lowpass_order and aliased_lowpass_order must be >= 0, got " +
+                                std::to_string(params.lowpass_order) + " and " +
+                                std::to_string(params.aliased_lowpass_order));
   }
+  // Vibration the IMU's rate folds into the low band gets the steeper filter (docs/algorithm.md section 2).
+  params_.lowpass_order = effectiveLowpassOrder(params);
   const double fs = params.input_rate_hz;  // Hz
   if (params.lowpass_order > 0 && !(params.lowpass_cutoff_hz > 0.0 && params.lowpass_cutoff_hz < 0.5 * fs)) {
     throw std::invalid_argument("ImuPreprocessor: lowpass_cutoff_hz must be in (0, input_rate_hz/2), got " +
@@ -36,7 +45,7 @@ ImuPreprocessor::ImuPreprocessor(const Eigen::Isometry3d& T_cam_imu, const ImuPa
   // Butterworth low-pass: analog prototype sections s'^2 + 2 sin(theta_k) s' + 1 (theta_k = (2k+1) pi / (2N)),
   // plus s' + 1 for odd N, with s' = s / Omega_c. Bilinear transform with the cutoff prewarped:
   // s' = (1/K) (1 - z^-1) / (1 + z^-1), K = tan(pi fc / fs), so the digital -3 dB point is exactly fc.
-  const int order = params.lowpass_order;
+  const int order = params_.lowpass_order;
   if (order > 0) {
     const double K = std::tan(M_PI * params.lowpass_cutoff_hz / fs);
     const double K2 = K * K;

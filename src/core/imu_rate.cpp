@@ -5,6 +5,8 @@
 #include <sstream>
 #include <stdexcept>
 
+#include "diekf/imu_filter.h"
+
 namespace diekf {
 
 RateMeter::RateMeter(double window_s, int min_intervals) : window_s_(window_s), min_intervals_(min_intervals) {
@@ -75,7 +77,7 @@ ImuParams designImuPreprocessing(const ImuParams& configured, double measured_ra
     }
   }
   os << "IMU at " << measured_rate_hz << " Hz (measured; imu/input_rate_hz " << configured.input_rate_hz
-     << " Hz): order-" << p.lowpass_order << " low-pass at " << fc << " Hz, decimation " << p.decimation_factor
+     << " Hz): order-" << effectiveLowpassOrder(p) << " low-pass at " << fc << " Hz, decimation " << p.decimation_factor
      << " -> prediction at " << prediction_hz << " Hz";
   if (configured.lowpass_order == 0 && p.decimation_factor > 1) {
     os << " (low-pass off: vibration above " << 0.5 * prediction_hz << " Hz aliases)";
@@ -96,7 +98,8 @@ ImuParams imuPreprocessingForRecording(const ImuParams& configured, double measu
   }
   if (std::abs(measured_rate_hz / configured.input_rate_hz - 1.0) <= tolerance) {
     os << "IMU at " << measured_rate_hz << " Hz (measured), as configured (imu/input_rate_hz "
-       << configured.input_rate_hz << " Hz, decimation " << configured.decimation_factor << ")";
+       << configured.input_rate_hz << " Hz, order-" << effectiveLowpassOrder(configured) << " low-pass at "
+       << configured.lowpass_cutoff_hz << " Hz, decimation " << configured.decimation_factor << ")";
     if (summary) *summary = os.str();
     return configured;
   }

@@ -310,6 +310,8 @@ const std::vector<Entry>& table() {
     t.push_back(real("imu/input_rate_hz", DIEKF_FIELD(double, imu.input_rate_hz), positive(1e5)));
     t.push_back(real("imu/lowpass_cutoff_hz", DIEKF_FIELD(double, imu.lowpass_cutoff_hz), positive()));
     t.push_back(integer("imu/lowpass_order", DIEKF_FIELD(int, imu.lowpass_order), between(0, 8)));
+    t.push_back(real("imu/max_vibration_hz", DIEKF_FIELD(double, imu.max_vibration_hz), positive(1e5)));
+    t.push_back(integer("imu/aliased_lowpass_order", DIEKF_FIELD(int, imu.aliased_lowpass_order), between(0, 8)));
     t.push_back(integer("imu/decimation_factor", DIEKF_FIELD(int, imu.decimation_factor), between(1, 1000)));
     t.push_back(flag("imu/compensate_filter_delay", DIEKF_FIELD(bool, imu.compensate_filter_delay)));
     t.push_back(flag("imu/lever_arm_compensation", DIEKF_FIELD(bool, imu.lever_arm_compensation)));
@@ -511,6 +513,10 @@ void checkConsistency(const ParamSource& s, const EstimatorParams& p) {
   if (imu.lowpass_order % 2 != 0) {
     failKey(s.origin(), "imu/lowpass_order",
             "value " + std::to_string(imu.lowpass_order) + " must be even (0 disables the filter)");
+  }
+  if (imu.aliased_lowpass_order % 2 != 0) {
+    failKey(s.origin(), "imu/aliased_lowpass_order",
+            "value " + std::to_string(imu.aliased_lowpass_order) + " must be even (0: always imu/lowpass_order)");
   }
   if (imu.lowpass_order > 0 && !(imu.lowpass_cutoff_hz < 0.5 * imu.input_rate_hz)) {
     failKey(s.origin(), blame("imu/lowpass_cutoff_hz", "imu/input_rate_hz"),

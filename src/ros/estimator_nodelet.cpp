@@ -14,6 +14,7 @@
 
 #include "diekf/PlanarState.h"
 #include "diekf/fixed_pattern.h"
+#include "diekf/imu_filter.h"
 #include "diekf/param_source.h"
 #include "diekf/ros/camera_info_calibration.h"
 #include "diekf/ros/conversions.h"
@@ -83,7 +84,8 @@ void EstimatorNodelet::onInit() {
   }
   {
     std::ostringstream os;
-    os << "IMU at imu/input_rate_hz " << params_.imu.input_rate_hz << " Hz (not measured): low-pass at "
+    os << "IMU at imu/input_rate_hz " << params_.imu.input_rate_hz << " Hz (not measured): order-"
+       << diekf::effectiveLowpassOrder(params_.imu) << " low-pass at "
        << params_.imu.lowpass_cutoff_hz << " Hz, decimation " << params_.imu.decimation_factor;
     imu_design_ = os.str();
   }
