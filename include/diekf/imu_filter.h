@@ -14,10 +14,12 @@
 //   4. stamp = raw stamp - delay_s() when `compensate_filter_delay` (the filter's group delay at 0 Hz).
 #pragma once
 
+#include <optional>
 #include <vector>
 
 #include "diekf/camera_model.h"
 #include "diekf/params.h"
+#include "diekf/vibration_notch.h"
 
 namespace diekf {
 
@@ -38,6 +40,8 @@ class ImuPreprocessor {
   void reset();
   /// Low-frequency group delay of the filter, s (subtracted from output stamps when compensation is on).
   double delay_s() const { return delay_s_; }
+  /// The vibration notches (imu/aliased_notch at a folding rate), or null.
+  const VibrationNotch* notch() const { return notch_ ? &*notch_ : nullptr; }
   /// Number of second-order (or, for odd orders, one first-order) sections of the designed filter.
   int numSections() const { return static_cast<int>(sections_.size()); }
   /// Magnitude of the designed filter's frequency response at f_hz (input-rate design), for diagnostics.
@@ -68,6 +72,7 @@ class ImuPreprocessor {
   std::vector<Biquad> sections_;
   std::vector<BiquadState> states_;
   double delay_s_ = 0.0;
+  std::optional<VibrationNotch> notch_;  // before the low-pass, at rates that fold the vibration
   bool primed_ = false;
   Vec6 prime_sum_ = Vec6::Zero();  // sum of the first samples (rotated into C), before the filter starts
   int prime_count_ = 0;

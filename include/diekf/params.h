@@ -54,6 +54,9 @@ struct ImuParams {
   /// Butterworth order (even, 0..8) used instead of `lowpass_order`, if higher, when input_rate_hz is below
   /// 2 max_vibration_hz (the MYNT EYE S's default 200 Hz IMU); 0: always `lowpass_order`.
   int aliased_lowpass_order = 4;
+  /// At those rates also find the folded vibration tones in the stream's spectrum and notch them out before the
+  /// low-pass (VibrationNotch).
+  bool aliased_notch = true;
   int decimation_factor = 5;                    ///< keep every n-th filtered sample (500 Hz -> 100 Hz)
   bool compensate_filter_delay = true;          ///< shift output stamps back by the filter's group delay
   bool lever_arm_compensation = true;           ///< add w x (w x r) for the IMU-camera translation

@@ -79,6 +79,16 @@ ImuPreprocessor::ImuPreprocessor(const Eigen::Isometry3d& T_cam_imu, const ImuPa
     delay_samples += (s.b1 + 2.0 * s.b2) / (s.b0 + s.b1 + s.b2) - (s.a1 + 2.0 * s.a2) / (1.0 + s.a1 + s.a2);
   }
   delay_s_ = delay_samples / fs;
+  // Folded vibration tones notched before the low-pass: found in a spectrum of about one second of samples
+  // (renewed every eighth of it, to follow the rotors' speed), from the cutoff up (below it lies the motion's band).
+  if (order > 0 && params.aliased_notch && fs < 2.0 * params.max_vibration_hz) {
+    VibrationNotch::Options o;
+    o.min_hz = params.lowpass_cutoff_hz;
+    o.window = 64;
+    while (o.window < fs) o.window *= 2;
+    o.hop = o.window / 8;
+    notch_.emplace(fs, o);
+  }
   prime_samples_ = order > 0 && params.prime_from_mean
                        ? std::max(1, static_cast<int>(std::lround(fs / params.lowpass_cutoff_hz)))
                        : 1;
@@ -146,6 +156,7 @@ void ImuPreprocessor::reset() {
     st.z2.setZero();
   }
   last_gyro_C_.setZero();
+  if (notch_) notch_->reset();
 }
 
 void ImuPreprocessor::prime(const Vec6& in) {
@@ -179,6 +190,7 @@ bool ImuPreprocessor::push(const ImuSample& raw_imu, ImuSample* out) {
   Vec6 in;
   in.head<3>() = R_CI_ * raw_imu.accel_mps2;  // specific force at the IMU, in C, m/s^2
   in.tail<3>() = R_CI_ * raw_imu.gyro_radps;  // body rate in C, rad/s
+  if (notch_) in = notch_->apply(in);
   if (!primed_) {
     // imu.prime_from_mean: start from the mean of the first samples over one period of the cutoff, not from one
     // raw sample, which carries the vibration's instantaneous value (m/s^2 on a flying drone): a filter primed
@@ -207,7 +219,8 @@ bool ImuPreprocessor::push(const ImuSample& raw_imu, ImuSample* out) {
     out->accel_mps2 += w_dot.cross(r) + w.cross(w.cross(r));
   }
   out->gyro_radps = w;
-  out->t_s = params_.compensate_filter_delay ? raw_imu.t_s - delay_s_ : raw_imu.t_s;
+  const double delay_s = delay_s_ + (notch_ ? notch_->delaySamples() / params_.input_rate_hz : 0.0);
+  out->t_s = params_.compensate_filter_delay ? raw_imu.t_s - delay_s : raw_imu.t_s;
   return true;
 }
 

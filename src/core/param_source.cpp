@@ -312,6 +312,7 @@ const std::vector<Entry>& table() {
     t.push_back(integer("imu/lowpass_order", DIEKF_FIELD(int, imu.lowpass_order), between(0, 8)));
     t.push_back(real("imu/max_vibration_hz", DIEKF_FIELD(double, imu.max_vibration_hz), positive(1e5)));
     t.push_back(integer("imu/aliased_lowpass_order", DIEKF_FIELD(int, imu.aliased_lowpass_order), between(0, 8)));
+    t.push_back(flag("imu/aliased_notch", DIEKF_FIELD(bool, imu.aliased_notch)));
     t.push_back(integer("imu/decimation_factor", DIEKF_FIELD(int, imu.decimation_factor), between(1, 1000)));
     t.push_back(flag("imu/compensate_filter_delay", DIEKF_FIELD(bool, imu.compensate_filter_delay)));
     t.push_back(flag("imu/lever_arm_compensation", DIEKF_FIELD(bool, imu.lever_arm_compensation)));

@@ -1,0 +1,187 @@
+#include "diekf/vibration_notch.h"
+
+#include <algorithm>
+#include <cmath>
+#include <stdexcept>
+#include <string>
+
+namespace diekf {
+
+VibrationNotch::VibrationNotch(double rate_hz, const Options& options) : rate_hz_(rate_hz), opt_(options) {
+  if (!(rate_hz > 0.0) || !std::isfinite(rate_hz))
+    throw std::invalid_argument("VibrationNotch: rate must be > 0, got " + std::to_string(rate_hz));
+  if (!(opt_.min_hz > 0.0 && opt_.min_hz < 0.5 * rate_hz))
+    throw std::invalid_argument("VibrationNotch: min_hz must be in (0, rate / 2), got " + std::to_string(opt_.min_hz));
+  const int N = opt_.window;
+  if (N < 32 || (N & (N - 1)) != 0)
+    throw std::invalid_argument("VibrationNotch: window must be a power of two >= 32, got " + std::to_string(N));
+  if (opt_.hop < 1 || opt_.max_notches < 1 || opt_.max_notches > kMaxNotches || !(opt_.q > 0.0) ||
+      !(opt_.peak_ratio > 1.0))
+    throw std::invalid_argument("VibrationNotch: hop >= 1, max_notches 1..4, q > 0 and peak_ratio > 1 required");
+  ring_.assign(static_cast<size_t>(N), Eigen::Vector3d::Zero());
+  hann_.resize(static_cast<size_t>(N));
+  cos_.resize(static_cast<size_t>(N));
+  sin_.resize(static_cast<size_t>(N));
+  for (int i = 0; i < N; ++i) {
+    hann_[static_cast<size_t>(i)] = 0.5 - 0.5 * std::cos(2.0 * M_PI * i / N);
+    cos_[static_cast<size_t>(i)] = std::cos(2.0 * M_PI * i / N);
+    sin_[static_cast<size_t>(i)] = std::sin(2.0 * M_PI * i / N);
+  }
+  // Bins from min_hz up to one short of Nyquist (each tested against both neighbours).
+  k_lo_ = std::max(2, static_cast<int>(std::ceil(opt_.min_hz * N / rate_hz)));
+  k_hi_ = N / 2 - 2;
+  if (k_hi_ < k_lo_ + 4) throw std::invalid_argument("VibrationNotch: window too short for the band");
+  power_.assign(static_cast<size_t>(N / 2 + 1), 0.0);
+  sorted_.reserve(static_cast<size_t>(k_hi_ - k_lo_ + 1));
+}
+
+void VibrationNotch::reset() {
+  count_ = 0;
+  since_analysis_ = 0;
+  for (Notch& n : notches_) n = Notch();
+}
+
+int VibrationNotch::activeNotches() const {
+  int n = 0;
+  for (const Notch& x : notches_) n += x.active;
+  return n;
+}
+
+double VibrationNotch::frequencyHz(int i) const {
+  for (const Notch& x : notches_) {
+    if (!x.active) continue;
+    if (i-- == 0) return x.f_hz;
+  }
+  return 0.0;
+}
+
+double VibrationNotch::delaySamples() const {
+  // Group delay at 0 Hz of B(z)/A(z): sum n b_n / sum b_n - sum n a_n / sum a_n.
+  double d = 0.0;
+  for (const Notch& n : notches_) {
+    if (!n.active) continue;
+    d += (n.b1 + 2.0 * n.b2) / (n.b0 + n.b1 + n.b2) - (n.a1 + 2.0 * n.a2) / (1.0 + n.a1 + n.a2);
+  }
+  return d;
+}
+
+void VibrationNotch::place(Notch* n, double f_hz, const Vec6& x) {
+  // Second-order notch (zeros on the unit circle at f0, poles inside at the same angle): unit gain at 0 Hz and
+  // Nyquist, -3 dB width f0 / q.
+  const double w0 = 2.0 * M_PI * f_hz / rate_hz_;
+  const double alpha = std::sin(w0) / (2.0 * opt_.q);
+  const double c = std::cos(w0);
+  const double a0 = 1.0 + alpha;
+  n->b0 = 1.0 / a0;
+  n->b1 = -2.0 * c / a0;
+  n->b2 = 1.0 / a0;
+  n->a1 = -2.0 * c / a0;
+  n->a2 = (1.0 - alpha) / a0;
+  n->f_hz = f_hz;
+  if (!n->active) {
+    // Start in the steady state of the current input (gain 1 at 0 Hz): no transient from a constant part.
+    n->z1 = x * (1.0 - n->b0);
+    n->z2 = x * (n->b2 - n->a2);
+    n->active = true;
+  }
+}
+
+void VibrationNotch::analyse() {
+  const int N = opt_.window;
+  Eigen::Vector3d mean = Eigen::Vector3d::Zero();
+  for (const Eigen::Vector3d& s : ring_) mean += s;
+  mean /= N;
+  const size_t first = static_cast<size_t>(count_ % N);  // the oldest sample's slot
+  for (int k = k_lo_ - 1; k <= k_hi_ + 1; ++k) {
+    Eigen::Vector3d re = Eigen::Vector3d::Zero(), im = Eigen::Vector3d::Zero();
+    for (int i = 0; i < N; ++i) {
+      const Eigen::Vector3d v = hann_[static_cast<size_t>(i)] * (ring_[(first + static_cast<size_t>(i)) % N] - mean);
+      const size_t t = static_cast<size_t>((static_cast<long>(k) * i) % N);
+      re += cos_[t] * v;
+      im -= sin_[t] * v;
+    }
+    power_[static_cast<size_t>(k)] = re.squaredNorm() + im.squaredNorm();
+  }
+  sorted_.assign(power_.begin() + k_lo_, power_.begin() + k_hi_ + 1);
+  const auto mid = sorted_.begin() + static_cast<long>(sorted_.size() / 2);
+  std::nth_element(sorted_.begin(), mid, sorted_.end());
+  const double floor = *mid;
+
+  // The strongest local maxima above the floor, at least three bins apart (the Hann window's main lobe).
+  std::array<double, kMaxNotches> tone_hz{};
+  std::array<int, kMaxNotches> tone_bin{};
+  int tones = 0;
+  for (int m = 0; m < opt_.max_notches; ++m) {
+    int best = -1;
+    for (int k = k_lo_; k <= k_hi_; ++k) {
+      const double p = power_[static_cast<size_t>(k)];
+      if (!(p > opt_.peak_ratio * floor) || p < power_[static_cast<size_t>(k - 1)] ||
+          p < power_[static_cast<size_t>(k + 1)])
+        continue;
+      bool taken = false;
+      for (int j = 0; j < tones; ++j) taken |= std::abs(k - tone_bin[static_cast<size_t>(j)]) < 3;
+      if (!taken && (best < 0 || p > power_[static_cast<size_t>(best)])) best = k;
+    }
+    if (best < 0) break;
+    // Parabolic interpolation of the log power over the peak's bins.
+    const double l0 = std::log(std::max(power_[static_cast<size_t>(best - 1)], 1e-300));
+    const double l1 = std::log(power_[static_cast<size_t>(best)]);
+    const double l2 = std::log(std::max(power_[static_cast<size_t>(best + 1)], 1e-300));
+    const double den = l0 - 2.0 * l1 + l2;
+    const double delta = den < 0.0 ? std::clamp(0.5 * (l0 - l2) / den, -0.5, 0.5) : 0.0;
+    tone_bin[static_cast<size_t>(tones)] = best;
+    tone_hz[static_cast<size_t>(tones)] = (best + delta) * rate_hz_ / N;
+    ++tones;
+  }
+
+  // Each tone moves the notch already near it, or takes a free one; unmatched notches go.
+  const double bin_hz = rate_hz_ / N;
+  std::array<bool, kMaxNotches> kept{};
+  std::array<bool, kMaxNotches> placed{};
+  for (int j = 0; j < tones; ++j) {
+    for (int i = 0; i < kMaxNotches; ++i) {
+      Notch& n = notches_[static_cast<size_t>(i)];
+      // Within the notch's half width (or two bins): the same tone, moved with the rotors' speed.
+      const double reach_hz = std::max(2.0 * bin_hz, 0.5 * n.f_hz / opt_.q);
+      if (n.active && !kept[static_cast<size_t>(i)] && std::abs(n.f_hz - tone_hz[static_cast<size_t>(j)]) < reach_hz) {
+        place(&n, tone_hz[static_cast<size_t>(j)], last_in_);
+        kept[static_cast<size_t>(i)] = placed[static_cast<size_t>(j)] = true;
+        break;
+      }
+    }
+  }
+  for (int i = 0; i < kMaxNotches; ++i)
+    if (!kept[static_cast<size_t>(i)]) notches_[static_cast<size_t>(i)].active = false;
+  for (int j = 0; j < tones; ++j) {
+    if (placed[static_cast<size_t>(j)]) continue;
+    for (int i = 0; i < kMaxNotches; ++i) {
+      Notch& n = notches_[static_cast<size_t>(i)];
+      if (!n.active) {
+        place(&n, tone_hz[static_cast<size_t>(j)], last_in_);
+        break;
+      }
+    }
+  }
+}
+
+VibrationNotch::Vec6 VibrationNotch::apply(const Vec6& in) {
+  const int N = opt_.window;
+  ring_[static_cast<size_t>(count_ % N)] = in.head<3>();
+  ++count_;
+  if (count_ >= N && ++since_analysis_ >= opt_.hop) {
+    since_analysis_ = 0;
+    analyse();
+  }
+  last_in_ = in;
+  Vec6 x = in;
+  for (Notch& n : notches_) {
+    if (!n.active) continue;
+    const Vec6 y = n.b0 * x + n.z1;
+    n.z1 = n.b1 * x - n.a1 * y + n.z2;
+    n.z2 = n.b2 * x - n.a2 * y;
+    x = y;
+  }
+  return x;
+}
+
+}  // namespace diekf
