@@ -53,12 +53,14 @@ class VibrationNotch {
     Vec6 z1 = Vec6::Zero(), z2 = Vec6::Zero();      // transposed direct form II memory
   };
   void analyse();
+  void fft();  // re_, im_ in place
   void place(Notch* n, double f_hz, const Vec6& x);
 
   double rate_hz_;
   Options opt_;
   std::vector<Eigen::Vector3d> ring_;  // last `window` accelerometer samples
-  std::vector<double> hann_, cos_, sin_, power_, sorted_;
+  std::vector<double> hann_, cos_, sin_, power_, sorted_, re_, im_;
+  std::vector<int> bitrev_;
   int k_lo_ = 1, k_hi_ = 1;  // searched bins [k_lo_, k_hi_]
   long count_ = 0;           // samples seen since the start
   int since_analysis_ = 0;

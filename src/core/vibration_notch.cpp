@@ -32,6 +32,16 @@ VibrationNotch::VibrationNotch(double rate_hz, const Options& options) : rate_hz
   k_hi_ = N / 2 - 2;
   if (k_hi_ < k_lo_ + 4) throw std::invalid_argument("VibrationNotch: window too short for the band");
   power_.assign(static_cast<size_t>(N / 2 + 1), 0.0);
+  re_.assign(static_cast<size_t>(N), 0.0);
+  im_.assign(static_cast<size_t>(N), 0.0);
+  bitrev_.assign(static_cast<size_t>(N), 0);
+  int bits = 0;
+  while ((1 << bits) < N) ++bits;
+  for (int i = 0; i < N; ++i) {
+    int r = 0;
+    for (int b = 0; b < bits; ++b) r |= ((i >> b) & 1) << (bits - 1 - b);
+    bitrev_[static_cast<size_t>(i)] = r;
+  }
   sorted_.reserve(static_cast<size_t>(k_hi_ - k_lo_ + 1));
 }
 
@@ -86,21 +96,50 @@ void VibrationNotch::place(Notch* n, double f_hz, const Vec6& x) {
   }
 }
 
+void VibrationNotch::fft() {
+  // In-place iterative radix-2 FFT of re_/im_ (length N, a power of two): bit-reversed order, then butterflies with
+  // the twiddles exp(-2 pi i k / N) of the tables.
+  const size_t N = re_.size();
+  for (size_t i = 0; i < N; ++i) {
+    const size_t j = static_cast<size_t>(bitrev_[i]);
+    if (j > i) {
+      std::swap(re_[i], re_[j]);
+      std::swap(im_[i], im_[j]);
+    }
+  }
+  for (size_t len = 2; len <= N; len <<= 1) {
+    const size_t half = len / 2, step = N / len;
+    for (size_t start = 0; start < N; start += len) {
+      for (size_t k = 0; k < half; ++k) {
+        const double wr = cos_[k * step], wi = -sin_[k * step];
+        const size_t a = start + k, b = a + half;
+        const double tr = wr * re_[b] - wi * im_[b], ti = wr * im_[b] + wi * re_[b];
+        re_[b] = re_[a] - tr;
+        im_[b] = im_[a] - ti;
+        re_[a] += tr;
+        im_[a] += ti;
+      }
+    }
+  }
+}
+
 void VibrationNotch::analyse() {
   const int N = opt_.window;
   Eigen::Vector3d mean = Eigen::Vector3d::Zero();
   for (const Eigen::Vector3d& s : ring_) mean += s;
   mean /= N;
   const size_t first = static_cast<size_t>(count_ % N);  // the oldest sample's slot
-  for (int k = k_lo_ - 1; k <= k_hi_ + 1; ++k) {
-    Eigen::Vector3d re = Eigen::Vector3d::Zero(), im = Eigen::Vector3d::Zero();
-    for (int i = 0; i < N; ++i) {
-      const Eigen::Vector3d v = hann_[static_cast<size_t>(i)] * (ring_[(first + static_cast<size_t>(i)) % N] - mean);
-      const size_t t = static_cast<size_t>((static_cast<long>(k) * i) % N);
-      re += cos_[t] * v;
-      im -= sin_[t] * v;
+  std::fill(power_.begin(), power_.end(), 0.0);
+  for (int axis = 0; axis < 3; ++axis) {
+    for (size_t i = 0; i < static_cast<size_t>(N); ++i) {
+      re_[i] = hann_[i] * (ring_[(first + i) & static_cast<size_t>(N - 1)](axis) - mean(axis));
+      im_[i] = 0.0;
     }
-    power_[static_cast<size_t>(k)] = re.squaredNorm() + im.squaredNorm();
+    fft();
+    for (int k = k_lo_ - 1; k <= k_hi_ + 1; ++k) {
+      const size_t u = static_cast<size_t>(k);
+      power_[u] += re_[u] * re_[u] + im_[u] * im_[u];
+    }
   }
   sorted_.assign(power_.begin() + k_lo_, power_.begin() + k_hi_ + 1);
   const auto mid = sorted_.begin() + static_cast<long>(sorted_.size() / 2);
@@ -166,7 +205,7 @@ void VibrationNotch::analyse() {
 
 VibrationNotch::Vec6 VibrationNotch::apply(const Vec6& in) {
   const int N = opt_.window;
-  ring_[static_cast<size_t>(count_ % N)] = in.head<3>();
+  ring_[static_cast<size_t>(count_ & (N - 1))] = in.head<3>();
   ++count_;
   if (count_ >= N && ++since_analysis_ >= opt_.hop) {
     since_analysis_ = 0;
