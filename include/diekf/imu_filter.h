@@ -4,14 +4,17 @@
 //
 // Pipeline per raw sample (IMU frame I):
 //   1. rotate: f_C = R_CI f_I, w_C = R_CI w_I (R_CI from T_cam_imu, p_C = R_CI p_I + t_CI);
-//   2. low-pass both 3-vectors with a Butterworth of `lowpass_order` (bilinear transform, prewarped cutoff,
-//      designed for `input_rate_hz`), primed from the first sample so there is no start-up transient;
+//   1b. at rates that fold the propellers' vibration into the low band (vibrationNotchesOn), notch out the folded
+//      tones found in the stream's spectrum (VibrationNotch);
+//   2. low-pass both 3-vectors with a Butterworth of effectiveLowpassOrder() (bilinear transform, prewarped
+//      cutoff, designed for `input_rate_hz`), primed from the first samples so there is no start-up transient;
 //   3. on every `decimation_factor`-th sample (the first one included), emit the filtered values, adding the
 //      lever-arm term to the specific force: f_cam = f_imu + dw/dt x r + w x (w x r), r = -t_CI the vector from
 //      the IMU origin to the camera centre in C, w and dw/dt from the filtered gyro (dw/dt by a backward
 //      difference at the input rate). The linear dw/dt term commutes with the filter; the centripetal term is
 //      evaluated on the filtered rate so that gyro noise is not rectified into an offset;
-//   4. stamp = raw stamp - delay_s() when `compensate_filter_delay` (the filter's group delay at 0 Hz).
+//   4. stamp = raw stamp - delay_s() when `compensate_filter_delay` (the filter's group delay at 0 Hz), and the
+//      active notches' delay at 0 Hz.
 #pragma once
 
 #include <optional>
@@ -26,6 +29,9 @@ namespace diekf {
 /// The low-pass order the preprocessing uses for `p`: `aliased_lowpass_order` (if higher) when the IMU rate is
 /// below twice `max_vibration_hz`, where vibration aliases into the low band; else `lowpass_order` (0: off).
 int effectiveLowpassOrder(const ImuParams& p);
+/// Whether the preprocessing for `p` notches the folded vibration tones: `aliased_notch`, a low-pass, and a rate
+/// below twice `max_vibration_hz`.
+bool vibrationNotchesOn(const ImuParams& p);
 
 class ImuPreprocessor {
  public:

@@ -14,6 +14,10 @@ int effectiveLowpassOrder(const ImuParams& p) {
   return aliased ? std::max(p.lowpass_order, p.aliased_lowpass_order) : p.lowpass_order;
 }
 
+bool vibrationNotchesOn(const ImuParams& p) {
+  return p.aliased_notch && p.lowpass_order > 0 && p.input_rate_hz < 2.0 * p.max_vibration_hz;
+}
+
 ImuPreprocessor::ImuPreprocessor(const Eigen::Isometry3d& T_cam_imu, const ImuParams& params)
     : params_(params) {
   if (!(params.input_rate_hz > 0.0)) {
@@ -29,7 +33,7 @@ ImuPreprocessor::ImuPreprocessor(const Eigen::Isometry3d& T_cam_imu, const ImuPa
                                 std::to_string(params.lowpass_order) + " and " +
                                 std::to_string(params.aliased_lowpass_order));
   }
-  // Vibration the IMU's rate folds into the low band gets the steeper filter (docs/algorithm.md section 2).
+  // Vibration the IMU's rate folds into the low band gets the steeper filter (docs/algorithm.md section 4).
   params_.lowpass_order = effectiveLowpassOrder(params);
   const double fs = params.input_rate_hz;  // Hz
   if (params.lowpass_order > 0 && !(params.lowpass_cutoff_hz > 0.0 && params.lowpass_cutoff_hz < 0.5 * fs)) {
@@ -81,7 +85,7 @@ ImuPreprocessor::ImuPreprocessor(const Eigen::Isometry3d& T_cam_imu, const ImuPa
   delay_s_ = delay_samples / fs;
   // Folded vibration tones notched before the low-pass: found in a spectrum of about one second of samples
   // (renewed every eighth of it, to follow the rotors' speed), from the cutoff up (below it lies the motion's band).
-  if (order > 0 && params.aliased_notch && fs < 2.0 * params.max_vibration_hz) {
+  if (vibrationNotchesOn(params)) {
     VibrationNotch::Options o;
     o.min_hz = params.lowpass_cutoff_hz;
     o.window = 64;

@@ -77,8 +77,9 @@ ImuParams designImuPreprocessing(const ImuParams& configured, double measured_ra
     }
   }
   os << "IMU at " << measured_rate_hz << " Hz (measured; imu/input_rate_hz " << configured.input_rate_hz
-     << " Hz): order-" << effectiveLowpassOrder(p) << " low-pass at " << fc << " Hz, decimation " << p.decimation_factor
-     << " -> prediction at " << prediction_hz << " Hz";
+     << " Hz): " << (vibrationNotchesOn(p) ? "vibration notches, " : "") << "order-" << effectiveLowpassOrder(p)
+     << " low-pass at " << fc << " Hz, decimation " << p.decimation_factor << " -> prediction at " << prediction_hz
+     << " Hz";
   if (configured.lowpass_order == 0 && p.decimation_factor > 1) {
     os << " (low-pass off: vibration above " << 0.5 * prediction_hz << " Hz aliases)";
   }
@@ -98,7 +99,8 @@ ImuParams imuPreprocessingForRecording(const ImuParams& configured, double measu
   }
   if (std::abs(measured_rate_hz / configured.input_rate_hz - 1.0) <= tolerance) {
     os << "IMU at " << measured_rate_hz << " Hz (measured), as configured (imu/input_rate_hz "
-       << configured.input_rate_hz << " Hz, order-" << effectiveLowpassOrder(configured) << " low-pass at "
+       << configured.input_rate_hz << " Hz, " << (vibrationNotchesOn(configured) ? "vibration notches, " : "")
+       << "order-" << effectiveLowpassOrder(configured) << " low-pass at "
        << configured.lowpass_cutoff_hz << " Hz, decimation " << configured.decimation_factor << ")";
     if (summary) *summary = os.str();
     return configured;

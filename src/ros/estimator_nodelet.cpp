@@ -84,7 +84,8 @@ void EstimatorNodelet::onInit() {
   }
   {
     std::ostringstream os;
-    os << "IMU at imu/input_rate_hz " << params_.imu.input_rate_hz << " Hz (not measured): order-"
+    os << "IMU at imu/input_rate_hz " << params_.imu.input_rate_hz << " Hz (not measured): "
+       << (diekf::vibrationNotchesOn(params_.imu) ? "vibration notches, " : "") << "order-"
        << diekf::effectiveLowpassOrder(params_.imu) << " low-pass at "
        << params_.imu.lowpass_cutoff_hz << " Hz, decimation " << params_.imu.decimation_factor;
     imu_design_ = os.str();

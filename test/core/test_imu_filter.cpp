@@ -269,10 +269,13 @@ TEST(ImuFilter, AliasedVibrationGetsTheSteeperOrder) {
   EXPECT_EQ(effectiveLowpassOrder(q), 6);  // never less steep than asked for
   q.lowpass_order = 0;
   EXPECT_EQ(effectiveLowpassOrder(q), 0);  // off stays off
+  EXPECT_TRUE(vibrationNotchesOn(p));
   ImuParams order2 = p;
   order2.aliased_lowpass_order = 0;
   order2.aliased_notch = false;
   EXPECT_EQ(effectiveLowpassOrder(order2), 2);
+  EXPECT_FALSE(vibrationNotchesOn(order2));
+  EXPECT_FALSE(vibrationNotchesOn(defaultParams()));  // 500 Hz
   ImuParams order4 = p;  // without the notches (VibrationNotch)
   order4.aliased_notch = false;
 
