@@ -3,6 +3,7 @@
 // Single-threaded; the caller serialises calls.
 #pragma once
 
+#include <array>
 #include <deque>
 #include <memory>
 #include <string>
@@ -29,6 +30,8 @@ struct FrameResult {
   /// smoothing is off), s: the part of the arrival delay removed.
   double stamp_correction_s = 0.0;
   double stamp_jitter_s = 0.0;       ///< the frame clock's robust 1-sigma of the stamps about its line, s (0: not fitted)
+  /// Centres of the IMU's vibration notches (imu/aliased_notch at a rate that folds the vibration), Hz; 0: none.
+  std::array<double, 2> imu_notch_hz{};
   State state;                       ///< posterior state
   /// Covariance of the posterior state: the filter's, plus, along the scale direction of (alpha, vartheta), the
   /// plane's ambiguity over a scene that is not one plane (relief_sigma; photometric/relief_in_covariance) and the

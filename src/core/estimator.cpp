@@ -458,6 +458,10 @@ struct Estimator::Impl {
     r.stamp_s = img.stamp_s;
     r.stamp_correction_s = img.stamp_correction_s;
     r.stamp_jitter_s = img.stamp_jitter_s;
+    if (const VibrationNotch* notch = imu_pre.notch()) {
+      const int n = std::min(notch->activeNotches(), static_cast<int>(r.imu_notch_hz.size()));
+      for (int i = 0; i < n; ++i) r.imu_notch_hz[static_cast<size_t>(i)] = notch->frequencyHz(i);
+    }
     std::string restart_reason;  // set when the filter restarts at this image
     char msg[kMessageCapacity] = "";  // the result's message, formatted without allocation
 

@@ -833,6 +833,7 @@ void EstimatorNodelet::publishResult(const diekf::FrameResult& r) {
     last_noise_correlation_ = r.noise_correlation;
     last_noise_floor_sigma_ = r.noise_floor_sigma;
     last_stamp_jitter_s_ = r.stamp_jitter_s;
+    last_imu_notch_hz_ = r.imu_notch_hz;
     if (r.gate_inflation > 1.0) ++gated_updates_;
     last_outlier_fraction_ = r.outlier_fraction;
     last_relief_pct_ = 1e2 * r.relief_sigma;
@@ -936,6 +937,13 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
   stat.add("camera driver IR projector", ir_projector_);
   stat.add("IMU rate (Hz, measured; 0 = not measured)", measured_imu_rate_hz_);
   stat.add("IMU preprocessing", imu_design_);
+  {
+    std::ostringstream notches;
+    for (double f : last_imu_notch_hz_)
+      if (f > 0.0) notches << (notches.tellp() > 0 ? ", " : "") << f;
+    stat.add("IMU vibration notches (Hz; folded propeller tones, imu/aliased_notch)",
+             notches.tellp() > 0 ? notches.str() : std::string("none"));
+  }
   stat.add("images skipped while measuring the IMU rate", images_skipped_measuring_);
   stat.add("TF base_link to camera", std::string(toString(camera_tf_plan_.kind)) + ": " + camera_tf_plan_.why);
   stat.add("distance (m)", last_distance_m_);

@@ -337,7 +337,7 @@ int run(const RunnerOptions& o) {
     if (!frames) throw RunError("cannot write " + (out_dir / "frames.csv").string());
     frames << "t,applied,passes,photometric_rms,valid_ratio,nis,noise_sigma,noise_correlation,noise_floor_sigma,nis_scale,gate_inflation,outlier_fraction,time_offset_ms,sigma_time_offset_ms,readout_ms,sigma_readout_ms,focal_scale_pct,sigma_focal_scale_pct,"
               "fixed_pattern_active,fixed_pattern_fraction,fixed_pattern_contrast_share,brightness_gain,brightness_offset,relief_pct,"
-              "dot_removal_px,dot_fill_pct,dot_gain_pct,projector_dot_share,row_banding_pct,row_gains,light_change,stamp_correction_ms,stamp_jitter_ms,status,message\n";
+              "dot_removal_px,dot_fill_pct,dot_gain_pct,projector_dot_share,row_banding_pct,row_gains,light_change,stamp_correction_ms,stamp_jitter_ms,imu_notch1_hz,imu_notch2_hz,status,message\n";
     frames.precision(12);
   }
   std::vector<diekf::eval::EstimateRow> rows;
@@ -367,7 +367,8 @@ int run(const RunnerOptions& o) {
                << result.projector_dot_share << ','
                << 1e2 * result.row_banding << ',' << (result.row_gains ? 1 : 0) << ','
                << (result.light_change ? 1 : 0) << ',' << 1e3 * result.stamp_correction_s << ','
-               << 1e3 * result.stamp_jitter_s << ',' << diekf::toString(result.status) << ',' << msg << '\n';
+               << 1e3 * result.stamp_jitter_s << ',' << result.imu_notch_hz[0] << ',' << result.imu_notch_hz[1] << ','
+               << diekf::toString(result.status) << ',' << msg << '\n';
       }
       if (keep_rows) {
         rows.push_back(toRow(result));

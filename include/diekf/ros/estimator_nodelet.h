@@ -4,6 +4,7 @@
 
 #include <atomic>
 #include <condition_variable>
+#include <array>
 #include <deque>
 #include <memory>
 #include <mutex>
@@ -171,6 +172,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
   double last_nis_ = 0.0, last_noise_sigma_ = 0.0, last_noise_correlation_ = 0.0, last_outlier_fraction_ = 0.0;
   double last_noise_floor_sigma_ = 0.0;  // FrameResult::noise_floor_sigma of the last update
   double last_stamp_jitter_s_ = 0.0;     // FrameResult::stamp_jitter_s of the last image
+  std::array<double, 2> last_imu_notch_hz_{};  // FrameResult::imu_notch_hz of the last image
   double last_relief_pct_ = 0.0;  // FrameResult::relief_sigma of the last applied update, %
   double last_brightness_gain_ = 1.0, last_brightness_offset_ = 0.0;  ///< the pair's (photometric/brightness_model)
   double last_row_banding_pct_ = 0.0;  ///< FrameResult::row_banding, %
