@@ -31,8 +31,10 @@ class VibrationNotch {
     double peak_ratio = 20.0; ///< a tone's power over the band's median power
   };
 
-  /// Throws std::invalid_argument on a rate <= 0, min_hz outside (0, rate / 2) or bad options.
+  /// Throws std::invalid_argument on a rate <= 0, min_hz outside (0, rate / 2) or bad options (bandFits false).
   VibrationNotch(double rate_hz, const Options& options);
+  /// Whether the searched band (min_hz up to Nyquist) holds at least five bins of the window at this rate.
+  static bool bandFits(double rate_hz, const Options& options);
 
   /// One raw sample (specific force, body rate; any frame): the sample with the tones notched out.
   Vec6 apply(const Vec6& in);

@@ -14,8 +14,22 @@ int effectiveLowpassOrder(const ImuParams& p) {
   return aliased ? std::max(p.lowpass_order, p.aliased_lowpass_order) : p.lowpass_order;
 }
 
+namespace {
+// The notches' spectrum: about one second of samples (the power of two at or above the rate), renewed every eighth
+// of it to follow the rotors' speed, searched from the cutoff up (below it lies the motion's band).
+VibrationNotch::Options notchOptions(const ImuParams& p) {
+  VibrationNotch::Options o;
+  o.min_hz = p.lowpass_cutoff_hz;
+  o.window = 64;
+  while (o.window < p.input_rate_hz) o.window *= 2;
+  o.hop = o.window / 8;
+  return o;
+}
+}  // namespace
+
 bool vibrationNotchesOn(const ImuParams& p) {
-  return p.aliased_notch && p.lowpass_order > 0 && p.input_rate_hz < 2.0 * p.max_vibration_hz;
+  return p.aliased_notch && p.lowpass_order > 0 && p.input_rate_hz < 2.0 * p.max_vibration_hz &&
+         VibrationNotch::bandFits(p.input_rate_hz, notchOptions(p));
 }
 
 ImuPreprocessor::ImuPreprocessor(const Eigen::Isometry3d& T_cam_imu, const ImuParams& params)
@@ -83,16 +97,8 @@ ImuPreprocessor::ImuPreprocessor(const Eigen::Isometry3d& T_cam_imu, const ImuPa
     delay_samples += (s.b1 + 2.0 * s.b2) / (s.b0 + s.b1 + s.b2) - (s.a1 + 2.0 * s.a2) / (1.0 + s.a1 + s.a2);
   }
   delay_s_ = delay_samples / fs;
-  // Folded vibration tones notched before the low-pass: found in a spectrum of about one second of samples
-  // (renewed every eighth of it, to follow the rotors' speed), from the cutoff up (below it lies the motion's band).
-  if (vibrationNotchesOn(params)) {
-    VibrationNotch::Options o;
-    o.min_hz = params.lowpass_cutoff_hz;
-    o.window = 64;
-    while (o.window < fs) o.window *= 2;
-    o.hop = o.window / 8;
-    notch_.emplace(fs, o);
-  }
+  // Folded vibration tones notched before the low-pass (docs/algorithm.md section 4, "Notches").
+  if (vibrationNotchesOn(params)) notch_.emplace(fs, notchOptions(params));
   prime_samples_ = order > 0 && params.prime_from_mean
                        ? std::max(1, static_cast<int>(std::lround(fs / params.lowpass_cutoff_hz)))
                        : 1;

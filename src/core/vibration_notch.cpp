@@ -7,6 +7,19 @@
 
 namespace diekf {
 
+namespace {
+// Bins from min_hz up to one short of Nyquist (each tested against both neighbours): [first, last].
+int firstBin(double rate_hz, const VibrationNotch::Options& o) {
+  return std::max(2, static_cast<int>(std::ceil(o.min_hz * o.window / rate_hz)));
+}
+int lastBin(const VibrationNotch::Options& o) { return o.window / 2 - 2; }
+}  // namespace
+
+bool VibrationNotch::bandFits(double rate_hz, const Options& o) {
+  return rate_hz > 0.0 && std::isfinite(rate_hz) && o.min_hz > 0.0 && o.min_hz < 0.5 * rate_hz && o.window >= 32 &&
+         (o.window & (o.window - 1)) == 0 && lastBin(o) >= firstBin(rate_hz, o) + 4;
+}
+
 VibrationNotch::VibrationNotch(double rate_hz, const Options& options) : rate_hz_(rate_hz), opt_(options) {
   if (!(rate_hz > 0.0) || !std::isfinite(rate_hz))
     throw std::invalid_argument("VibrationNotch: rate must be > 0, got " + std::to_string(rate_hz));
@@ -27,9 +40,8 @@ VibrationNotch::VibrationNotch(double rate_hz, const Options& options) : rate_hz
     cos_[static_cast<size_t>(i)] = std::cos(2.0 * M_PI * i / N);
     sin_[static_cast<size_t>(i)] = std::sin(2.0 * M_PI * i / N);
   }
-  // Bins from min_hz up to one short of Nyquist (each tested against both neighbours).
-  k_lo_ = std::max(2, static_cast<int>(std::ceil(opt_.min_hz * N / rate_hz)));
-  k_hi_ = N / 2 - 2;
+  k_lo_ = firstBin(rate_hz, opt_);
+  k_hi_ = lastBin(opt_);
   if (k_hi_ < k_lo_ + 4) throw std::invalid_argument("VibrationNotch: window too short for the band");
   power_.assign(static_cast<size_t>(N / 2 + 1), 0.0);
   re_.assign(static_cast<size_t>(N), 0.0);

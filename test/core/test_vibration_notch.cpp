@@ -165,6 +165,14 @@ TEST(VibrationNotch, OnlyWhereTheRateFoldsTheVibration) {
   p.aliased_notch = true;
   p.lowpass_order = 0;
   EXPECT_EQ(ImuPreprocessor(Eigen::Isometry3d::Identity(), p).notch(), nullptr);
+  // A 45 Hz IMU leaves too narrow a band above the 20 Hz cutoff to search (two bins): no notch, and no error.
+  p.lowpass_order = 2;
+  p.input_rate_hz = 45.0;
+  p.decimation_factor = 1;
+  EXPECT_FALSE(vibrationNotchesOn(p));
+  EXPECT_EQ(ImuPreprocessor(Eigen::Isometry3d::Identity(), p).notch(), nullptr);
+  p.input_rate_hz = 100.0;
+  EXPECT_TRUE(vibrationNotchesOn(p));
 }
 
 // Through the estimator: a 200 Hz IMU on a vibrating airframe (130 and 165 Hz, folded to 70 and 35 Hz) names its
