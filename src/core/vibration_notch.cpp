@@ -21,13 +21,12 @@ bool VibrationNotch::bandFits(double rate_hz, const Options& o) {
 }
 
 VibrationNotch::VibrationNotch(double rate_hz, const Options& options) : rate_hz_(rate_hz), opt_(options) {
-  if (!(rate_hz > 0.0) || !std::isfinite(rate_hz))
-    throw std::invalid_argument("VibrationNotch: rate must be > 0, got " + std::to_string(rate_hz));
-  if (!(opt_.min_hz > 0.0 && opt_.min_hz < 0.5 * rate_hz))
-    throw std::invalid_argument("VibrationNotch: min_hz must be in (0, rate / 2), got " + std::to_string(opt_.min_hz));
+  if (!bandFits(rate_hz, opt_))
+    throw std::invalid_argument("VibrationNotch: rate " + std::to_string(rate_hz) + " Hz, min_hz " +
+                                std::to_string(opt_.min_hz) + " and window " + std::to_string(opt_.window) +
+                                ": need a rate > 0, min_hz in (0, rate / 2) and a power-of-two window >= 32 holding "
+                                "five bins from min_hz to Nyquist");
   const int N = opt_.window;
-  if (N < 32 || (N & (N - 1)) != 0)
-    throw std::invalid_argument("VibrationNotch: window must be a power of two >= 32, got " + std::to_string(N));
   if (opt_.hop < 1 || opt_.max_notches < 1 || opt_.max_notches > kMaxNotches || !(opt_.q > 0.0) ||
       !(opt_.peak_ratio > 1.0))
     throw std::invalid_argument("VibrationNotch: hop >= 1, max_notches 1..4, q > 0 and peak_ratio > 1 required");
@@ -42,7 +41,6 @@ VibrationNotch::VibrationNotch(double rate_hz, const Options& options) : rate_hz
   }
   k_lo_ = firstBin(rate_hz, opt_);
   k_hi_ = lastBin(opt_);
-  if (k_hi_ < k_lo_ + 4) throw std::invalid_argument("VibrationNotch: window too short for the band");
   power_.assign(static_cast<size_t>(N / 2 + 1), 0.0);
   re_.assign(static_cast<size_t>(N), 0.0);
   im_.assign(static_cast<size_t>(N), 0.0);

@@ -325,6 +325,11 @@ class RealismSim : public ::testing::Test {
     delete clean_;
     delete dir_;
   }
+  /// Runs the simulation `o` into the suite's directory `name` and reads its bag.
+  static BagImages simulate(SimulationOptions o, const std::string& name) {
+    o.output_dir = (dir_->path() / name).string();
+    return readBag(runSimulation(o, nullptr).bag_path);
+  }
   static simtest::TempDir* dir_;
   static BagImages* clean_;
 };
@@ -503,17 +508,15 @@ TEST_F(RealismSim, MainsFlickerBandsTheRowsOfARollingShutter) {
 // A webcam's image processor (--gamma, --jpeg-quality): the gamma encodes each grey level as 255 (s / 255)^(1/G),
 // and the JPEG round trip changes the image by a fraction of its contrast.
 TEST_F(RealismSim, GammaAndJpegAreAWebcamsEncoding) {
-  SimulationOptions o = tinyOptions((dir_->path() / "linear").string());
+  SimulationOptions o = tinyOptions("");
   o.sensor.noise = false;
-  const BagImages linear = readBag(runSimulation(o, nullptr).bag_path);
+  const BagImages linear = simulate(o, "linear");
   SimulationOptions g = o;
-  g.output_dir = (dir_->path() / "gamma").string();
   g.sensor.gamma = 2.2;
-  const BagImages encoded = readBag(runSimulation(g, nullptr).bag_path);
+  const BagImages encoded = simulate(g, "gamma");
   SimulationOptions q = o;
-  q.output_dir = (dir_->path() / "jpeg").string();
   q.jpeg_quality = 75;
-  const BagImages jpeg = readBag(runSimulation(q, nullptr).bag_path);
+  const BagImages jpeg = simulate(q, "jpeg");
   ASSERT_GT(linear.data.size(), 20u);
   ASSERT_EQ(encoded.data.size(), linear.data.size());
   ASSERT_EQ(jpeg.data.size(), linear.data.size());
@@ -549,13 +552,12 @@ TEST_F(RealismSim, GammaAndJpegAreAWebcamsEncoding) {
 // stamps keep their order, each is late by |N(0, J)| (mean 0.8 J) or by what keeps the order, and imu.yaml
 // carries the rate.
 TEST_F(RealismSim, ImuRateAndArrivalStampsOfAHostReadIMU) {
-  SimulationOptions o = tinyOptions((dir_->path() / "imu200").string());
+  SimulationOptions o = tinyOptions("");
   o.imu_noise.rate_hz = 200.0;
-  const BagImages exact = readBag(runSimulation(o, nullptr).bag_path);
+  const BagImages exact = simulate(o, "imu200");
   SimulationOptions j = o;
-  j.output_dir = (dir_->path() / "imu200_jitter").string();
   j.imu_stamp_jitter_ms = 1.0;
-  const BagImages late = readBag(runSimulation(j, nullptr).bag_path);
+  const BagImages late = simulate(j, "imu200_jitter");
   const YAML::Node imu_yaml = YAML::LoadFile((dir_->path() / "imu200" / "imu.yaml").string());
   EXPECT_DOUBLE_EQ(imu_yaml["update_rate"].as<double>(), 200.0);
   ASSERT_GT(exact.imu_ns.size(), 250u);

@@ -50,10 +50,10 @@ struct SimulationOptions {
   /// 120 Hz); with a rolling shutter each row integrates its own part of the cycle: horizontal bands that move
   /// from one image to the next. 0: steady light.
   double mains_flicker_hz = 0.0;
-  double mains_flicker_depth = 0.2;
+  double mains_flicker_depth = 0.2;  ///< modulation depth of that light: 1 + depth sin(2 pi f t)
   /// Images compressed as JPEG at this quality (1-100) and decoded again, as MJPEG webcams deliver them (8x8
   /// blocks fixed in the image, fine texture quantised away). 0: uncompressed.
-  double jpeg_quality = 0.0;  ///< modulation depth of that light: 1 + depth sin(2 pi f t)
+  double jpeg_quality = 0.0;
   double pose_rate_hz = 200.0;      ///< /mocap/pose rate
   bool vibration = true;            ///< propeller vibration (on for flight presets)
   bool imu_errors = true;           ///< IMU noise, biases and vibration
