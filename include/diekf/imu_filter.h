@@ -7,7 +7,9 @@
 //   1b. at rates that fold the propellers' vibration into the low band (vibrationNotchesOn), notch out the folded
 //      tones found in the stream's spectrum (VibrationNotch);
 //   2. low-pass both 3-vectors with a Butterworth of effectiveLowpassOrder() (bilinear transform, prewarped
-//      cutoff, designed for `input_rate_hz`), primed from the first samples so there is no start-up transient;
+//      cutoff, designed for `input_rate_hz`), primed from the mean of the first samples; with `prime_from_mean`
+//      nothing is emitted until the filter has settled (settleSamples()): the vibration, applied to a filter at
+//      rest, rings at the filter's own frequencies (a folded tone at 100 Hz: 1 m/s^2);
 //   3. on every `decimation_factor`-th sample (the first one included), emit the filtered values, adding the
 //      lever-arm term to the specific force: f_cam = f_imu + dw/dt x r + w x (w x r), r = -t_CI the vector from
 //      the IMU origin to the camera centre in C, w and dw/dt from the filtered gyro (dw/dt by a backward
@@ -48,6 +50,11 @@ class ImuPreprocessor {
   double delay_s() const { return delay_s_; }
   /// The vibration notches (imu/aliased_notch at a folding rate), or null.
   const VibrationNotch* notch() const { return notch_ ? &*notch_ : nullptr; }
+  /// Filtered samples held back after the filter is primed (imu.prime_from_mean; 0 otherwise): the first n
+  /// whose impulse-response tail sum_(k >= n) |h_k| is at most kSettleTail of sum_k |h_k|. A signal x applied
+  /// to the primed filter at rest leaves at most that share of max |x - mean| as start-up transient.
+  int settleSamples() const { return settle_samples_; }
+  static constexpr double kSettleTail = 0.01;
   /// Number of second-order (or, for odd orders, one first-order) sections of the designed filter.
   int numSections() const { return static_cast<int>(sections_.size()); }
   /// Magnitude of the designed filter's frequency response at f_hz (input-rate design), for diagnostics.
@@ -83,6 +90,8 @@ class ImuPreprocessor {
   Vec6 prime_sum_ = Vec6::Zero();  // sum of the first samples (rotated into C), before the filter starts
   int prime_count_ = 0;
   int prime_samples_ = 1;  // samples averaged for the start: one period of the cutoff
+  int settle_samples_ = 0;  // filtered samples held back after priming (settleSamples)
+  int settle_left_ = 0;     // of them still to come
   int counter_ = 0;
   Vec3 last_gyro_C_ = Vec3::Zero();  // filtered gyro of the previous raw sample, rad/s
 };

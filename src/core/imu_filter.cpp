@@ -102,6 +102,16 @@ ImuPreprocessor::ImuPreprocessor(const Eigen::Isometry3d& T_cam_imu, const ImuPa
   prime_samples_ = order > 0 && params.prime_from_mean
                        ? std::max(1, static_cast<int>(std::lround(fs / params.lowpass_cutoff_hz)))
                        : 1;
+  if (order > 0 && params.prime_from_mean) {
+    // Settling: the shortest n with the impulse response's tail sum_(k >= n) |h_k| <= kSettleTail sum |h_k|.
+    const std::vector<double> h = impulseResponse(0);
+    double total = 0.0;
+    for (double v : h) total += std::abs(v);
+    double tail = total;
+    int n = 0;
+    while (n < static_cast<int>(h.size()) && tail > kSettleTail * total) tail -= std::abs(h[static_cast<size_t>(n++)]);
+    settle_samples_ = n;
+  }
 }
 
 double ImuPreprocessor::magnitudeResponse(double f_hz) const {
@@ -211,6 +221,7 @@ bool ImuPreprocessor::push(const ImuSample& raw_imu, ImuSample* out) {
     prime(mean);
     primed_ = true;
     counter_ = 0;
+    settle_left_ = settle_samples_;
     last_gyro_C_ = mean.tail<3>();
   }
   const Vec6 y = filter(in);
@@ -218,6 +229,10 @@ bool ImuPreprocessor::push(const ImuSample& raw_imu, ImuSample* out) {
   // Backward difference at the nominal input period (robust to stamp jitter; the filter is designed for it).
   const Vec3 w_dot = (w - last_gyro_C_) * params_.input_rate_hz;  // rad/s^2
   last_gyro_C_ = w;
+  if (settle_left_ > 0) {  // the start-up transient (settleSamples): nothing emitted yet
+    --settle_left_;
+    return false;
+  }
 
   const bool emit = (counter_ == 0);
   counter_ = (counter_ + 1) % params_.decimation_factor;
