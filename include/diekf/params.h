@@ -61,7 +61,8 @@ struct ImuParams {
   bool compensate_filter_delay = true;          ///< shift output stamps back by the filter's group delay
   bool lever_arm_compensation = true;           ///< add w x (w x r) for the IMU-camera translation
   bool prime_from_mean = true;                  ///< start the low-pass from the mean of its first samples (one
-                                                ///< period of the cutoff) instead of the first raw sample
+                                                ///< period of the cutoff) instead of the first raw sample, and
+                                                ///< emit nothing until it has settled (settleSamples())
   double jacobian_accel_smoothing_s = 0.1;      ///< the distance's Jacobian column takes the acceleration
                                                 ///< smoothed over this time constant (level and trend) and held
                                                 ///< from the last image update (docs/algorithm.md 2.1), s;
