@@ -98,6 +98,11 @@ Vec3 ImuPropagator::accelSampleVariance() const {
   return sampleVariance(accel_second_diff_var_, params_.imu.accel_noise_density);
 }
 
+Vec3 ImuPropagator::accelLevelSampleVariance() const {
+  const double density = params_.imu.accel_noise_density;
+  return accelSampleVariance().cwiseMin(Vec3::Constant(density * density * sample_var_per_density_sq_));
+}
+
 double ImuPropagator::gyroNoiseDensitySq() const {
   const double calibrated = params_.imu.gyro_noise_density * params_.imu.gyro_noise_density;
   if (!noiseMeasured()) return calibrated;
@@ -226,15 +231,15 @@ void ImuPropagator::holdColumnAccel() {
   const double w = tau_s > 0.0 ? -std::expm1(-h / tau_s) : 1.0;
   const Vec3 level = 2.0 * smooth1_C_ - smooth2_C_;
   const Vec3 trend = w < 1.0 ? Vec3((w / ((1.0 - w) * h)) * (smooth1_C_ - smooth2_C_)) : Vec3::Zero();
-  // Held as its expected value given the samples' noise through the smoothing: one sample's variance times the
-  // level's variance factor 4 v11 - 4 v12 + v22 (tracked from the first sample: 1 then, w (1 + 4b + 5b^2) /
+  // Held as its expected value given the samples' noise through the smoothing: one sample's variance
+  // (accelLevelSampleVariance: the calibration's at most) times the level's variance factor 4 v11 - 4 v12 + v22 (tracked from the first sample: 1 then, w (1 + 4b + 5b^2) /
   // (1 + b)^3 with b = 1 - w in the steady state), times the factor of the filtered samples' correlation over
   // every lag (sampleCorrelationFactor). Where the noise explains the level (at rest), the column shows no acceleration, and
   // the images' "vartheta did not change" is no information about the distance. (The gravity direction's and the
   // bias's uncertainty are not counted: they are states whose first-order effect F models, and counted here they
   // hold the distance back until the tilt is known: docs/algorithm.md 2.1.)
   const double noise_factor = std::max(0.0, levelVarianceFactor()) * correlation_factor_;
-  const Vec3 var = noise_factor * accelSampleVariance();
+  const Vec3 var = noise_factor * accelLevelSampleVariance();
   column_accel_C_ = expectedGivenReading(level, var);
   for (int i = 0; i < 3; ++i)  // the trend shrunk alike
     column_trend_C_(i) = level(i) != 0.0 ? trend(i) * (column_accel_C_(i) / level(i)) : 0.0;

@@ -87,6 +87,15 @@ class ImuPropagator {
   /// low-pass): what a rate read from one or two samples is uncertain by, vibration included.
   Vec3 gyroSampleVariance() const;
   Vec3 accelSampleVariance() const;
+  /// One filtered sample's variance as the distance's column counts it (holdColumnAccel): accelSampleVariance, but
+  /// not more than the calibration's density through the low-pass, for the reason gyroNoiseDensitySq gives. The
+  /// column's level averages over imu/jacobian_accel_smoothing_s; what the second differences show above the
+  /// calibration is what the low-pass leaves of the propellers' tones (at IMU rates below twice the vibration
+  /// folded to 30-70 Hz), which that average removes. Taken for white noise it shrank real accelerations out of
+  /// the column and the distance was found 4-5 % high for seconds (a 100 Hz IMU; docs/algorithm.md 2.1).
+  Vec3 accelLevelSampleVariance() const;
+  /// The acceleration the distance's column holds (C, m/s^2; holdColumnAccel). For tests.
+  const Vec3& heldColumnAccel() const { return column_accel_C_; }
 
   /// Gravity direction from the mean specific force of the filtered samples of the 0.5 s up to up_to_t_s, if
   /// the vehicle is near rest (|mean| within 10 % of g): g = -f/|f|. False otherwise.
