@@ -22,6 +22,7 @@
 #include <optional>
 #include <vector>
 
+#include "diekf/biquad.h"
 #include "diekf/camera_model.h"
 #include "diekf/params.h"
 #include "diekf/vibration_notch.h"
@@ -68,22 +69,14 @@ class ImuPreprocessor {
  private:
   /// The designed filter's impulse response, long enough to have decayed (plus `extra` samples).
   std::vector<double> impulseResponse(int extra) const;
-  using Vec6 = Eigen::Matrix<double, 6, 1>;
-  struct Biquad {
-    double b0 = 1, b1 = 0, b2 = 0, a1 = 0, a2 = 0;  // normalised (a0 = 1)
-  };
-  struct BiquadState {
-    Vec6 z1 = Vec6::Zero();  // transposed direct form II memory
-    Vec6 z2 = Vec6::Zero();
-  };
+  using Vec6 = Biquad6::Vec6;
   Vec6 filter(const Vec6& in);
   void prime(const Vec6& in);
 
   ImuParams params_;
   Mat3 R_CI_;
   Vec3 r_imu_to_cam_C_;      // lever arm from the IMU origin to the camera centre, in C, m
-  std::vector<Biquad> sections_;
-  std::vector<BiquadState> states_;
+  std::vector<Biquad6> sections_;  // the Butterworth's sections, with their memory
   double delay_s_ = 0.0;
   std::optional<VibrationNotch> notch_;  // before the low-pass, at rates that fold the vibration
   bool primed_ = false;

@@ -15,11 +15,13 @@
 
 #include <Eigen/Core>
 
+#include "diekf/biquad.h"
+
 namespace diekf {
 
 class VibrationNotch {
  public:
-  using Vec6 = Eigen::Matrix<double, 6, 1>;
+  using Vec6 = Biquad6::Vec6;
   static constexpr int kMaxNotches = 4;
 
   struct Options {
@@ -51,8 +53,7 @@ class VibrationNotch {
   struct Notch {
     bool active = false;
     double f_hz = 0.0;
-    double b0 = 1, b1 = 0, b2 = 0, a1 = 0, a2 = 0;  // normalised (a0 = 1)
-    Vec6 z1 = Vec6::Zero(), z2 = Vec6::Zero();      // transposed direct form II memory
+    Biquad6 section;
   };
   void analyse();
   void fft();  // re_, im_ in place

@@ -70,7 +70,7 @@ ImuPreprocessor::ImuPreprocessor(const Eigen::Isometry3d& T_cam_imu, const ImuPa
     for (int k = 0; k < order / 2; ++k) {
       const double c = 2.0 * std::sin((2.0 * k + 1.0) * M_PI / (2.0 * order));
       const double a0 = 1.0 + c * K + K2;
-      Biquad bq;
+      Biquad6 bq;
       bq.b0 = K2 / a0;
       bq.b1 = 2.0 * K2 / a0;
       bq.b2 = K2 / a0;
@@ -79,7 +79,7 @@ ImuPreprocessor::ImuPreprocessor(const Eigen::Isometry3d& T_cam_imu, const ImuPa
       sections_.push_back(bq);
     }
     if (order % 2 == 1) {
-      Biquad fo;  // first-order section K (1 + z^-1) / ((1 + K) + (K - 1) z^-1)
+      Biquad6 fo;  // first-order section K (1 + z^-1) / ((1 + K) + (K - 1) z^-1)
       fo.b0 = K / (1.0 + K);
       fo.b1 = K / (1.0 + K);
       fo.b2 = 0.0;
@@ -88,14 +88,11 @@ ImuPreprocessor::ImuPreprocessor(const Eigen::Isometry3d& T_cam_imu, const ImuPa
       sections_.push_back(fo);
     }
   }
-  states_.resize(sections_.size());
 
   // Group delay at 0 Hz of B(z)/A(z): sum n b_n / sum b_n - sum n a_n / sum a_n, in samples (exact for the
   // designed coefficients; approaches sum_k 2 sin(theta_k) / Omega_c for fc << fs).
   double delay_samples = 0.0;
-  for (const Biquad& s : sections_) {
-    delay_samples += (s.b1 + 2.0 * s.b2) / (s.b0 + s.b1 + s.b2) - (s.a1 + 2.0 * s.a2) / (1.0 + s.a1 + s.a2);
-  }
+  for (const Biquad6& s : sections_) delay_samples += s.dcDelaySamples();
   delay_s_ = delay_samples / fs;
   // Folded vibration tones notched before the low-pass (docs/algorithm.md section 4, "Notches").
   if (vibrationNotchesOn(params)) notch_.emplace(fs, notchOptions(params));
@@ -118,7 +115,7 @@ double ImuPreprocessor::magnitudeResponse(double f_hz) const {
   const double omega = 2.0 * M_PI * f_hz / params_.input_rate_hz;  // rad/sample
   const std::complex<double> z1 = std::polar(1.0, -omega);          // z^-1
   std::complex<double> h(1.0, 0.0);
-  for (const Biquad& s : sections_) {
+  for (const Biquad6& s : sections_) {
     h *= (s.b0 + s.b1 * z1 + s.b2 * z1 * z1) / (1.0 + s.a1 * z1 + s.a2 * z1 * z1);
   }
   return std::abs(h);
@@ -132,7 +129,7 @@ std::vector<double> ImuPreprocessor::impulseResponse(int extra) const {
                                                         (2.0 * M_PI * std::max(1e-9, params_.lowpass_cutoff_hz))));
   std::vector<double> h(static_cast<size_t>(sections_.empty() ? 1 : n), 0.0);
   h[0] = 1.0;
-  for (const Biquad& s : sections_) {
+  for (const Biquad6& s : sections_) {
     double z1 = 0.0, z2 = 0.0;
     for (double& v : h) {
       const double in = v;
@@ -171,38 +168,24 @@ void ImuPreprocessor::reset() {
   prime_sum_.setZero();
   prime_count_ = 0;
   counter_ = 0;
-  for (BiquadState& st : states_) {
-    st.z1.setZero();
-    st.z2.setZero();
-  }
+  for (Biquad6& s : sections_) s.clear();
   last_gyro_C_.setZero();
   if (notch_) notch_->reset();
 }
 
 void ImuPreprocessor::prime(const Vec6& in) {
-  // Steady state of every section for the constant input `in`: y = gain x, and the transposed direct form II
-  // memories then are z1 = y - b0 x, z2 = b2 x - a2 y.
+  // Steady state of every section for the constant input `in`: y = gain x at each.
   Vec6 x = in;
-  for (size_t i = 0; i < sections_.size(); ++i) {
-    const Biquad& s = sections_[i];
-    const double gain = (s.b0 + s.b1 + s.b2) / (1.0 + s.a1 + s.a2);
-    const Vec6 y = gain * x;
-    states_[i].z1 = y - s.b0 * x;
-    states_[i].z2 = s.b2 * x - s.a2 * y;
+  for (Biquad6& s : sections_) {
+    const Vec6 y = s.dcGain() * x;
+    s.settleAt(x, y);
     x = y;
   }
 }
 
 ImuPreprocessor::Vec6 ImuPreprocessor::filter(const Vec6& in) {
   Vec6 x = in;
-  for (size_t i = 0; i < sections_.size(); ++i) {
-    const Biquad& s = sections_[i];
-    BiquadState& st = states_[i];
-    const Vec6 y = s.b0 * x + st.z1;
-    st.z1 = s.b1 * x - s.a1 * y + st.z2;
-    st.z2 = s.b2 * x - s.a2 * y;
-    x = y;
-  }
+  for (Biquad6& s : sections_) x = s.step(x);
   return x;
 }
 

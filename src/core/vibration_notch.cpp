@@ -76,11 +76,10 @@ double VibrationNotch::frequencyHz(int i) const {
 }
 
 double VibrationNotch::delaySamples() const {
-  // Group delay at 0 Hz of B(z)/A(z): sum n b_n / sum b_n - sum n a_n / sum a_n.
+  // Group delay at 0 Hz, summed over the active notches.
   double d = 0.0;
   for (const Notch& n : notches_) {
-    if (!n.active) continue;
-    d += (n.b1 + 2.0 * n.b2) / (n.b0 + n.b1 + n.b2) - (n.a1 + 2.0 * n.a2) / (1.0 + n.a1 + n.a2);
+    if (n.active) d += n.section.dcDelaySamples();
   }
   return d;
 }
@@ -92,16 +91,16 @@ void VibrationNotch::place(Notch* n, double f_hz, const Vec6& x) {
   const double alpha = std::sin(w0) / (2.0 * opt_.q);
   const double c = std::cos(w0);
   const double a0 = 1.0 + alpha;
-  n->b0 = 1.0 / a0;
-  n->b1 = -2.0 * c / a0;
-  n->b2 = 1.0 / a0;
-  n->a1 = -2.0 * c / a0;
-  n->a2 = (1.0 - alpha) / a0;
+  Biquad6& b = n->section;
+  b.b0 = 1.0 / a0;
+  b.b1 = -2.0 * c / a0;
+  b.b2 = 1.0 / a0;
+  b.a1 = -2.0 * c / a0;
+  b.a2 = (1.0 - alpha) / a0;
   n->f_hz = f_hz;
   if (!n->active) {
     // Start in the steady state of the current input (gain 1 at 0 Hz): no transient from a constant part.
-    n->z1 = x * (1.0 - n->b0);
-    n->z2 = x * (n->b2 - n->a2);
+    b.settleAt(x, x);
     n->active = true;
   }
 }
@@ -224,11 +223,7 @@ VibrationNotch::Vec6 VibrationNotch::apply(const Vec6& in) {
   last_in_ = in;
   Vec6 x = in;
   for (Notch& n : notches_) {
-    if (!n.active) continue;
-    const Vec6 y = n.b0 * x + n.z1;
-    n.z1 = n.b1 * x - n.a1 * y + n.z2;
-    n.z2 = n.b2 * x - n.a2 * y;
-    x = y;
+    if (n.active) x = n.section.step(x);
   }
   return x;
 }
