@@ -5,6 +5,7 @@
 
 #include <gtest/gtest.h>
 
+#include "diekf/eval/io.h"
 #include "diekf/eval/metrics.h"
 
 namespace diekf {
@@ -311,6 +312,33 @@ Evaluation evaluateFromStart(const Series& s) {
   return evaluate(s.est, s.truth, opt);
 }
 
+// The status's honesty counts every frame that says tracking, before the evaluation window too: a start that
+// tracks 5 sigma off is counted although the window (from 3 s after the first update) never sees it.
+TEST(MetricsConsistency, TrackingFramesBeyondThreeSigmaOverTheWholeRun) {
+  Series s = handSeries();  // z_d = 0, 1, 3, -2, 0 at 0, 1/30, ..., 4/30 s, sigma_d 0.25 m
+  for (EstimateRow& e : s.est) e.status = "tracking";
+  s.est[0].d_m = s.truth[0]->d_m + 5.0 * 0.25;  // the first frame (before any window): 5 sigma
+  s.est[1].status = "initializing";             // not counted
+  s.est[2].d_m = s.truth[2]->d_m + 3.5 * 0.25;  // 3.5 sigma
+  EvaluationOptions opt;
+  opt.start_delay_s = 10.0;  // the window holds no frame
+  const Evaluation ev = evaluate(s.est, s.truth, opt);
+  EXPECT_EQ(ev.frames, 0);
+  // None says tracking: nothing counted, no largest value.
+  Series quiet = s;
+  for (EstimateRow& e : quiet.est) e.status = "initializing";
+  const Evaluation none = evaluate(quiet.est, quiet.truth, opt);
+  EXPECT_EQ(none.tracking_frames, 0);
+  EXPECT_TRUE(std::isnan(none.max_abs_z_d_tracking));
+  EXPECT_EQ(ev.tracking_frames, 4);
+  EXPECT_EQ(ev.tracking_beyond3_d, 2);
+  EXPECT_DOUBLE_EQ(ev.max_abs_z_d_tracking, 5.0);
+  // Exactly 3 is not beyond.
+  s.est[0].d_m = s.truth[0]->d_m + 3.0 * 0.25;
+  EXPECT_EQ(evaluate(s.est, s.truth, opt).tracking_beyond3_d, 1);
+  EXPECT_NE(evaluationSummary(ev).find("|z_d| above 3 on 2, largest 5.0"), std::string::npos) << evaluationSummary(ev);
+}
+
 TEST(MetricsConsistency, HandComputedCase) {
   const Series s = handSeries();
   ASSERT_EQ(s.est.size(), 5u);
@@ -322,6 +350,10 @@ TEST(MetricsConsistency, HandComputedCase) {
   EXPECT_DOUBLE_EQ(ev.coverage2_v, 9.0 / 12.0);
   EXPECT_DOUBLE_EQ(ev.nees_mean, (1.0 + 10.0 + 25.5 + 12.0) / 4.0);
   EXPECT_DOUBLE_EQ(ev.nees_median, 11.0);
+  // The four frames after the first say tracking: |z_d| at most 3, none beyond it.
+  EXPECT_EQ(ev.tracking_frames, 4);
+  EXPECT_EQ(ev.tracking_beyond3_d, 0);
+  EXPECT_DOUBLE_EQ(ev.max_abs_z_d_tracking, 3.0);
   // Second half of the window [1/30, 4/30] s: frames 3 and 4.
   EXPECT_DOUBLE_EQ(ev.coverage2_d_last_half, 1.0);
   EXPECT_DOUBLE_EQ(ev.coverage2_v_last_half, 0.5);

@@ -75,6 +75,13 @@ struct Evaluation {
   double coverage2_d_last_half = 0.0;   ///< coverage2_d over the second half (in time) of the evaluation window
   double coverage2_v_last_half = 0.0;   ///< coverage2_v over the second half of the evaluation window
   double nees_mean_last_half = 0.0;     ///< nees_mean over the second half of the evaluation window
+
+  // The status's honesty over the whole run, the start included (the evaluation window leaves out the first
+  // seconds, where a filter may already say `tracking`): the frames with status tracking, a true value and a
+  // finite positive sigma_d.
+  int tracking_frames = 0;               ///< such frames
+  int tracking_beyond3_d = 0;            ///< of them, those with |z_d| > 3
+  double max_abs_z_d_tracking = 0.0;     ///< largest |z_d| over them (NaN when there are none)
 };
 
 /// Consistency figures of one set of frames (the fields of the same names in Evaluation).

@@ -91,6 +91,7 @@ Evaluation evaluate(const std::vector<EstimateRow>& estimates, const std::vector
   ev.update_ms_mean = ev.update_ms_median = ev.update_ms_p99 = kNaN;
   ev.coverage2_d = ev.coverage2_v = ev.nees_mean = ev.nees_median = kNaN;
   ev.coverage2_d_last_half = ev.coverage2_v_last_half = ev.nees_mean_last_half = kNaN;
+  ev.max_abs_z_d_tracking = kNaN;
   ev.eval_start_s = kNaN;
   if (estimates.empty()) {
     ev.diverged = true;
@@ -110,6 +111,17 @@ Evaluation evaluate(const std::vector<EstimateRow>& estimates, const std::vector
     ev.update_ms_mean = sum / static_cast<double>(update_ms.size());
     ev.update_ms_median = percentile(update_ms, 50.0);
     ev.update_ms_p99 = percentile(update_ms, 99.0);
+  }
+
+  // The status's honesty over the whole run: |z_d| on every frame that says tracking.
+  for (std::size_t i = 0; i < estimates.size(); ++i) {
+    const EstimateRow& row = estimates[i];
+    if (row.status != "tracking" || !truth[i] || !std::isfinite(row.sigma_d_m) || !(row.sigma_d_m > 0.0)) continue;
+    const double z = std::abs(row.d_m - truth[i]->d_m) / row.sigma_d_m;
+    ++ev.tracking_frames;
+    if (z > 3.0) ++ev.tracking_beyond3_d;
+    ev.max_abs_z_d_tracking = (ev.tracking_frames == 1 || std::isnan(z) || z > ev.max_abs_z_d_tracking)
+                                  ? z : ev.max_abs_z_d_tracking;
   }
 
   // Non-finite output anywhere: diverged.
