@@ -13,7 +13,8 @@ clutter"), and run through the default estimator: a table with the covered fract
 errors, and the same flight without them. With --timing (the default), one flight (--timing-flight, flight7) is
 simulated with a camera-IMU time offset of 10 and 20 ms unknown to the camchain and with a 16 ms rolling shutter,
 each run through the default estimator (the offset also not estimated; the readout also ignored and given). Every table also gives the consistency of the reported uncertainty: the fractions of the distance and
-velocity errors inside the filter's 2-sigma (95 % for a consistent filter) and the mean NEES (4 if consistent).
+velocity errors inside the filter's 2-sigma (95 % for a consistent filter), the mean NEES (4 if consistent) and, in
+the flights' and inclines' tables, the frames of the whole run that said tracking with the distance beyond 3 sigma.
 Prints Markdown tables side by side with the paper's figures and writes, under --output:
   benchmark.md     the tables
   benchmark.json   every evaluation.json, keyed by run
@@ -92,12 +93,12 @@ def run_estimator(bin_dir, seq_dir, mode, name, out_dir, runner_args, plots):
         return {"failed": True, "exit_code": rc}
     with open(ev_path) as f:
         ev = json.load(f)
-    print("  %-10s %-4s d %s cm, v %s cm/s, normal %s deg, %s ms/frame; inside 2σ d %s %%, v %s %%, NEES %s%s  "
-          "(%.0f s)" % (
+    print("  %-10s %-4s d %s cm, v %s cm/s, normal %s deg, %s ms/frame; inside 2σ d %s %%, v %s %%, NEES %s; "
+          "tracking beyond 3σ %s frames%s  (%.0f s)" % (
               name, label, cm(ev.get("rmse_distance_m")), cm(ev.get("rmse_velocity_mps")),
               num(ev.get("rms_normal_deg")), num(ev.get("update_ms_mean"), 2), pct(ev.get("coverage2_d")),
-              pct(ev.get("coverage2_v")), num(ev.get("nees_mean")), ", DIVERGED" if ev.get("diverged") else "",
-              time.time() - t0), flush=True)
+              pct(ev.get("coverage2_v")), num(ev.get("nees_mean")), ev.get("tracking_beyond3_d", "n/a"),
+              ", DIVERGED" if ev.get("diverged") else "", time.time() - t0), flush=True)
     if plots:
         plot = os.path.join(os.path.dirname(os.path.abspath(__file__)), "plot_results.py")
         run([sys.executable, plot, out_dir, "--title", "%s (%s)" % (name, label)], os.path.join(out_dir, "plot.log"))
@@ -120,12 +121,15 @@ def pct(v):
 
 def consistency_cells(ev):
     """2-sigma coverage of distance and velocity (%) and mean NEES of one run (also for a diverged run: the
-    figures then say how badly its reported sigma understated the error)."""
+    figures then say how badly its reported sigma understated the error), and the frames of the whole run, start
+    included, whose status said tracking with the distance more than 3 sigma off."""
     if ev is None:
-        return ["–"] * 3
+        return ["–"] * 4
     if ev.get("failed"):
-        return ["failed"] * 3
-    return [pct(ev.get("coverage2_d")), pct(ev.get("coverage2_v")), num(ev.get("nees_mean"))]
+        return ["failed"] * 4
+    beyond = ev.get("tracking_beyond3_d")
+    return [pct(ev.get("coverage2_d")), pct(ev.get("coverage2_v")), num(ev.get("nees_mean")),
+            "n/a" if beyond is None else str(beyond)]
 
 
 def ours(ev, key, scale=100.0):
@@ -154,7 +158,8 @@ def table_one(results, flights, modes):
     for quantity in ("distance RMSE (cm)", "velocity RMSE (cm/s)"):
         for m in modes:
             head.append("%s %s: ours / paper" % (quantity.split(" ")[0], MODE_NAME[m]))
-    head += ["d within 2σ (%%): %s" % names, "v within 2σ (%%): %s" % names, "NEES mean: %s" % names]
+    head += ["d within 2σ (%%): %s" % names, "v within 2σ (%%): %s" % names, "NEES mean: %s" % names,
+             "frames tracking beyond 3σ: %s" % names]
     lines.append("| " + " | ".join(head) + " |")
     lines.append("|" + "---|" * len(head))
     for k in flights:
@@ -173,7 +178,7 @@ def table_one(results, flights, modes):
                     else:
                         row.append("%s / %s" % (ours(evs[m], key), paper_cell(p[pk][MODE_INDEX[m]])))
             cells = [consistency_cells(evs[m]) for m in modes]
-            for i in range(3):
+            for i in range(4):
                 row.append(" / ".join(c[i] for c in cells))
             lines.append("| " + " | ".join(row) + " |")
     return "\n".join(lines)
@@ -198,15 +203,16 @@ def table_timing(results, flights, modes):
 
 def table_incline(results, inclines, modes):
     lines = ["| plane incline (deg) | sequence | filter | distance RMSE (cm) | height RMSE (cm) | velocity RMSE (cm/s) | "
-             "normal error RMS / max (deg) | gravity error RMS (deg) | d within 2σ (%) | v within 2σ (%) | NEES mean |",
-             "|---|---|---|---|---|---|---|---|---|---|---|"]
+             "normal error RMS / max (deg) | gravity error RMS (deg) | d within 2σ (%) | v within 2σ (%) | NEES mean | "
+             "frames tracking beyond 3σ |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for a in inclines:
         for m in modes:
             ev = results.get("incline%g/%s" % (a, m))
             if ev is None:
                 continue
             if ev.get("failed"):
-                lines.append("| %g | simulated | %s | failed | | | | | | | |" % (a, MODE_NAME[m]))
+                lines.append("| %g | simulated | %s | failed | | | | | | | | |" % (a, MODE_NAME[m]))
                 continue
             lines.append("| %g | simulated | %s | %s | %s | %s | %s / %s | %s | %s |" % (
                 a, MODE_NAME[m], ours(ev, "rmse_distance_m") if not ev.get("diverged") else "diverged",
@@ -589,7 +595,9 @@ def main(argv=None):
           "the first image update (docs/conventions.md section 5). Consistency of the reported uncertainty: "
           "\"within 2σ\" is the fraction of frames (distance) or of frame-axis pairs (velocity) whose error lies "
           "inside the filter's ±2σ, about 95 %% for a consistent filter; NEES is the mean over frames of the squared "
-          "normalised distance and velocity errors, about 4 for a consistent filter." % (
+          "normalised distance and velocity errors, about 4 for a consistent filter. \"Frames tracking beyond 3σ\" "
+          "counts, over the whole run with its start, the frames whose status said tracking with the distance more "
+          "than 3σ off (evaluation.json `tracking_beyond3_d`)." % (
               datetime.datetime.now().strftime("%Y-%m-%d %H:%M"), args.duration, args.seed,
               ", simulator args '%s'" % args.sim_args if args.sim_args else "",
               ", runner args '%s'" % args.runner_args if args.runner_args else "", cpu), ""]
