@@ -34,9 +34,15 @@ struct FrameResult {
   std::array<double, 2> imu_notch_hz{};
   State state;                       ///< posterior state
   /// Covariance of the posterior state: the filter's, plus, along the scale direction of (alpha, vartheta), the
-  /// plane's ambiguity over a scene that is not one plane (relief_sigma; photometric/relief_in_covariance) and the
-  /// calibration's focal-length uncertainty (photometric/focal_scale_in_covariance).
+  /// plane's ambiguity over a scene that is not one plane (relief_sigma; photometric/relief_in_covariance), plus
+  /// the calibration's focal-length uncertainty carried through the updates and the dynamics,
+  /// sigma_focal_scale^2 s s^T (photometric/focal_scale_in_covariance; s = focal_sensitivity).
   ErrorCov covariance = ErrorCov::Zero();
+  /// The state's error per unit relative error e of the calibration's focal lengths (true = (1 + e) x
+  /// calibration) while the focal scale is not estimated, to first order: each image update moves the state by
+  /// K H (u - s), u the observed states' change that the focal error's flow equals (focalScaleMap), and each
+  /// prediction step carries it by F. Zero at a start (docs/noise_model.md section 9).
+  ErrorVec focal_sensitivity = ErrorVec::Zero();
   FilterStatus status = FilterStatus::kInitializing;
   bool update_applied = false;       ///< false for the first frame after (re)start or a skipped update
   int passes = 0;                    ///< Gauss-Newton passes used

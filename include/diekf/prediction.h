@@ -62,8 +62,10 @@ NoiseVec discreteNoiseSigmas(const ImuParams& imu, const ProcessNoiseParams& pro
 /// x <- f(x), P <- F P F^T + G Q_d G^T (kept symmetric). No-op for dt_s <= 0. No heap allocation.
 /// `column_accel_C` (optional, m/s^2): the acceleration at the step's start in C (specific force plus gravity,
 /// bias removed) that the distance's column of F uses instead of the reading's a - b_a + g0 g (docs/algorithm.md
-/// section 2.1, "The distance's column"); the mean is unchanged.
+/// section 2.1, "The distance's column"); the mean is unchanged. `sensitivity` (optional): an error-state
+/// direction carried by the dynamics, s <- F s (the focal length's, FrameResult::focal_sensitivity).
 void predict(const Vec3& accel_C, const Vec3& gyro_C, double dt_s, const ImuParams& imu,
-             const ProcessNoiseParams& process, State* x, ErrorCov* P, const Vec3* column_accel_C = nullptr);
+             const ProcessNoiseParams& process, State* x, ErrorCov* P, const Vec3* column_accel_C = nullptr,
+             ErrorVec* sensitivity = nullptr);
 
 }  // namespace diekf

@@ -18,6 +18,7 @@
 #include "dot_detector.h"
 #include "dot_gain.h"
 #include "frame_clock.h"
+#include "gauss_newton.h"
 #include "health_monitor.h"
 #include "image_update.h"
 #include "imu_propagator.h"
@@ -429,12 +430,30 @@ struct Estimator::Impl {
     return &combined_confidence;
   }
 
+  /// The state's error per unit focal-length error (FrameResult::focal_sensitivity) after an applied update: the
+  /// update saw the images of a camera whose focal lengths are (1 + e) x the calibration's, whose flow equals
+  /// that of the observed states changed by u e (focalScaleMap, u in the error state), on a prior already off by
+  /// s e. It moved the state by K H of what it saw, so s+ = s + K H (u - s), with K H = I - P+ P-^-1 for the
+  /// update as it was applied (its noise model, gate and inflation included).
+  void carryFocalSensitivity(const ErrorCov& P_before, double lag_s) {
+    const ObservedVec m = focalScaleMap(x, img_pre.workingK(), update.lastGyroMean(), update.lastInterval(), lag_s);
+    ErrorVec u = ErrorVec::Zero();
+    for (int k = 0; k < internal::kObsDim; ++k) u(internal::kObsToErr[k]) = m(k);
+    ErrorVec& s = imu.focalSensitivity();
+    const Eigen::LDLT<ErrorCov> ldlt(P_before);
+    if (ldlt.info() != Eigen::Success) return;
+    const ErrorVec du = u - s;
+    const ErrorVec kh = du - P * ldlt.solve(du);
+    if (kh.allFinite()) s += kh;
+  }
+
   /// Starts the filter at image `t_s`: gravity from the accelerometer, no propagation before.
   void startAt(double t_s) {
     UnitVector g;
     if (params.init.g0_from_accel && imu.gravityFromAccel(t_s, &g)) x.g = g;
     if (params.init.mu0_from_gravity) x.mu = x.g;  // level-ground prior; sigma_mu0_rad covers inclines
     imu.startAt(t_s);
+    imu.focalSensitivity().setZero();
     last_usable_image_t_s = t_s;
     state_initialized = true;
   }
@@ -530,9 +549,13 @@ struct Estimator::Impl {
       update.setReferenceConfidence(fill_confidence.empty() ? nullptr : &fill_confidence);  // the same fill on both
       const double alpha0 = x.alpha, var_alpha0 = P(ErrIdx::kAlpha, ErrIdx::kAlpha);
       update.setReportImageVartheta(scale_init.phase() != internal::ScaleInitializer::Phase::kDone);
+      const ErrorCov P_before = P;
+      const double lag_s = std::max(0.0, img.t_s - imu.stateTime());
       stats = update.apply(frames[ref_index], cur, img.t_s, imu, last_imu_gap_end_s, &health, &x, &P, &skip_reason);
       imu.holdColumnAccel();  // the next predictions' distance column: none of the next innovation's noise
       if (stats.applied && scale_init.holdsAlpha()) holdAlpha(alpha0, var_alpha0);
+      if (stats.applied && update.lastPairPhotometric() && !params.estimate_focal_scale)
+        carryFocalSensitivity(P_before, lag_s);
       if (update.lastPairPhotometric()) {
         // The camera-fixed pattern learns by how far the ground moved: the rotation (gyro) always, the translation
         // of an accepted image, until the filter has converged only its lower bound (docs/noise_model.md
@@ -690,8 +713,14 @@ struct Estimator::Impl {
     // The distance to which layer of a scene that is not one plane (section 13 of docs/noise_model.md).
     if (params.photometric.relief_in_covariance) addScaleAmbiguity(x, relief_var, &r.covariance);
     // The calibration's focal length, when not estimated: a scale error of the translation's flow (section 9).
-    if (params.photometric.focal_scale_in_covariance && !params.estimate_focal_scale)
-      addScaleAmbiguity(x, params.init.sigma_focal_scale * params.init.sigma_focal_scale, &r.covariance);
+    // The calibration's focal length, when not estimated: its error carried through the updates and the dynamics
+    // (carryFocalSensitivity; a scale error of the translation's flow, amplified where the gyro's rotation is
+    // mis-predicted by it; docs/noise_model.md section 9).
+    r.focal_sensitivity = imu.focalSensitivity();
+    if (params.photometric.focal_scale_in_covariance && !params.estimate_focal_scale) {
+      r.covariance.noalias() += (params.init.sigma_focal_scale * params.init.sigma_focal_scale) *
+                                r.focal_sensitivity * r.focal_sensitivity.transpose();
+    }
     // The calibration's camera pointing (camera-IMU rotation, principal point): v, mu and g turned together.
     if (params.photometric.camera_rotation_in_covariance)
       addFrameRotationUncertainty(x, params.init.sigma_camera_rotation_rad * params.init.sigma_camera_rotation_rad,

@@ -52,7 +52,8 @@ double forEachImuPiece(const Buffer& buf, double t_from_s, double t_to_s, double
 /// the predictions between images (StatePredictor). `column_accel_C`: predict's (the held acceleration of the
 /// distance's column, ImuPropagator::holdColumnAccel), or null.
 inline void predictImuPiece(const ImuSample& input, double dt, double nominal_dt_s, const EstimatorParams& params,
-                            State* x, ErrorCov* P, const Vec3* column_accel_C = nullptr) {
+                            State* x, ErrorCov* P, const Vec3* column_accel_C = nullptr,
+                            ErrorVec* sensitivity = nullptr) {
   const bool gap = dt > 2.0 * nominal_dt_s;
   const int steps = gap ? static_cast<int>(std::ceil(dt / nominal_dt_s)) : 1;
   const double h = dt / steps;
@@ -65,7 +66,7 @@ inline void predictImuPiece(const ImuSample& input, double dt, double nominal_dt
                                        in.gap_gyro_sigma_radps * in.gap_gyro_sigma_radps * dt);
   }
   for (int k = 0; k < steps; ++k)
-    predict(input.accel_mps2, input.gyro_radps, h, imu, params.process, x, P, column_accel_C);
+    predict(input.accel_mps2, input.gyro_radps, h, imu, params.process, x, P, column_accel_C, sensitivity);
 }
 
 }  // namespace internal

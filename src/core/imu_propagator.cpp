@@ -163,7 +163,7 @@ void ImuPropagator::propagateTo(double t_target_s, State* x, ErrorCov* P) {
                   [&](double t0_s, double t1_s, const ImuSample& s, double u, bool starts_interval) {
     const double dt = t1_s - t0_s;
     if (!held) {
-      predictImuPiece(s, dt, nominal_dt_s, params_, x, P);
+      predictImuPiece(s, dt, nominal_dt_s, params_, x, P, nullptr, &focal_sensitivity_);
     } else {
       // The held acceleration extrapolated to the step and turned with the camera since it was held; then the
       // smoothed ones turned with the camera and updated with this step's acceleration.
@@ -171,7 +171,7 @@ void ImuPropagator::propagateTo(double t_target_s, State* x, ErrorCov* P) {
       const Vec3 held_accel = column_accel_C_ + (t0_s - column_t_s_) * column_trend_C_;  // m/s^2
       const Vec3 column = column_valid_ ? Vec3(column_turn_ * held_accel) : Vec3::Zero();
       const Mat3 turn = expSO3(-dt * (s.gyro_radps - x->b_w));
-      predictImuPiece(s, dt, nominal_dt_s, params_, x, P, &column);
+      predictImuPiece(s, dt, nominal_dt_s, params_, x, P, &column, &focal_sensitivity_);
       column_turn_ = turn * column_turn_;
       const Vec3 accel = s.accel_mps2 - x->b_a + g0 * x->g.vector();  // m/s^2
       // The two averages' variances and covariance per unit sample variance (white samples), exactly from the

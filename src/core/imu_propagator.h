@@ -96,6 +96,8 @@ class ImuPropagator {
   Vec3 accelLevelSampleVariance() const;
   /// The acceleration the distance's column holds (C, m/s^2; holdColumnAccel). For tests.
   const Vec3& heldColumnAccel() const { return column_accel_C_; }
+  /// The state's error per unit focal-length error (reported covariance), carried by each prediction step.
+  ErrorVec& focalSensitivity() { return focal_sensitivity_; }
 
   /// Gravity direction from the mean specific force of the filtered samples of the 0.5 s up to up_to_t_s, if
   /// the vehicle is near rest (|mean| within 10 % of g): g = -f/|f|. False otherwise.
@@ -136,6 +138,7 @@ class ImuPropagator {
   double prev_c1_ = 0.0, prev_c2_ = 0.0, next_c1_ = 0.0, next_c2_ = 0.0;
   double closed11_ = 0.0, closed12_ = 0.0, closed22_ = 0.0;
   bool accel_smooth_valid_ = false;
+  ErrorVec focal_sensitivity_ = ErrorVec::Zero();  // the state's error per unit focal error (the estimator's)
   Vec3 column_accel_C_ = Vec3::Zero();   // the held acceleration of the distance's column, in C then, m/s^2
   Vec3 column_trend_C_ = Vec3::Zero();   // its rate of change, m/s^3
   Mat3 column_turn_ = Mat3::Identity();  // how directions fixed in the world turned from then to now

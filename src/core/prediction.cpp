@@ -170,7 +170,8 @@ NoiseVec discreteNoiseSigmas(const ImuParams& imu, const ProcessNoiseParams& pro
 }
 
 void predict(const Vec3& accel_C, const Vec3& gyro_C, double dt_s, const ImuParams& imu,
-             const ProcessNoiseParams& process, State* x, ErrorCov* P, const Vec3* column_accel_C) {
+             const ProcessNoiseParams& process, State* x, ErrorCov* P, const Vec3* column_accel_C,
+             ErrorVec* sensitivity) {
   if (!(dt_s > 0.0)) return;
   ErrorCov F;
   NoiseJacobian G;
@@ -220,6 +221,10 @@ void predict(const Vec3& accel_C, const Vec3& gyro_C, double dt_s, const ImuPara
   Pn(ErrIdx::kRo, ErrIdx::kRo) += process.readout_s_per_sqrt_s * process.readout_s_per_sqrt_s * dt_s;
   Pn(ErrIdx::kFs, ErrIdx::kFs) += process.focal_scale_per_sqrt_s * process.focal_scale_per_sqrt_s * dt_s;
   *P = 0.5 * (Pn + Pn.transpose());
+  if (sensitivity != nullptr) {  // an error direction carried by the dynamics: F s (the bias rows of F are [0 I])
+    const ErrorVec s = *sensitivity;
+    sensitivity->head<kTop>().noalias() = F_top * s;
+  }
 }
 
 }  // namespace diekf

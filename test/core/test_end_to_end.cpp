@@ -128,24 +128,29 @@ void runOnAndOff(const std::function<void(EstimatorParams*, bool)>& set, std::ve
   }
 }
 
-TEST(EndToEndCovariance, TheFocalLengthsUncertaintyWidensTheReportedDistanceOnly) {
+TEST(EndToEndCovariance, TheFocalLengthsUncertaintyWidensTheReportedCovarianceOnly) {
   // The same short flight with and without the calibration's focal-length uncertainty in the reported
-  // covariance: the estimates are the same to the bit, the velocity's 1-sigma too, and the distance's variance
-  // grows by (sigma_focal_scale d)^2 exactly (a focal length off by e reads the distance off by e).
+  // covariance: the estimates are the same to the bit, and the reported covariance grows by sigma_focal_scale^2
+  // s s^T exactly, s the focal length's sensitivity (FrameResult::focal_sensitivity; what it predicts:
+  // FocalScale.TheSensitivityPredictsTheDistanceErrorOfAWrongFocalLength). s is zero at the start and reaches
+  // about the scale error's alpha (a focal length off by e reads the distance off by about e).
   std::vector<FrameResult> on, off;
   runOnAndOff([](EstimatorParams* p, bool flag) { p->photometric.focal_scale_in_covariance = flag; }, &on, &off);
   ASSERT_EQ(on.size(), off.size());
   ASSERT_GT(on.size(), 90u);
-  const double sf = EstimatorParams().init.sigma_focal_scale;
+  const double sf2 = std::pow(EstimatorParams().init.sigma_focal_scale, 2);
+  EXPECT_EQ(on.front().focal_sensitivity, ErrorVec::Zero());
   for (size_t i = 0; i < on.size(); ++i) {
     ASSERT_EQ(on[i].state.alpha, off[i].state.alpha);
     ASSERT_EQ(on[i].state.vartheta, off[i].state.vartheta);
-    const double d = on[i].distance_m();
-    EXPECT_NEAR(on[i].sigma_distance_m() * on[i].sigma_distance_m() - off[i].sigma_distance_m() * off[i].sigma_distance_m(),
-                sf * sf * d * d, 1e-9 * d * d);
-    EXPECT_LT((on[i].sigma_velocity_mps() - off[i].sigma_velocity_mps()).norm(),
-              1e-9 + 1e-9 * off[i].sigma_velocity_mps().norm());
+    ASSERT_EQ(on[i].focal_sensitivity, off[i].focal_sensitivity);
+    const ErrorVec& s = on[i].focal_sensitivity;
+    const ErrorCov grown = on[i].covariance - off[i].covariance;
+    EXPECT_LT((grown - sf2 * s * s.transpose()).cwiseAbs().maxCoeff(), 1e-12 + 1e-9 * off[i].covariance.norm());
   }
+  const FrameResult& last = on.back();
+  EXPECT_GT(std::abs(last.focal_sensitivity(ErrIdx::kAlpha)), 0.5 * last.state.alpha);
+  EXPECT_GT(last.sigma_distance_m(), off.back().sigma_distance_m());
 }
 
 TEST(EndToEndCovariance, TheCameraRotationsUncertaintyWidensTheReportedVelocityNotTheDistance) {

@@ -137,6 +137,34 @@ TEST(Prediction, JacobiansAtMuEqualGAndUntiltedCamera) {
 // distance's column of F uses. Given the step's own (a - b_a + g0 g, no rotation over the step so that both forms
 // agree exactly) it is predict() without it; given another, only the covariance of the distance and vartheta
 // rows changes (the rows F's distance column reaches), and the mean not at all.
+// A direction of the error state carried by the dynamics (the focal length's sensitivity, FrameResult::
+// focal_sensitivity): predict's optional vector becomes F s, F the step's Jacobian (tested against finite
+// differences above), and the mean and the covariance are those of the step without it.
+TEST(Prediction, ASensitivityIsCarriedByTheStepsJacobian) {
+  std::mt19937 rng(23);
+  std::normal_distribution<double> n(0.0, 1.0);
+  ImuParams imu;
+  imu.gravity_mps2 = kG0;
+  ProcessNoiseParams proc;
+  for (int trial = 0; trial < 5; ++trial) {
+    const Case c = randomCase(rng, 0.01, 0.0);
+    const ErrorCov P0 = randomCovariance(rng);
+    ErrorVec s0;
+    for (int i = 0; i < kErrorDim; ++i) s0(i) = n(rng);
+    ErrorCov F;
+    NoiseJacobian G;
+    predictionJacobians(c.x, c.accel_C, c.gyro_C, c.dt_s, kG0, &F, &G);
+    State x_with = c.x, x_without = c.x;
+    ErrorCov P_with = P0, P_without = P0;
+    ErrorVec s = s0;
+    predict(c.accel_C, c.gyro_C, c.dt_s, imu, proc, &x_with, &P_with, nullptr, &s);
+    predict(c.accel_C, c.gyro_C, c.dt_s, imu, proc, &x_without, &P_without);
+    EXPECT_LT((s - F * s0).cwiseAbs().maxCoeff(), 1e-12 * (1.0 + s0.cwiseAbs().maxCoeff()));
+    EXPECT_EQ(P_with, P_without);
+    EXPECT_LT(x_with.boxminus(x_without).norm(), 1e-14);
+  }
+}
+
 TEST(Prediction, ColumnAccelerationOnlyChangesTheDistanceColumn) {
   std::mt19937 rng(17);
   std::normal_distribution<double> n(0.0, 1.0);

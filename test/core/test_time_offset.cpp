@@ -8,6 +8,7 @@
 #include <cstdio>
 #include <cstdlib>
 #include <random>
+#include <utility>
 #include <vector>
 
 #include <opencv2/core.hpp>
@@ -144,6 +145,7 @@ struct OffsetRun {
   double coverage_d = 0.0;  // share of the frames from 5 s with the distance within 2 sigma
   double mean_sigma_d_m = 0.0;  // mean 1-sigma of the distance from 5 s
   int frames = 0, resets = 0;
+  std::vector<FrameResult> results;  // every result
 };
 
 /// A flight whose images are really taken `true_offset_s` after their stamps (the camchain says 0): each image
@@ -246,6 +248,7 @@ OffsetRun runFlight(const RunOptions& o) {
     out.focal_end = results.back().state.focal_scale;
     out.sigma_focal_end = std::sqrt(results.back().covariance(ErrIdx::kFs, ErrIdx::kFs));
   }
+  out.results = std::move(results);
   return out;
 }
 
@@ -313,6 +316,50 @@ TEST(FocalScale, AFocalLengthTwoPercentOffIsEstimatedOnline) {
   EXPECT_LT(est.rmse_d_m, 0.7 * ignored.rmse_d_m);
   EXPECT_LT(std::abs(exact.focal_end), 3.0 * exact.sigma_focal_end + 0.002);
   EXPECT_LT(exact.rmse_d_m, 1.3 * exact_off.rmse_d_m + 0.002);
+}
+
+// The focal length's sensitivity (FrameResult::focal_sensitivity: the state's error per unit focal error, carried
+// through every update and prediction, docs/noise_model.md section 9) predicts what a focal error does: the same
+// flight with the calibration's focal lengths 2 % too long, against the exact calibration. A focal error scales the
+// translation's flow (the distance off by e) and mis-predicts the gyro's rotation of the image by e of itself,
+// which the update partly takes for translation: the distance error is more than e d. The reported covariance
+// adds sigma_focal_scale^2 s s^T.
+TEST(FocalScale, TheSensitivityPredictsTheDistanceErrorOfAWrongFocalLength) {
+  RunOptions o;
+  o.working_width_px = 180;
+  const OffsetRun exact = runFlight(o);
+  o.focal_error = 0.02;
+  const OffsetRun wrong = runFlight(o);
+  ASSERT_EQ(exact.resets, 0);
+  ASSERT_EQ(wrong.resets, 0);
+  ASSERT_EQ(exact.results.size(), wrong.results.size());
+  const double e_f = 1.0 / 1.02 - 1.0;  // true focal lengths = (1 + e_f) x the calibration's
+  double sq_effect = 0.0, sq_left = 0.0, sq_plain = 0.0, sq_pred = 0.0;
+  int n = 0;
+  for (size_t i = 0; i < exact.results.size(); ++i) {
+    const FrameResult& a = exact.results[i];
+    const FrameResult& b = wrong.results[i];
+    ASSERT_NEAR(a.t_s, b.t_s, 0.005);
+    if (a.t_s < 5.0) continue;
+    const double effect = b.distance_m() - a.distance_m();
+    // d = 1 / alpha: a change of alpha by s_alpha e_f moves d by -s_alpha e_f / alpha^2.
+    const double predicted = -a.focal_sensitivity(ErrIdx::kAlpha) * e_f / (a.state.alpha * a.state.alpha);
+    sq_effect += effect * effect;
+    sq_left += (effect - predicted) * (effect - predicted);
+    sq_plain += std::pow(effect - (-e_f) * a.distance_m(), 2);  // a scale error of e_f alone: d off by -e_f d
+    sq_pred += predicted * predicted;
+    ++n;
+  }
+  ASSERT_GT(n, 150);
+  const double rms_effect = std::sqrt(sq_effect / n), rms_left = std::sqrt(sq_left / n);
+  const double rms_plain = std::sqrt(sq_plain / n), rms_pred = std::sqrt(sq_pred / n);
+  std::printf("[focal sensitivity] 2 %% focal error, from 5 s: distance moved %.2f cm RMS, predicted %.2f cm, left "
+              "%.2f cm (a plain scale error would leave %.2f cm)\n",
+              100 * rms_effect, 100 * rms_pred, 100 * rms_left, 100 * rms_plain);
+  EXPECT_LT(rms_left, 0.2 * rms_effect);  // measured 0.07
+  EXPECT_LT(rms_left, rms_plain);
+  const FrameResult& last = exact.results.back();
+  EXPECT_GT(std::abs(last.focal_sensitivity(ErrIdx::kAlpha)), 0.5 * last.state.alpha);  // at least about e
 }
 
 // The focal-length scale as a consider parameter (Schmidt): the images never move it (its mean and variance stay),
