@@ -549,13 +549,14 @@ struct Estimator::Impl {
       update.setReferenceConfidence(fill_confidence.empty() ? nullptr : &fill_confidence);  // the same fill on both
       const double alpha0 = x.alpha, var_alpha0 = P(ErrIdx::kAlpha, ErrIdx::kAlpha);
       update.setReportImageVartheta(scale_init.phase() != internal::ScaleInitializer::Phase::kDone);
+      // The prior and the state's lag behind the image, for the focal length's carried error.
+      const bool carry_focal = !params.estimate_focal_scale;
       const ErrorCov P_before = P;
       const double lag_s = std::max(0.0, img.t_s - imu.stateTime());
       stats = update.apply(frames[ref_index], cur, img.t_s, imu, last_imu_gap_end_s, &health, &x, &P, &skip_reason);
       imu.holdColumnAccel();  // the next predictions' distance column: none of the next innovation's noise
       if (stats.applied && scale_init.holdsAlpha()) holdAlpha(alpha0, var_alpha0);
-      if (stats.applied && update.lastPairPhotometric() && !params.estimate_focal_scale)
-        carryFocalSensitivity(P_before, lag_s);
+      if (carry_focal && stats.applied && update.lastPairPhotometric()) carryFocalSensitivity(P_before, lag_s);
       if (update.lastPairPhotometric()) {
         // The camera-fixed pattern learns by how far the ground moved: the rotation (gyro) always, the translation
         // of an accepted image, until the filter has converged only its lower bound (docs/noise_model.md

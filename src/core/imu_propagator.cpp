@@ -85,8 +85,12 @@ bool ImuPropagator::push(const ImuSample& filtered) {
 
 bool ImuPropagator::noiseMeasured() const { return second_diffs_ >= 1.0 / filteredPeriod(); }  // 1 s of them
 
+Vec3 ImuPropagator::calibratedSampleVariance(double density) const {
+  return Vec3::Constant(density * density * sample_var_per_density_sq_);
+}
+
 Vec3 ImuPropagator::sampleVariance(const Vec3& second_diff_var, double calibrated_density) const {
-  if (!noiseMeasured()) return Vec3::Constant(calibrated_density * calibrated_density * sample_var_per_density_sq_);
+  if (!noiseMeasured()) return calibratedSampleVariance(calibrated_density);
   return second_diff_var * (sample_var_per_density_sq_ / second_diff_var_per_density_sq_);
 }
 
@@ -99,8 +103,7 @@ Vec3 ImuPropagator::accelSampleVariance() const {
 }
 
 Vec3 ImuPropagator::accelLevelSampleVariance() const {
-  const double density = params_.imu.accel_noise_density;
-  return accelSampleVariance().cwiseMin(Vec3::Constant(density * density * sample_var_per_density_sq_));
+  return accelSampleVariance().cwiseMin(calibratedSampleVariance(params_.imu.accel_noise_density));
 }
 
 double ImuPropagator::gyroNoiseDensitySq() const {
@@ -232,10 +235,11 @@ void ImuPropagator::holdColumnAccel() {
   const Vec3 level = 2.0 * smooth1_C_ - smooth2_C_;
   const Vec3 trend = w < 1.0 ? Vec3((w / ((1.0 - w) * h)) * (smooth1_C_ - smooth2_C_)) : Vec3::Zero();
   // Held as its expected value given the samples' noise through the smoothing: one sample's variance
-  // (accelLevelSampleVariance: the calibration's at most) times the level's variance factor 4 v11 - 4 v12 + v22 (tracked from the first sample: 1 then, w (1 + 4b + 5b^2) /
-  // (1 + b)^3 with b = 1 - w in the steady state), times the factor of the filtered samples' correlation over
-  // every lag (sampleCorrelationFactor). Where the noise explains the level (at rest), the column shows no acceleration, and
-  // the images' "vartheta did not change" is no information about the distance. (The gravity direction's and the
+  // (accelLevelSampleVariance: the calibration's at most) times the level's variance factor 4 v11 - 4 v12 + v22
+  // (tracked from the first sample: 1 then, w (1 + 4b + 5b^2) / (1 + b)^3 with b = 1 - w in the steady state),
+  // times the factor of the filtered samples' correlation over every lag (sampleCorrelationFactor). Where the noise
+  // explains the level (at rest), the column shows no acceleration, and the images' "vartheta did not change" is no
+  // information about the distance. (The gravity direction's and the
   // bias's uncertainty are not counted: they are states whose first-order effect F models, and counted here they
   // hold the distance back until the tilt is known: docs/algorithm.md 2.1.)
   const double noise_factor = std::max(0.0, levelVarianceFactor()) * correlation_factor_;

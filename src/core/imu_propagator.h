@@ -110,6 +110,8 @@ class ImuPropagator {
   Vec3 gyroIntegral(double t0_s, double t1_s) const;
   /// Whether 1 s of second differences has been seen (until then the calibration's densities are used).
   bool noiseMeasured() const;
+  /// One filtered sample's variance for white noise of the calibration's density through the low-pass.
+  Vec3 calibratedSampleVariance(double density) const;
   /// One filtered sample's variance from the smoothed second differences, or from the calibration's density.
   Vec3 sampleVariance(const Vec3& second_diff_var, double calibrated_density) const;
   /// Drops the samples before the last one at or before the state's time.
