@@ -5,11 +5,11 @@ import subprocess
 import sys
 
 
-def find_bin_dir(script_name):
-    """Folder holding diekf_simulate and diekf_bag_runner, the first of: $DIEKF_BIN_DIR, $DIEKF_WS/devel/lib/diekf,
-    this script's own folder (an install space puts the scripts next to the tools), the sourced catkin workspaces
-    (catkin_find), the workspace `make build` uses (`make ws-path`). Exits with a message naming `script_name`
-    when none has both tools."""
+def find_bin_dir(script_name, tools=("diekf_bag_runner", "diekf_simulate")):
+    """Folder holding the `tools` (by default diekf_simulate and diekf_bag_runner), the first of: $DIEKF_BIN_DIR,
+    $DIEKF_WS/devel/lib/diekf, this script's own folder (an install space puts the scripts next to the tools), the
+    sourced catkin workspaces (catkin_find), the workspace `make build` uses (`make ws-path`). Exits with a message naming `script_name`
+    when none has them all."""
     here = os.path.dirname(os.path.abspath(__file__))
     pkg_dir = os.path.dirname(here)
     candidates = []
@@ -32,10 +32,10 @@ def find_bin_dir(script_name):
         except (OSError, subprocess.SubprocessError):
             pass
     for c in candidates:
-        if os.path.isfile(os.path.join(c, "diekf_bag_runner")) and os.path.isfile(os.path.join(c, "diekf_simulate")):
+        if all(os.path.isfile(os.path.join(c, tool)) for tool in tools):
             return c
-    sys.exit("%s: diekf_simulate / diekf_bag_runner not found in %s; build first (make build) "
-             "or set DIEKF_BIN_DIR" % (script_name, ", ".join(candidates)))
+    sys.exit("%s: %s not found in %s; build first (make build) "
+             "or set DIEKF_BIN_DIR" % (script_name, " / ".join(tools), ", ".join(candidates)))
 
 
 def run(cmd, log_path):

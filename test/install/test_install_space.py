@@ -40,7 +40,7 @@ LIBRARIES = ["libdiekf_core.so", "libdiekf_sim.so", "libdiekf_ros_helpers.so", "
              "libdiekf_mynteye_standin.so"]
 EXECUTABLES = ["diekf_node", "diekf_bag_runner", "diekf_replay", "diekf_simulate", "diekf_import",
                "mynteye_standin_node"]
-SCRIPTS = ["load_nodelet_after.py", "plot_results.py"]  # installed programs that are not ELF files
+SCRIPTS = ["load_nodelet_after.py", "plot_results.py", "calibration_ensemble.py"]  # installed programs that are not ELF files
 SHARE_FILES = ["package.xml", "nodelet_plugins.xml", "launch/mynteye.launch", "launch/replay.launch",
                "launch/mynteye_driver.launch", "launch/mynteye_standin.launch",
                "launch/include/mynteye_driver_params.launch", "launch/include/mynteye_standin_device.launch",

@@ -20,6 +20,7 @@
 #include <sensor_msgs/Imu.h>
 #include <shape_msgs/Plane.h>
 #include <std_msgs/String.h>
+#include <yaml-cpp/yaml.h>
 
 #include "diekf/eval/io.h"
 
@@ -487,6 +488,94 @@ TEST(BagRunner, ModeAndSetReachTheEstimator) {
   r = runRunner(common + " --set photometric/max_passes=two --output " + (dirs.root / "bad").string(), dirs.root);
   EXPECT_NE(r.exit_code, 0);
   EXPECT_NE(r.err.find("photometric/max_passes"), std::string::npos) << r.err;
+}
+
+TEST(BagRunner, CalibrationEnsembleDrawsFromThePriorAndPoolsTheConsistency) {
+  // scripts/calibration_ensemble.py: each draw's camchain is the true one with the focal lengths times (1 + e) and
+  // the camera frame turned by theta (both as recorded in draw.json), the draws repeat with the seed, the pooled
+  // table counts every run, and a draw of zero is exactly the runner on the true calibration.
+  Dirs dirs;
+  const fs::path seq = dirs.root / "flight";
+  fs::create_directories(seq);
+  writeFlightBag((seq / "sequence.bag").string(), 5.0, true);
+  writeCamchain(seq);
+  const std::string bin_dir = fs::path(DIEKF_BAG_RUNNER_EXE).parent_path().string();
+  const fs::path ens = dirs.root / "ens";
+  auto ensemble = [&](const std::string& tag, const std::string& args) {
+    return runCommand("DIEKF_BIN_DIR=\"" + bin_dir + "\" python3 \"" + DIEKF_ENSEMBLE_SCRIPT + "\" --sequences \"" +
+                          seq.string() + "\" --output \"" + ens.string() + "\" --tag " + tag +
+                          " --threads 1 --runner-args \"--width 64 --quiet\" " + args,
+                      dirs.root);
+  };
+  const std::string drawn = "--draws 2 --seed 7 --sigma-focal 0.05 --sigma-rotation-deg 2";
+  RunResult r = ensemble("a", drawn);
+  ASSERT_EQ(r.exit_code, 0) << r.err << r.out;
+  double focal_errors[2] = {0.0, 0.0};
+  for (int k = 0; k < 2; ++k) {
+    const fs::path run = ens / "a" / ("flight_d" + std::to_string(k));
+    const YAML::Node draw = YAML::LoadFile((run / "draw.json").string());
+    const YAML::Node cam = YAML::LoadFile((run / "camchain.yaml").string())["cam0"];
+    const double e = draw["focal_error"].as<double>();
+    focal_errors[k] = e;
+    EXPECT_GT(std::abs(e), 1e-6);
+    EXPECT_NEAR(cam["intrinsics"][0].as<double>(), kFocalPx * (1.0 + e), 1e-9);
+    EXPECT_NEAR(cam["intrinsics"][1].as<double>(), kFocalPx * (1.0 + e), 1e-9);
+    EXPECT_NEAR(cam["intrinsics"][2].as<double>(), kCxPx, 1e-12);
+    EXPECT_NEAR(cam["intrinsics"][3].as<double>(), kCyPx, 1e-12);
+    // R_written R_true^T is the rotation by theta: angle and axis.
+    double R[3][3];
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) R[i][j] = cam["T_cam_imu"][i][j].as<double>();
+    const double true_diag[3] = {1.0, -1.0, -1.0};
+    double D[3][3];
+    for (int i = 0; i < 3; ++i)
+      for (int j = 0; j < 3; ++j) D[i][j] = R[i][j] * true_diag[j];
+    double theta[3], norm2 = 0.0;
+    for (int i = 0; i < 3; ++i) {
+      theta[i] = draw["rotation_deg"][i].as<double>() * M_PI / 180.0;
+      norm2 += theta[i] * theta[i];
+    }
+    const double angle = std::acos(std::min(1.0, 0.5 * (D[0][0] + D[1][1] + D[2][2] - 1.0)));
+    EXPECT_NEAR(angle, std::sqrt(norm2), 1e-9);
+    const double s = 2.0 * std::sin(angle);
+    EXPECT_NEAR((D[2][1] - D[1][2]) / s * angle, theta[0], 1e-9);
+    EXPECT_NEAR((D[0][2] - D[2][0]) / s * angle, theta[1], 1e-9);
+    EXPECT_NEAR((D[1][0] - D[0][1]) / s * angle, theta[2], 1e-9);
+    EXPECT_TRUE(fs::exists(run / "estimates.csv"));
+  }
+  EXPECT_NE(focal_errors[0], focal_errors[1]);
+  const YAML::Node pooled = YAML::LoadFile((ens / "a.json").string());
+  EXPECT_EQ(pooled["runs"].size(), 2u);
+  EXPECT_EQ(pooled["failed"].size(), 0u);
+  EXPECT_EQ(pooled["pooled"]["all"]["runs"].as<int>(), 2);
+  const double coverage = pooled["pooled"]["all"]["coverage2_d"].as<double>();
+  EXPECT_GE(coverage, 0.0);
+  EXPECT_LE(coverage, 1.0);
+  EXPECT_NE(r.out.find("| all | 2 |"), std::string::npos) << r.out;
+
+  // The same seed draws the same calibrations.
+  r = ensemble("b", drawn);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  for (int k = 0; k < 2; ++k) {
+    const std::string name = "flight_d" + std::to_string(k);
+    EXPECT_EQ(readLines(ens / "a" / name / "camchain.yaml"), readLines(ens / "b" / name / "camchain.yaml")) << k;
+  }
+
+  // A draw of zero runs the true calibration (and passes no prior): the estimates of the runner given it directly.
+  r = ensemble("zero", "--draws 1 --sigma-focal 0 --sigma-rotation-deg 0");
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  const fs::path direct = dirs.root / "direct";
+  r = runRunner("--bag \"" + (seq / "sequence.bag").string() + "\" --camchain \"" + (seq / "camchain.yaml").string() +
+                    "\" --output \"" + direct.string() +
+                    "\" --width 64 --quiet",
+                dirs.root);
+  ASSERT_EQ(r.exit_code, 0) << r.err;
+  std::vector<std::string> a = readLines(ens / "zero" / "flight_d0" / "estimates.csv");
+  std::vector<std::string> b = readLines(direct / "estimates.csv");
+  for (auto* lines : {&a, &b})
+    for (std::string& l : *lines) l = l.substr(0, l.rfind(',', l.rfind(',') - 1));  // without update_ms, status
+  ASSERT_GT(a.size(), 50u);
+  EXPECT_EQ(a, b);
 }
 
 }  // namespace
