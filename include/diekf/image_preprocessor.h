@@ -40,6 +40,8 @@ struct PreprocessedFrame {
                            ///< two frames with different openings are not a pair
   int dot_fill_id = 0;  ///< the fill the raw image's projector dots went through (ImagePreprocessor::dotFillId;
                         ///< 0: none): two frames with different fills are not a pair
+  int resample_id = 0;  ///< the resampling it went through (ImagePreprocessor::resampleId): two frames resampled for
+                        ///< different focal lengths are not a pair
   bool valid = false;
 };
 
@@ -51,6 +53,7 @@ struct ResampledImage {
   cv::Mat gray8;   ///< CV_8UC1 H x W: the same, rounded (PreprocessedFrame::gray8)
   int dot_removal_px = 0;  ///< the opening the raw image went through (PreprocessParams::dot_removal_px; 0: none)
   int dot_fill_id = 0;  ///< the fill the projector dots went through (ImagePreprocessor::dotFillId; 0: none)
+  int resample_id = 0;  ///< the resampling it went through (ImagePreprocessor::resampleId)
   bool valid = false;
 };
 
@@ -85,6 +88,20 @@ class ImagePreprocessor {
   /// (FixedPattern::reapply), normalised and differentiated again: after the fields changed, so that the next
   /// pair sees one correction in both images. No-op when the pattern cannot (nothing kept, or disabled).
   void reapplyPattern(FixedPattern* pattern, PreprocessedFrame* frame) const;
+
+  /// Re-makes the resampling for a camera whose focal lengths are (1 + focal_scale) x the calibration's, the
+  /// distortion and the principal point kept (the focal-length state, docs/algorithm.md section 3.8): each working
+  /// pixel then samples the raw pixel its ray reaches in that camera, so the working image is the pinhole image of
+  /// intrinsics scaledFocal(workingK(), focal_scale). With a lens distortion this is not the same as scaling the
+  /// working intrinsics alone: the calibration's focal lengths multiply the distorted coordinates. Allocates (a rare
+  /// event); the images resampled from now on carry a new resampleId(). Throws std::invalid_argument outside
+  /// (-0.5, 0.5).
+  void setFocalScale(double focal_scale);
+  /// The focal scale the resampling is made for (setFocalScale; 0 at construction).
+  double focalScale() const { return focal_scale_; }
+  /// Which resampling the images resampled from now on go through: 0 at construction, one more per setFocalScale
+  /// that changed it (PreprocessedFrame::resample_id).
+  int resampleId() const { return resample_id_; }
 
   /// Switches the bright-dot opening of the raw images (PreprocessParams::dot_removal_px) to a square of side px
   /// (odd, <= 31; 0 or 1 = off) for the images resampled from now on. Throws std::invalid_argument otherwise.
@@ -158,13 +175,20 @@ class ImagePreprocessor {
     uint16_t tx = 0, ty = 0;
   };
 
+  /// The resampling table for focal_scale_ (constructor, setFocalScale).
+  void buildResampling();
+  /// dot_fill_coverage_ from fill_mask_ through the current table.
+  void updateFillCoverage();
   void resampleTable(const uint8_t* src, float* dst, uint8_t* g8) const;
   /// Steps 3 and 4 of process(): brightness normalisation from the moments of intensity - pivot, gradients.
   void normalizeAndGradients(double sum, double sum_sq, float pivot, PreprocessedFrame* out) const;
 
   PreprocessParams params_;
+  CameraModel camera_;  // the calibration (its focal lengths scaled by 1 + focal_scale_ in the table)
   PinholeK raw_K_;
-  PinholeK working_K_;
+  PinholeK working_K_;     // the calibration's (focal_scale_ 0)
+  double focal_scale_ = 0.0;
+  int resample_id_ = 0;
   std::vector<ColumnWeights> columns_;
   std::vector<RowTaps> rows_;
   std::vector<FastGroup> fast_groups_;  // with slow_pixels_, every working pixel appears exactly once
@@ -185,6 +209,7 @@ class ImagePreprocessor {
   double dot_fill_share_ = 0.0;
   int fill_id_ = 0;                 // setDotFill's calls with a mask
   cv::Mat dot_fill_coverage_;       // see dotFillCoverage()
+  cv::Mat fill_mask_;               // setDotFill's mask as 0 / 1 (empty: no fill), for its coverage
   cv::Mat dot_gain_;                // setDotGain's inverse gains, Q12 (empty: none)
   double dot_gain_share_ = 0.0;     // see dotGainShare()
   cv::Mat dots_removed_;            // the raw image opened by it, or with its dots divided and filled

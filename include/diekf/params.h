@@ -306,8 +306,12 @@ struct EstimatorParams {
   bool estimate_readout = true;                 ///< the rolling-shutter readout time as a filter state
   double max_readout_s = 0.05;                  ///< bound of the estimated readout (either sign), s
   double readout_start_sigma_time_offset_s = 0.003;  ///< the readout is estimated once the offset's 1-sigma is below, s
-  /// The focal length's relative error as a filter state (section 3.8). Off: biased by several percent on fine,
-  /// low-contrast textures (docs/results.md "Focal length").
+  /// With estimate_focal_scale and the time offset estimated: the focal-length scale is estimated once the offset's
+  /// 1-sigma is below this, s (docs/algorithm.md section 3.8)
+  double focal_start_sigma_time_offset_s = 0.001;
+  /// The focal length's relative error as a filter state, the raw images resampled for its estimate (section 3.8).
+  /// Off: with a correct calibration it settles 0.3-1 % off on natural textures (docs/results.md "Consistency over
+  /// the calibration's prior").
   bool estimate_focal_scale = false;
   /// With estimate_focal_scale: the focal-length scale as a consider parameter (Schmidt-Kalman) instead: its
   /// uncertainty (init.sigma_focal_scale) enters the covariance of the other states through the update, but the

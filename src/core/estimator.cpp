@@ -447,6 +447,24 @@ struct Estimator::Impl {
     if (kh.allFinite()) s += kh;
   }
 
+  /// The focal-length scale starts to be estimated (estimate_focal_scale; ImageUpdate::estimatesFocalScale): until
+  /// now the state's estimate moved by s e for the true focal error e, while the scale's own estimate stayed at its
+  /// prior, off by -e. Their errors are therefore correlated: P_xx += var_f s s^T, P_xf = -var_f s, with var_f the
+  /// scale's variance so far. The carried error becomes P's own (it is no longer added to the report, nor dropped);
+  /// docs/algorithm.md section 3.8.
+  void foldFocalSensitivity() {
+    ErrorVec& s = imu.focalSensitivity();
+    s(ErrIdx::kFs) = 0.0;
+    const double var_f = P(ErrIdx::kFs, ErrIdx::kFs);
+    if (s.allFinite() && var_f > 0.0) {
+      P.noalias() += var_f * s * s.transpose();
+      P.col(ErrIdx::kFs) -= var_f * s;
+      P.row(ErrIdx::kFs) -= var_f * s.transpose();
+    }
+    s.setZero();
+    focal_folded = true;
+  }
+
   /// Starts the filter at image `t_s`: gravity from the accelerometer, no propagation before.
   void startAt(double t_s) {
     UnitVector g;
@@ -454,6 +472,7 @@ struct Estimator::Impl {
     if (params.init.mu0_from_gravity) x.mu = x.g;  // level-ground prior; sigma_mu0_rad covers inclines
     imu.startAt(t_s);
     imu.focalSensitivity().setZero();
+    focal_folded = false;
     last_usable_image_t_s = t_s;
     state_initialized = true;
   }
@@ -544,19 +563,30 @@ struct Estimator::Impl {
       // next reference.
       skip_reason =
           "raw images opened or their dots filled from this image on (dots fixed in the image): new reference";
+    } else if (have_reference && frames[ref_index].resample_id != cur.resample_id) {
+      // The resampling was re-made for the focal-length estimate between the two images: not a pair.
+      skip_reason = "raw images resampled for the focal-length estimate from this image on: new reference";
     } else if (have_reference) {
       update.setPixelConfidence(pixelConfidence());
       update.setReferenceConfidence(fill_confidence.empty() ? nullptr : &fill_confidence);  // the same fill on both
       const double alpha0 = x.alpha, var_alpha0 = P(ErrIdx::kAlpha, ErrIdx::kAlpha);
       update.setReportImageVartheta(scale_init.phase() != internal::ScaleInitializer::Phase::kDone);
       // The prior and the state's lag behind the image, for the focal length's carried error.
-      const bool carry_focal = !params.estimate_focal_scale;
+      if (params.estimate_focal_scale && !focal_folded && update.estimatesFocalScale(img.t_s, health, P))
+        foldFocalSensitivity();
+      const bool carry_focal = !focal_folded;
       const ErrorCov P_before = P;
       const double lag_s = std::max(0.0, img.t_s - imu.stateTime());
       stats = update.apply(frames[ref_index], cur, img.t_s, imu, last_imu_gap_end_s, &health, &x, &P, &skip_reason);
       imu.holdColumnAccel();  // the next predictions' distance column: none of the next innovation's noise
       if (stats.applied && scale_init.holdsAlpha()) holdAlpha(alpha0, var_alpha0);
       if (carry_focal && stats.applied && update.lastPairPhotometric()) carryFocalSensitivity(P_before, lag_s);
+      // The focal-length estimate in the resampling (docs/algorithm.md section 3.8): a camchain's focal lengths
+      // multiply the distorted coordinates, so the working image is a pinhole image only when it is resampled for
+      // the camera's own focal lengths. Re-made when the estimate has moved by kFocalResampleStep.
+      if (params.estimate_focal_scale && std::abs(x.focal_scale - img_pre.focalScale()) > kFocalResampleStep) {
+        img_pre.setFocalScale(x.focal_scale);
+      }
       if (update.lastPairPhotometric()) {
         // The camera-fixed pattern learns by how far the ground moved: the rotation (gyro) always, the translation
         // of an accepted image, until the filter has converged only its lower bound (docs/noise_model.md
@@ -713,12 +743,11 @@ struct Estimator::Impl {
     r.covariance = P;
     // The distance to which layer of a scene that is not one plane (section 13 of docs/noise_model.md).
     if (params.photometric.relief_in_covariance) addScaleAmbiguity(x, relief_var, &r.covariance);
-    // The calibration's focal length, when not estimated: a scale error of the translation's flow (section 9).
-    // The calibration's focal length, when not estimated: its error carried through the updates and the dynamics
+    // The calibration's focal length, until it is estimated: its error carried through the updates and the dynamics
     // (carryFocalSensitivity; a scale error of the translation's flow, amplified where the gyro's rotation is
-    // mis-predicted by it; docs/noise_model.md section 9).
+    // mis-predicted by it; docs/noise_model.md section 9), then folded into P (foldFocalSensitivity).
     r.focal_sensitivity = imu.focalSensitivity();
-    if (params.photometric.focal_scale_in_covariance && !params.estimate_focal_scale) {
+    if (params.photometric.focal_scale_in_covariance && !focal_folded) {
       r.covariance.noalias() += (params.init.sigma_focal_scale * params.init.sigma_focal_scale) *
                                 r.focal_sensitivity * r.focal_sensitivity.transpose();
     }
@@ -847,6 +876,13 @@ struct Estimator::Impl {
   ErrorCov P = ErrorCov::Zero();
   double last_usable_image_t_s = 0.0;  // stamp of the last image with texture (or of the start), IMU clock
   bool state_initialized = false;
+  /// The focal-length scale is estimated (estimate_focal_scale) and its carried error has been folded into P at
+  /// the first update that estimated it (foldFocalSensitivity); until then the sensitivity is carried.
+  bool focal_folded = false;
+  /// The focal-length estimate's change that re-makes the resampling (ImagePreprocessor::setFocalScale): the working
+  /// image is then a pinhole image to within half of it at the corners of a strongly distorted lens (the MYNT EYE's
+  /// radtan k1 = -0.32 turns a focal error e at the corner into a scale error of 1.5 e in the working image).
+  static constexpr double kFocalResampleStep = 0.002;
   bool have_reference = false;
   double configured_readout_s = 0.0;  // rolling shutter: line delay x (rows - 1) from the parameters, s
   double stamp_shift_s = 0.0;         // image stamp -> capture time of the middle row's mid-exposure, s

@@ -268,19 +268,54 @@ ImagePreprocessor::ImagePreprocessor(const CameraModel& camera, const Preprocess
     for (int i = 0; i <= r; ++i) blur_kernel_[i] = static_cast<float>(std::exp(-0.5 * i * i / (s * s)) / sum);
     pad_ = r;
   }
-  const int padded_W = W + 2 * pad_;
 
   // ---- resampling table ----
-  const PinholeK& Kw = working_K_;
+  camera_ = camera;
+  buildResampling();
+}
+
+void ImagePreprocessor::setFocalScale(double focal_scale) {
+  if (!(std::abs(focal_scale) < 0.5)) {
+    throw std::invalid_argument("ImagePreprocessor::setFocalScale: " + std::to_string(focal_scale) +
+                                " outside (-0.5, 0.5)");
+  }
+  if (focal_scale == focal_scale_) return;
+  focal_scale_ = focal_scale;
+  buildResampling();
+  ++resample_id_;
+  if (!fill_mask_.empty()) updateFillCoverage();
+}
+
+// The resampling table for the camera whose focal lengths are (1 + focal_scale_) x the calibration's: working
+// pixel (u, v) is the ray of the working pinhole camera scaledFocal(working_K_, focal_scale_), projected with that
+// camera's raw focal lengths and the calibration's distortion and principal point.
+void ImagePreprocessor::buildResampling() {
+  columns_.clear();
+  rows_.clear();
+  fast_groups_.clear();
+  tapsets_.clear();
+  slow_pixels_.clear();
+  const int w = raw_K_.width, h = raw_K_.height;
+  const int W = working_K_.width, H = working_K_.height;
+  const int padded_W = W + 2 * pad_;
+  const CameraModel& camera = camera_;
+  PinholeK raw_K = raw_K_;
+  raw_K.fx *= 1.0 + focal_scale_;
+  raw_K.fy *= 1.0 + focal_scale_;
+  PinholeK working_K = working_K_;
+  working_K.fx *= 1.0 + focal_scale_;
+  working_K.fy *= 1.0 + focal_scale_;
+
+  const PinholeK& Kw = working_K;
   auto toRaw = [&](double u, double v) {
     const Vec2 xd = camera.distort(Vec2((u - Kw.cx) / Kw.fx, (v - Kw.cy) / Kw.fy));
-    return Vec2(raw_K_.fx * xd.x() + raw_K_.cx, raw_K_.fy * xd.y() + raw_K_.cy);
+    return Vec2(raw_K.fx * xd.x() + raw_K.cx, raw_K.fy * xd.y() + raw_K.cy);
   };
   const int raw_stride = w;  // process() hands a continuous CV_8UC1 image to the resampler
 
   // Footprint (docs/noise_model.md section 2): with antialias_sigma_px > 0 a Gaussian of that sigma in working px
   // (aa F raw px for a footprint F), its taps within +-2 sigma; else a box of the working pixel's width.
-  const double aa = params.antialias_sigma_px;
+  const double aa = params_.antialias_sigma_px;
   // F quantised to 1/8 raw px: pixels share weight sets (F changes slowly across the image with the distortion).
   auto quantF = [](double F) { return static_cast<int>(std::lround(std::clamp(F, 0.0, 1e4) * 8.0)); };
   // 1-D taps: n taps `step` raw px apart around centre c in an axis of `size` px, weights of the footprint
@@ -579,6 +614,7 @@ void ImagePreprocessor::setDotFill(const cv::Mat& mask) {
   fill_.clear();
   dot_fill_share_ = 0.0;
   dot_fill_coverage_.release();
+  fill_mask_.release();
   if (mask.empty()) return;
   const int w = raw_K_.width, h = raw_K_.height;
   if (mask.type() != CV_8UC1 || mask.cols != w || mask.rows != h) {
@@ -621,9 +657,14 @@ void ImagePreprocessor::setDotFill(const cv::Mat& mask) {
   }
   dot_fill_share_ = static_cast<double>(lit) / (static_cast<double>(w) * h);
   ++fill_id_;
+  fill_mask_ = (mask != 0) / 255;
+  updateFillCoverage();
+}
+
+void ImagePreprocessor::updateFillCoverage() {
   // The footprints' share on the mask: the mask as 0 / 1 (contiguous) through the resampling table, whose weights
   // sum to 1.
-  const cv::Mat m8 = (mask != 0) / 255;
+  const cv::Mat& m8 = fill_mask_;
   const int W = working_K_.width, H = working_K_.height, PW = W + 2 * pad_;
   cv::Mat padded(H, PW, CV_32FC1, cv::Scalar(0.f)), g8(H, W, CV_8UC1);
   resampleTable(m8.ptr<uint8_t>(), padded.ptr<float>(), g8.ptr<uint8_t>());
@@ -693,6 +734,7 @@ void ImagePreprocessor::resample(const cv::Mat& raw, ResampledImage* stage) {
   }
   stage->dot_removal_px = dot_removal_px_;
   stage->dot_fill_id = dotFillId();
+  stage->resample_id = resample_id_;
   stage->valid = true;
 }
 
@@ -765,6 +807,7 @@ void ImagePreprocessor::finish(ResampledImage* stage, double t_s, PreprocessedFr
   out->t_s = t_s;
   out->dot_removal_px = stage->dot_removal_px;
   out->dot_fill_id = stage->dot_fill_id;
+  out->resample_id = stage->resample_id;
   out->valid = true;
 }
 

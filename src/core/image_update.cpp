@@ -73,6 +73,16 @@ bool ImageUpdate::usable(const cv::Mat& gray8, std::string* why) const {
   return false;
 }
 
+// The focal-length scale (section 3.8): it is seen through the dynamics of the states it is taken for (the gyro
+// bias and vartheta), which must have converged first, and through the gyro's rotation of the image, which a time
+// offset still uncertain by a few ms mis-predicts as much (over the slow start of the simulated flights a 3 ms
+// offset error was taken for a 5-10 % focal error, which the later turns did not undo).
+bool ImageUpdate::estimatesFocalScale(double t_img_s, const HealthMonitor& health, const ErrorCov& P) const {
+  const double gate_s = params_.focal_start_sigma_time_offset_s;
+  return params_.estimate_focal_scale && timeStatesSettled(t_img_s, health) &&
+         (!params_.estimate_time_offset || P(ErrIdx::kTd, ErrIdx::kTd) < gate_s * gate_s);
+}
+
 // The time offset (docs/algorithm.md section 3.6): the state's rates at its time and the change of the filtered
 // rate over the interval. Only once the distance has converged and time_offset_start_s later (and not from frames
 // the innovation test flags: PhotometricUpdate): before that the state's rates in m are unknown themselves, and
@@ -84,7 +94,7 @@ bool ImageUpdate::usable(const cv::Mat& gray8, std::string* why) const {
 ImageTiming ImageUpdate::timingFor(double t_img_s, const ImuPropagator& imu, const HealthMonitor& health,
                                    const State& x, const ErrorCov& P) const {
   ImageTiming timing;
-  const bool settled = health.converged() && t_img_s - health.convergedSince() >= params_.time_offset_start_s;
+  const bool settled = timeStatesSettled(t_img_s, health);
   timing.estimate_offset = params_.estimate_time_offset && settled;
   timing.consider_offset = params_.estimate_time_offset && !settled && health.converged() &&
                            params_.time_offset_consider;
@@ -98,9 +108,7 @@ ImageTiming ImageUpdate::timingFor(double t_img_s, const ImuPropagator& imu, con
   timing.estimate_readout = params_.estimate_readout && settled &&
                             (!params_.estimate_time_offset || P(ErrIdx::kTd, ErrIdx::kTd) < gate_s * gate_s);
   timing.rates_valid = timing.estimate_offset || timing.consider_offset || timing.estimate_readout || x.readout_s != 0.0;
-  // The focal-length scale (section 3.8) from the same time on: it is seen through the dynamics of the states it
-  // is taken for (the gyro bias and vartheta), which must have converged first.
-  timing.estimate_focal_scale = params_.estimate_focal_scale && settled;
+  timing.estimate_focal_scale = estimatesFocalScale(t_img_s, health, P);
   // The gyro's noise in the interval's rotation (docs/noise_model.md section 6), measured from its samples.
   timing.gyro_noise_density_sq = imu.gyroNoiseDensitySq();
   if (timing.rates_valid) {

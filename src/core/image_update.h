@@ -63,6 +63,15 @@ class ImageUpdate {
   /// Whether the last apply() ran the photometric update on its pair (not skipped, not the feature mode), and that
   /// pair's mean raw gyro (rad/s) and interval (s).
   bool lastPairPhotometric() const { return last_pair_photometric_; }
+  /// Whether an image at t_img_s has the time states estimated (not merely considered): the filter has converged
+  /// time_offset_start_s before it.
+  bool timeStatesSettled(double t_img_s, const HealthMonitor& health) const {
+    return health.converged() && t_img_s - health.convergedSince() >= params_.time_offset_start_s;
+  }
+  /// Whether the update of an image at t_img_s estimates the focal-length scale (docs/algorithm.md section 3.8):
+  /// estimate_focal_scale, the time states settled, and the time offset (when estimated) known to
+  /// focal_start_sigma_time_offset_s (its variance in P).
+  bool estimatesFocalScale(double t_img_s, const HealthMonitor& health, const ErrorCov& P) const;
   const Vec3& lastGyroMean() const { return last_gyro_mean_; }
   double lastInterval() const { return last_interval_s_; }
 

@@ -492,6 +492,8 @@ const std::vector<Entry>& table() {
                      positive(1.0)));
     t.push_back(real("line_delay_s", DIEKF_FIELD(double, line_delay_s), between(0.0, 1e-3)));
     t.push_back(flag("estimate_focal_scale", DIEKF_FIELD(bool, estimate_focal_scale)));
+    t.push_back(real("focal_start_sigma_time_offset_s", DIEKF_FIELD(double, focal_start_sigma_time_offset_s),
+                     positive(1.0)));
     t.push_back(flag("focal_scale_consider", DIEKF_FIELD(bool, focal_scale_consider)));
     t.push_back(real("max_focal_scale", DIEKF_FIELD(double, max_focal_scale), between(0.0, 0.5)));
     t.push_back(named("image_stamp", DIEKF_FIELD(ImageStamp, image_stamp), &parseImageStamp));

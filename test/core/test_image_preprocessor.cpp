@@ -12,6 +12,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "diekf/image_preprocessor.h"
+#include "diekf/photometric_update.h"
 
 #include "mynt_camera.h"
 #include "opencv_resample_route.h"
@@ -289,6 +290,67 @@ TEST(ImagePreprocessor, ResamplingMatchesSmoothImageAtMappedCentre) {
     EXPECT_GT(checked, K.width * K.height / 2) << width;
     EXPECT_LT(worst, 1.2) << "working width " << width;  // u8 rounding of input and output, curvature
   }
+}
+
+// setFocalScale: the working image of a camera whose focal lengths are (1 + e) x the calibration's (distortion and
+// principal point kept) is the pinhole image of scaledFocal(workingK(), e): each working pixel holds the raw image
+// where that camera's projection puts the ray of the scaled working intrinsics. With the MYNT EYE's barrel distortion
+// this is not the working intrinsics scaled alone (the raw image sampled through the calibration's focal lengths):
+// at the corners the two differ by half of e again (docs/algorithm.md section 3.8). Frames carry the resampling's id.
+TEST(ImagePreprocessor, FocalScaleResamplesForTheCamerasOwnFocalLengths) {
+  const CameraModel cam = myntEyeCamera();
+  auto f = [](double x, double y) { return 128.0 + 90.0 * std::sin(0.011 * x + 0.006 * y) * std::cos(0.008 * y); };
+  cv::Mat raw(480, 752, CV_8UC1);
+  for (int y = 0; y < raw.rows; ++y)
+    for (int x = 0; x < raw.cols; ++x) raw.at<uint8_t>(y, x) = cv::saturate_cast<uint8_t>(f(x, y));
+  PreprocessParams p;
+  p.working_width_px = 180;
+  ImagePreprocessor pre(cam, p);
+  EXPECT_EQ(pre.resampleId(), 0);
+  EXPECT_EQ(pre.focalScale(), 0.0);
+  PreprocessedFrame before;
+  pre.process(raw, 0.0, &before);
+  const double e = 0.03;
+  pre.setFocalScale(e);
+  EXPECT_EQ(pre.resampleId(), 1);
+  pre.setFocalScale(e);  // unchanged: not re-made
+  EXPECT_EQ(pre.resampleId(), 1);
+  PreprocessedFrame out;
+  pre.process(raw, 0.0, &out);
+  EXPECT_EQ(before.resample_id, 0);
+  EXPECT_EQ(out.resample_id, 1);
+  const PinholeK K = pre.workingK();  // the calibration's working intrinsics, unchanged
+  const PinholeK Ke = scaledFocal(K, e);
+  const double margin = 2.0 * 752.0 / 180 + 2.0;
+  int checked = 0, corners = 0;
+  double worst = 0.0, corner_gap = 0.0;
+  for (int v = 0; v < K.height; ++v)
+    for (int u = 0; u < K.width; ++u) {
+      // The scaled camera's raw pixel for the ray of the scaled working intrinsics.
+      const Vec2 xd = cam.distort(Vec2((u - Ke.cx) / Ke.fx, (v - Ke.cy) / Ke.fy));
+      const double cx = (1.0 + e) * cam.K.fx * xd.x() + cam.K.cx, cy = (1.0 + e) * cam.K.fy * xd.y() + cam.K.cy;
+      if (cx < margin || cy < margin || cx > 751 - margin || cy > 479 - margin) continue;
+      ++checked;
+      worst = std::max(worst, std::fabs(out.gray8.at<uint8_t>(v, u) - f(cx, cy)));
+      // The working intrinsics scaled alone: the raw image through the calibration's focal lengths.
+      const double rx = cam.K.fx * xd.x() + cam.K.cx, ry = cam.K.fy * xd.y() + cam.K.cy;
+      const double r2 = xd.squaredNorm();
+      if (r2 > 0.5) {
+        ++corners;
+        corner_gap = std::max(corner_gap, std::hypot(cx - rx, cy - ry));
+      }
+    }
+  EXPECT_GT(checked, K.width * K.height / 2);
+  EXPECT_LT(worst, 1.2);
+  ASSERT_GT(corners, 20);
+  EXPECT_GT(corner_gap, 5.0);  // raw px: the two models are far apart at the corners
+  // Back to 0: the first table again.
+  pre.setFocalScale(0.0);
+  EXPECT_EQ(pre.resampleId(), 2);
+  PreprocessedFrame again;
+  pre.process(raw, 0.0, &again);
+  EXPECT_EQ(cv::norm(again.gray8, before.gray8, cv::NORM_INF), 0.0);
+  EXPECT_THROW(pre.setFocalScale(0.6), std::invalid_argument);
 }
 
 // The hand-written resampling against the library routes (cv::resize INTER_AREA and cv::remap in either order;

@@ -130,6 +130,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          a.estimate_readout == b.estimate_readout && a.max_readout_s == b.max_readout_s &&
          a.readout_start_sigma_time_offset_s == b.readout_start_sigma_time_offset_s &&
          a.estimate_focal_scale == b.estimate_focal_scale && a.max_focal_scale == b.max_focal_scale &&
+         a.focal_start_sigma_time_offset_s == b.focal_start_sigma_time_offset_s &&
          a.focal_scale_consider == b.focal_scale_consider &&
          a.fixed_pattern.enabled == b.fixed_pattern.enabled &&
          a.fixed_pattern.decorrelation_px == b.fixed_pattern.decorrelation_px &&
