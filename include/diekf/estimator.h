@@ -41,7 +41,8 @@ struct FrameResult {
   /// The state's error per unit relative error e of the calibration's focal lengths (true = (1 + e) x
   /// calibration) while the focal scale is not estimated, to first order: each image update moves the state by
   /// K H (u - s), u the observed states' change that the focal error's flow equals (focalScaleMap), and each
-  /// prediction step carries it by F. Zero at a start (docs/noise_model.md section 9).
+  /// prediction step carries it by F. Zero at a start, and from the focal scale's start on (estimate_focal_scale:
+  /// folded into the covariance then; docs/noise_model.md section 9, docs/algorithm.md section 3.8).
   ErrorVec focal_sensitivity = ErrorVec::Zero();
   FilterStatus status = FilterStatus::kInitializing;
   bool update_applied = false;       ///< false for the first frame after (re)start or a skipped update

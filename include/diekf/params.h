@@ -140,11 +140,11 @@ struct PhotometricParams {
   /// over boxes, plants or movers the images define "the plane" only to that relative accuracy. The filter's own
   /// covariance is not changed (docs/noise_model.md section 13).
   bool relief_in_covariance = true;
-  /// While the focal length is not estimated (estimate_focal_scale false), add its calibration uncertainty
-  /// (init.sigma_focal_scale) to the reported covariance along the state's error per unit focal error
-  /// (FrameResult::focal_sensitivity, carried through every update and prediction: a focal length off by e scales
-  /// the translation's flow and mis-predicts the gyro's rotation of the image by e of itself). The estimates and the
-  /// filter's own covariance are not changed (docs/noise_model.md section 9).
+  /// While the focal length is not estimated (estimate_focal_scale false, or until its estimate starts), add its
+  /// calibration uncertainty (init.sigma_focal_scale) to the reported covariance along the state's error per unit
+  /// focal error (FrameResult::focal_sensitivity, carried through every update and prediction: a focal length off
+  /// by e scales the translation's flow and mis-predicts the gyro's rotation of the image by e of itself). The
+  /// estimates and the filter's own covariance are not changed (docs/noise_model.md section 9).
   bool focal_scale_in_covariance = true;
   /// Add the calibration's pointing uncertainty (init.sigma_camera_rotation_rad) to the reported covariance: the
   /// camera-IMU rotation and the principal point are not estimated, and a pointing off by the small rotation dtheta
