@@ -13,15 +13,14 @@ prior allows, and runs diekf_bag_runner with it:
 - the camera-IMU rotation turned by a small rotation, N(0, sigma_rotation^2) per axis of the camera frame
   (init/sigma_camera_rotation_rad; the lever arm turned with it).
 The same two sigmas are passed to the runner, so the draws and the filter's prior agree (a sigma of 0 draws
-nothing and leaves the runner's prior as configured). The true calibration is
-the simulator's (realism.yaml: true_intrinsics, true_T_cam_imu); without realism.yaml the sequence's camchain is
-taken as true. Everything else (distortion, time shift, the image effects of a realistic render) is kept as
+nothing and leaves the runner's prior as configured). The true calibration is the simulator's (realism.yaml:
+true_intrinsics, true_T_cam_imu); without realism.yaml the sequence's camchain is taken as true. Everything else (distortion, time shift, the image effects of a realistic render) is kept as
 written, so a realistic render keeps its time offset, rolling shutter, blur and exposure steps.
 
-Printed and written under --output: per run the draw, d / v RMSE, d and v within 2 sigma, NEES; pooled over the
-runs (weighted by their evaluated frames) the fractions within 2 sigma (0.95 if consistent) and the mean NEES of
-(d, v) (4 if consistent; lower when the uncertainty is wider than the errors in some direction). Also per sequence
-the same pooled over its draws.
+Printed and written under --output: per run the draw, d / v RMSE, d and v within 2 sigma, NEES (each run's folder
+also holds the runner's files, frames.csv included); pooled over the runs (weighted by their evaluated frames) the
+fractions within 2 sigma (0.95 if consistent) and the mean NEES of (d, v) (4 if consistent; lower when the
+uncertainty is wider than the errors in some direction). Also per sequence the same pooled over its draws.
 
     calibration_ensemble.py --sequences SEQ_DIR [SEQ_DIR ...] [--draws 4] [--seed 1] [--output results/ensemble]
                             [--tag NAME] [--sigma-focal 0.02] [--sigma-rotation-deg 0.5] [--threads 2]

@@ -260,15 +260,25 @@ TEST(ImagePreprocessor, NoiseFiguresMatchMonteCarlo) {
   }
 }
 
+/// A smooth raw image (752 x 480) and its value at raw (x, y): the footprint average equals the value at the
+/// footprint's centre to the grey levels' rounding.
+double smoothRawValue(double x, double y) {
+  return 128.0 + 90.0 * std::sin(0.011 * x + 0.006 * y) * std::cos(0.008 * y);
+}
+cv::Mat smoothRawImage() {
+  cv::Mat raw(480, 752, CV_8UC1);
+  for (int y = 0; y < raw.rows; ++y)
+    for (int x = 0; x < raw.cols; ++x) raw.at<uint8_t>(y, x) = cv::saturate_cast<uint8_t>(smoothRawValue(x, y));
+  return raw;
+}
+
 // Every resampling path (8- and 16-column windows of the vectorised kernel, the scalar path for footprints
 // wider than 16 raw px) against a plain double evaluation: on a smooth raw image the footprint average equals
 // the image value at the mapped centre (a wrong weight, lane or row would be off by many grey levels).
 TEST(ImagePreprocessor, ResamplingMatchesSmoothImageAtMappedCentre) {
   const CameraModel cam = myntEyeCamera();
-  auto f = [](double x, double y) { return 128.0 + 90.0 * std::sin(0.011 * x + 0.006 * y) * std::cos(0.008 * y); };
-  cv::Mat raw(480, 752, CV_8UC1);
-  for (int y = 0; y < raw.rows; ++y)
-    for (int x = 0; x < raw.cols; ++x) raw.at<uint8_t>(y, x) = cv::saturate_cast<uint8_t>(f(x, y));
+  const auto f = smoothRawValue;
+  const cv::Mat raw = smoothRawImage();
   for (int width : {30, 64, 90, 180, 376}) {
     PreprocessParams p;
     p.working_width_px = width;
@@ -299,10 +309,8 @@ TEST(ImagePreprocessor, ResamplingMatchesSmoothImageAtMappedCentre) {
 // at the corners the two differ by half of e again (docs/algorithm.md section 3.8). Frames carry the resampling's id.
 TEST(ImagePreprocessor, FocalScaleResamplesForTheCamerasOwnFocalLengths) {
   const CameraModel cam = myntEyeCamera();
-  auto f = [](double x, double y) { return 128.0 + 90.0 * std::sin(0.011 * x + 0.006 * y) * std::cos(0.008 * y); };
-  cv::Mat raw(480, 752, CV_8UC1);
-  for (int y = 0; y < raw.rows; ++y)
-    for (int x = 0; x < raw.cols; ++x) raw.at<uint8_t>(y, x) = cv::saturate_cast<uint8_t>(f(x, y));
+  const auto f = smoothRawValue;
+  const cv::Mat raw = smoothRawImage();
   PreprocessParams p;
   p.working_width_px = 180;
   ImagePreprocessor pre(cam, p);
