@@ -8,8 +8,8 @@ import sys
 def find_bin_dir(script_name, tools=("diekf_bag_runner", "diekf_simulate")):
     """Folder holding the `tools` (by default diekf_simulate and diekf_bag_runner), the first of: $DIEKF_BIN_DIR,
     $DIEKF_WS/devel/lib/diekf, this script's own folder (an install space puts the scripts next to the tools), the
-    sourced catkin workspaces (catkin_find), the workspace `make build` uses (`make ws-path`). Exits with a message naming `script_name`
-    when none has them all."""
+    sourced catkin workspaces (catkin_find), the workspace `make build` uses (`make ws-path`). Exits with a message
+    naming `script_name` when none has them all."""
     here = os.path.dirname(os.path.abspath(__file__))
     pkg_dir = os.path.dirname(here)
     candidates = []

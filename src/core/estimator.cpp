@@ -571,9 +571,9 @@ struct Estimator::Impl {
       update.setReferenceConfidence(fill_confidence.empty() ? nullptr : &fill_confidence);  // the same fill on both
       const double alpha0 = x.alpha, var_alpha0 = P(ErrIdx::kAlpha, ErrIdx::kAlpha);
       update.setReportImageVartheta(scale_init.phase() != internal::ScaleInitializer::Phase::kDone);
+      // The focal-length scale's estimate starts with this update: its carried error folded into P first.
+      if (!focal_folded && update.estimatesFocalScale(img.t_s, health, P)) foldFocalSensitivity();
       // The prior and the state's lag behind the image, for the focal length's carried error.
-      if (params.estimate_focal_scale && !focal_folded && update.estimatesFocalScale(img.t_s, health, P))
-        foldFocalSensitivity();
       const bool carry_focal = !focal_folded;
       const ErrorCov P_before = P;
       const double lag_s = std::max(0.0, img.t_s - imu.stateTime());
