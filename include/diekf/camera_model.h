@@ -14,6 +14,15 @@ struct PinholeK {
   int width = 0, height = 0;              ///< pixels
 };
 
+/// K with both focal lengths scaled by (1 + focal_scale), the principal point kept (the focal-length state,
+/// docs/algorithm.md section 3.8).
+inline PinholeK scaledFocal(const PinholeK& K, double focal_scale) {
+  PinholeK out = K;
+  out.fx = K.fx * (1.0 + focal_scale);
+  out.fy = K.fy * (1.0 + focal_scale);
+  return out;
+}
+
 class CameraModel {
  public:
   /// Reads `cam` (e.g. "cam0") from a Kalibr camchain YAML. Throws std::runtime_error naming file and key.

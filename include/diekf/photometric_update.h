@@ -134,8 +134,6 @@ ObservedVec focalScaleMap(const State& x, const PinholeK& K, const Vec3& gyro_me
 /// d p_r / d e of warpToReference's reference pixel when both focal lengths of K are scaled by (1 + e), at e = 0.
 Vec2 focalScaleDerivative(const State& x, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s, double px,
                           double py, double state_lag_s = 0.0);
-/// K with both focal lengths scaled by (1 + focal_scale) (principal point kept).
-PinholeK scaledFocal(const PinholeK& K, double focal_scale);
 /// Per working-image row y (rows of the working image of intrinsics K_working, from the camera `cam`): the
 /// mean over the row's pixels of their raw (distorted) row, minus the middle raw row, over (raw rows - 1): the
 /// row's capture time per second of rolling-shutter readout (docs/algorithm.md section 3.7).

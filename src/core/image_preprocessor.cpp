@@ -299,14 +299,8 @@ void ImagePreprocessor::buildResampling() {
   const int W = working_K_.width, H = working_K_.height;
   const int padded_W = W + 2 * pad_;
   const CameraModel& camera = camera_;
-  PinholeK raw_K = raw_K_;
-  raw_K.fx *= 1.0 + focal_scale_;
-  raw_K.fy *= 1.0 + focal_scale_;
-  PinholeK working_K = working_K_;
-  working_K.fx *= 1.0 + focal_scale_;
-  working_K.fy *= 1.0 + focal_scale_;
-
-  const PinholeK& Kw = working_K;
+  const PinholeK raw_K = scaledFocal(raw_K_, focal_scale_);
+  const PinholeK Kw = scaledFocal(working_K_, focal_scale_);
   auto toRaw = [&](double u, double v) {
     const Vec2 xd = camera.distort(Vec2((u - Kw.cx) / Kw.fx, (v - Kw.cy) / Kw.fy));
     return Vec2(raw_K.fx * xd.x() + raw_K.cx, raw_K.fy * xd.y() + raw_K.cy);

@@ -203,13 +203,6 @@ Vec2 warpToReference(const State& x, const PinholeK& K, const Vec3& gyro_mean_C,
   return warpWith(iw, K, px, py, J, nullptr);
 }
 
-PinholeK scaledFocal(const PinholeK& K, double focal_scale) {
-  PinholeK out = K;
-  out.fx = K.fx * (1.0 + focal_scale);
-  out.fy = K.fy * (1.0 + focal_scale);
-  return out;
-}
-
 Vec2 focalScaleDerivative(const State& x, const PinholeK& K, const Vec3& gyro_mean_C, double dt_s, double px,
                           double py, double state_lag_s) {
   const IntervalWarp iw(x, gyro_mean_C, dt_s, state_lag_s);
