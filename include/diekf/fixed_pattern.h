@@ -13,9 +13,10 @@
 // preprocessing's own normalisation and the image checks are unchanged), and the pixels the model cannot
 // restore (g below min_gain: saturated dots, opaque dirt) get the weight (g / min_gain)^2.
 //
-// By default (fixed_pattern/radial_vignetting) the smooth radial part of g is first fitted as one field
-// V(r) = 1 + v1 r^2 + v2 r^4 about the principal point (the medians of m over rings, shrunk as a whole), and the
-// per-pixel model above works on m / V and s / V; g then includes V.
+// By default (fixed_pattern/radial_vignetting) the smooth radial part of g is one field ln V(r) = a1 r^2 + a2 r^4
+// about the principal point, learned from the ground's motion (VignettingLearner: the same ground point seen at two
+// radii; the temporal mean holds the ground's large-scale structure too) and shrunk as a whole; the per-pixel
+// model above works on m / V and s / V, and g then includes V.
 //
 // The statistics only learn from frames whose ground moved by a sizeable part of decorrelation_px since the
 // last one (the filter's own velocity, distance and rotation rate say how far, imageMotionPx) and that the
@@ -32,6 +33,7 @@
 #include "diekf/camera_model.h"
 #include "diekf/params.h"
 #include "diekf/state.h"
+#include "diekf/vignetting_learner.h"
 
 namespace diekf {
 
@@ -119,14 +121,20 @@ class FixedPattern {
   /// The radial vignetting's part of the gain (CV_32FC1, 1 at the optical centre; all 1 when off or not
   /// significant) and its value at the image's farthest corner.
   const cv::Mat& vignetting() const { return vig_; }
+  /// The learner of the radial vignetting from the ground's motion (radial_vignetting): the estimator gives it the
+  /// pairs (VignettingLearner::observe, with lastImage() of both images), refresh() takes its estimate.
+  VignettingLearner& vignettingLearner() { return vig_learner_; }
+  /// The last applied image over its mean, before the correction (CV_32FC1), and whether it holds one (apply() ran
+  /// with the model enabled on an image with a mean above 0, since the last reset()).
+  const cv::Mat& lastImage() const { return last_u_; }
+  bool lastImageKept() const { return last_kept_; }
   double vignettingAtCorner() const { return vig_corner_; }
   const cv::Mat& offset() const { return offset_; }
 
  private:
   void refresh();
-  /// Fits the radial vignetting to the mean (m1 / level per ring of the image, their medians, weighted least
-  /// squares with one robust refit) into vig_ and inv_vig_, shrunk as a whole toward none unless its corner value
-  /// stands significance_sigma standard errors out (the scatter of the rings about the fit).
+  /// The radial vignetting learned from the motion (vig_learner_) into vig_ and inv_vig_, shrunk as a whole toward
+  /// none unless its corner value stands significance_sigma standard errors out.
   void fitVignetting();
   /// No vignetting: V = 1 everywhere.
   void clearVignetting();
@@ -188,10 +196,7 @@ class FixedPattern {
   cv::Mat gain_, inv_gain_, offset_, confidence_;
   cv::Mat vig_, inv_vig_;          // radial vignetting V and 1 / V
   cv::Mat r2_;                     // squared distance to the optical centre over the farthest corner's (0..1)
-  static constexpr int kRings = 12;  // rings of equal width in r^2
-  std::vector<int> ring_pixels_;     // every 2nd pixel in x and y, grouped by ring
-  int ring_start_[kRings + 1] = {};  // ring j: ring_pixels_[ring_start_[j], ring_start_[j + 1])
-  double ring_r2_[kRings] = {};      // mean r^2 of the ring's pixels
+  VignettingLearner vig_learner_;       // the radial vignetting from the ground's motion
   double vig_corner_ = 1.0;
   std::vector<float> median_buf_;
   cv::Mat smooth_, scratch_;     // local mean of the mean ratio, and its detail

@@ -190,8 +190,9 @@ struct FixedPatternParams {
   double significance_sigma = 3.0;              ///< a pixel's gain/offset is kept only this many sigmas above noise
   double min_gain = 0.3;                        ///< confidence (g / min_gain)^2 below this relative gain, unitless
   int refresh_frames = 8;                       ///< learning frames between recomputations of the fields
-  /// Fit the smooth part of the gain as a radial vignetting 1 + v1 r^2 + v2 r^4 about the principal point (one
-  /// field for the whole image, shrunk as a whole) before the per-pixel model looks at what is left.
+  /// The smooth part of the gain as a radial vignetting ln V = a1 r^2 + a2 r^4 about the principal point (one field
+  /// for the whole image, learned from the ground's motion: VignettingLearner; shrunk as a whole) before the
+  /// per-pixel model looks at what is left.
   bool radial_vignetting = true;
   double report_fraction = 0.05;                ///< image share of strong pattern reported in the status (0..1)
   /// Allow for the bias of the updates made before the pattern was learned: its share s of the image's contrast

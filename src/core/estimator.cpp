@@ -322,6 +322,37 @@ struct Estimator::Impl {
     }
   }
 
+  /// The working image of frame slot `slot` before the fixed pattern's correction (FixedPattern::lastImage), kept
+  /// for the vignetting's learner while fixed_pattern/radial_vignetting is on (a copy into the slot's buffer).
+  void keepUncorrected(int slot) {
+    const auto k = static_cast<size_t>(slot);
+    uncorrected_valid[k] = false;
+    if (!params.fixed_pattern.enabled || !params.fixed_pattern.radial_vignetting || !fixed_pattern.lastImageKept())
+      return;
+    fixed_pattern.lastImage().copyTo(uncorrected[k]);
+    uncorrected_valid[k] = true;
+  }
+
+  /// Learns the lens's radial vignetting from the pair just updated (docs/noise_model.md section 11, "Vignetting
+  /// from the motion"; VignettingLearner): the current image's working pixels mapped into the reference's by the
+  /// updated state (the warp at the update's time, on the learner's grid), both images before the correction.
+  /// `pair_ok`: the pair was updated and accepted.
+  void learnVignetting(const PendingImage& img, bool pair_ok) {
+    const auto cur = static_cast<size_t>(1 - ref_index), ref = static_cast<size_t>(ref_index);
+    if (!pair_ok || !uncorrected_valid[cur] || !uncorrected_valid[ref]) return;
+    VignettingLearner& learner = fixed_pattern.vignettingLearner();
+    if (!learner.due()) return;
+    const PinholeK K = scaledFocal(img_pre.workingK(), img_pre.focalScale());
+    const double interval_s = update.lastInterval(), lag_s = img.t_s - imu.stateTime();
+    const internal::IntervalWarp warp(x, update.lastGyroMean(), interval_s, lag_s);
+    Vec2* target = learner.gridTargets();
+    for (int j = 0; j < learner.gridRows(); ++j)
+      for (int i = 0; i < learner.gridCols(); ++i)
+        target[j * learner.gridCols() + i] = internal::warpWith(warp, K, i * VignettingLearner::kGridPx,
+                                                                j * VignettingLearner::kGridPx, nullptr);
+    learner.observe(uncorrected[cur].ptr<float>(), uncorrected[ref].ptr<float>());
+  }
+
   /// Learns the projector dots' gain from the pair just updated (docs/noise_model.md section 11, "Dots divided out";
   /// DotGainLearner): the raw pixels of the current image mapped into the reference's by the updated state (the
   /// warp at the update's time, through the lens distortion, on the learner's grid). Once every pixel of the dots'
@@ -507,6 +538,7 @@ struct Estimator::Impl {
     PreprocessedFrame& cur = frames[1 - ref_index];
     const bool pattern_on = params.fixed_pattern.enabled || !params.fixed_pattern.vignetting_file.empty();
     img_pre.finish(&img.stage, img.t_s, &cur, pattern_on ? &fixed_pattern : nullptr);
+    keepUncorrected(1 - ref_index);
     std::string usable_why;
     const bool usable = update.usable(cur.gray8, &usable_why);
 
@@ -623,6 +655,7 @@ struct Estimator::Impl {
     }
     detectDots(img, pair_updated, usable && !have_reference);
     learnDotGain(img, pair_updated && stats.applied && !stats.gated);
+    learnVignetting(img, pair_updated && stats.applied && !stats.gated);
     const double t_update_s = imu.stateTime();
     if (state_initialized && imu.stateTime() < img.t_s) imu.propagateTo(img.t_s, &x, &P);  // from the midpoint
     internal::ScaleInitializer::ImageVartheta image_vartheta;
@@ -869,6 +902,8 @@ struct Estimator::Impl {
   Ring<double> scale_losses_s;  // times of the last restarts without scale (patchConditionWaived), s
   PreprocessedFrame frames[2];
   int ref_index = 0;
+  cv::Mat uncorrected[2];                  // per frame slot: the working image before the pattern's correction
+  bool uncorrected_valid[2] = {false, false};
   double img_t_d_s = 0.0;  // time offset estimate (beyond the calibration's) the image in process was placed with, s
   double ref_t_d_s = 0.0;  // ... the reference image was placed with, s
 

@@ -103,8 +103,7 @@ FixedPattern::FixedPattern(const FixedPatternParams& params, int width, int heig
   confidence_.create(height, width, CV_32FC1);
   vig_.create(height, width, CV_32FC1);
   inv_vig_.create(height, width, CV_32FC1);
-  // The radial vignetting's radius: from the principal point, 1 at the farthest corner; the rings of every 2nd
-  // pixel for its fit.
+  // The radial vignetting's radius: from the principal point, 1 at the farthest corner.
   const double cx = optical_centre_px.x() >= 0.0 ? optical_centre_px.x() : 0.5 * (width - 1);
   const double cy = optical_centre_px.y() >= 0.0 ? optical_centre_px.y() : 0.5 * (height - 1);
   const double dx = std::max(cx, width - 1 - cx), dy = std::max(cy, height - 1 - cy);
@@ -113,21 +112,7 @@ FixedPattern::FixedPattern(const FixedPatternParams& params, int width, int heig
   for (int y = 0; y < height; ++y)
     for (int x = 0; x < width; ++x)
       r2_.at<float>(y, x) = static_cast<float>(((x - cx) * (x - cx) + (y - cy) * (y - cy)) * inv_r2max);
-  const auto ringOf = [&](int i) { return std::min(kRings - 1, static_cast<int>(r2_.ptr<float>()[i] * kRings)); };
-  int count[kRings] = {};
-  for (int y = 0; y < height; y += 2)
-    for (int x = 0; x < width; x += 2) ++count[ringOf(y * width + x)];
-  for (int j = 0; j < kRings; ++j) ring_start_[j + 1] = ring_start_[j] + count[j];
-  ring_pixels_.assign(static_cast<size_t>(ring_start_[kRings]), 0);
-  int fill[kRings];
-  std::copy(ring_start_, ring_start_ + kRings, fill);
-  for (int y = 0; y < height; y += 2)
-    for (int x = 0; x < width; x += 2) {
-      const int i = y * width + x, j = ringOf(i);
-      ring_pixels_[static_cast<size_t>(fill[j]++)] = i;
-      ring_r2_[j] += r2_.ptr<float>()[i];
-    }
-  for (int j = 0; j < kRings; ++j) ring_r2_[j] = count[j] > 0 ? ring_r2_[j] / count[j] : 0.0;
+  vig_learner_.configure(width, height, cx, cy);
   median_buf_.reserve(static_cast<size_t>(((width + 1) / 2) * ((height + 1) / 2)));
   smooth_.create(height, width, CV_32FC1);
   scratch_.create(height, width, CV_32FC1);
@@ -375,83 +360,26 @@ void FixedPattern::clearVignetting() {
 void FixedPattern::fitVignetting() {
   if (!params_.radial_vignetting) return;  // (vig_ stays all 1 from reset())
   clearVignetting();
-  // The ring medians of the mean: robust to a shadow, dirt or dots covering part of a ring.
-  const float* m1 = m1_.ptr<float>();
-  double q[kRings], w[kRings];
-  int rings = 0;
-  for (int j = 0; j < kRings; ++j) {
-    const int n_j = ring_start_[j + 1] - ring_start_[j];
-    w[j] = 0.0;
-    q[j] = 0.0;
-    if (n_j < 8) continue;
-    median_buf_.clear();
-    for (int k = ring_start_[j]; k < ring_start_[j + 1]; ++k) median_buf_.push_back(m1[ring_pixels_[static_cast<size_t>(k)]]);
-    q[j] = medianOf(&median_buf_);
-    w[j] = n_j;
-    ++rings;
-  }
-  // q = b0 + b1 r^2 + b2 r^4, weighted by the rings' pixel counts; then once more without the rings more than
-  // 3 robust sigmas off (a shadow filling a small ring).
-  Eigen::Vector3d b = Eigen::Vector3d::Zero();
-  Eigen::Matrix3d cov = Eigen::Matrix3d::Zero();
-  for (int pass = 0; pass < 2; ++pass) {
-    if (rings < 4) return;
-    Eigen::Matrix3d N = Eigen::Matrix3d::Zero();
-    Eigen::Vector3d r = Eigen::Vector3d::Zero();
-    for (int j = 0; j < kRings; ++j) {
-      if (!(w[j] > 0.0)) continue;
-      const Eigen::Vector3d x(1.0, ring_r2_[j], ring_r2_[j] * ring_r2_[j]);
-      N += w[j] * x * x.transpose();
-      r += w[j] * q[j] * x;
-    }
-    const Eigen::LDLT<Eigen::Matrix3d> ldlt(N);
-    if (ldlt.info() != Eigen::Success) return;
-    b = ldlt.solve(r);
-    // Residual scale per unit weight (the rings' scatter about the fit: ground structure the path has not
-    // averaged out, and noise) and the coefficients' covariance.
-    double ss = 0.0, e[kRings], e_norm[kRings];
-    int used = 0;
-    for (int j = 0; j < kRings; ++j) {
-      if (!(w[j] > 0.0)) continue;
-      e[j] = q[j] - (b(0) + b(1) * ring_r2_[j] + b(2) * ring_r2_[j] * ring_r2_[j]);
-      ss += w[j] * e[j] * e[j];
-      e_norm[used++] = std::abs(e[j]) * std::sqrt(w[j]);
-    }
-    const double s2 = ss / std::max(1, rings - 3);
-    cov = s2 * ldlt.solve(Eigen::Matrix3d::Identity());
-    if (pass == 1) break;
-    std::nth_element(e_norm, e_norm + used / 2, e_norm + used);
-    const double scale = 1.4826 * e_norm[used / 2];
-    int dropped = 0;
-    for (int j = 0; j < kRings; ++j) {
-      if (!(w[j] > 0.0)) continue;
-      if (scale > 0.0 && std::abs(e[j]) * std::sqrt(w[j]) > 3.0 * scale) {
-        w[j] = 0.0;
-        --rings;
-        ++dropped;
-      }
-    }
-    if (dropped == 0) break;
-  }
-  if (!(b(0) > 0.0) || !b.allFinite()) return;
-  // The corner's deviation V(1) - 1 = (b1 + b2) / b0 against its standard error, shrunk like a pixel's.
-  const double dev = (b(1) + b(2)) / b(0);
-  const double se = std::sqrt(std::max(0.0, cov(1, 1) + cov(2, 2) + 2.0 * cov(1, 2))) / b(0);
-  const double kept = shrink(static_cast<float>(dev), static_cast<float>(se),
+  // ln V = a1 s + a2 s^2 from the ground's motion (VignettingLearner): the temporal mean m holds the ground's
+  // large-scale structure too. The corner's ln V tested as a whole against its standard error and shrunk like a
+  // pixel's, so the field stays smooth.
+  double a1 = 0.0, a2 = 0.0, sigma = 0.0;
+  if (!vig_learner_.estimate(&a1, &a2, &sigma)) return;
+  const double dev = a1 + a2;
+  const double kept = shrink(static_cast<float>(dev), static_cast<float>(sigma),
                              static_cast<float>(params_.significance_sigma));
-  if (kept == 0.0 || !std::isfinite(kept)) return;
+  if (kept == 0.0 || !std::isfinite(kept) || !(std::abs(dev) > 0.0)) return;
   const double f = kept / dev;
-  const double v1 = f * b(1) / b(0), v2 = f * b(2) / b(0);
   const int n = width_ * height_;
   const float* r2 = r2_.ptr<float>();
   float* vg = vig_.ptr<float>();
   float* iv = inv_vig_.ptr<float>();
   for (int i = 0; i < n; ++i) {
     const double x = r2[i];
-    vg[i] = static_cast<float>(std::clamp(1.0 + v1 * x + v2 * x * x, 0.05, 2.0));
+    vg[i] = static_cast<float>(std::clamp(std::exp(f * (a1 * x + a2 * x * x)), 0.05, 2.0));
     iv[i] = 1.f / vg[i];
   }
-  vig_corner_ = std::clamp(1.0 + v1 + v2, 0.05, 2.0);
+  vig_corner_ = std::clamp(std::exp(f * dev), 0.05, 2.0);
 }
 
 void FixedPattern::refresh() {
