@@ -52,12 +52,10 @@ struct Learned {
 };
 
 /// A camera circling over the middle of the ground (radius 25 px, 2.5 px per image), its exposure changing, the
-/// lens of `strength`; every pair given to the learner with its exact map.
-Learned fly(double strength, double bump, int images) {
+/// lens of `strength`; every pair given to `learner` with its exact map. Returns the images' temporal mean.
+cv::Mat circle(VignettingLearner* learner, double strength, double bump, int images) {
   cv::RNG rng(21);
   const cv::Mat ground = bigGround(&rng, bump), vig = lens(strength);
-  VignettingLearner learner;
-  learner.configure(kW, kH, kCx, kCy);
   cv::Mat prev, sum(kH, kW, CV_32FC1, cv::Scalar(0.f));
   cv::Point2f prev_c;
   for (int i = 0; i < images; ++i) {
@@ -71,23 +69,30 @@ Learned fly(double strength, double bump, int images) {
     sum += u;
     if (i > 0) {
       // The current image's pixel x sees the ground at x + c - centre; the reference sees it at x + c - prev_c.
-      Vec2* t = learner.gridTargets();
-      for (int j = 0; j < learner.gridRows(); ++j)
-        for (int k = 0; k < learner.gridCols(); ++k)
-          t[j * learner.gridCols() + k] = Vec2(k * VignettingLearner::kGridPx + (c.x - prev_c.x),
-                                               j * VignettingLearner::kGridPx + (c.y - prev_c.y));
-      learner.observe(u.ptr<float>(), prev.ptr<float>());
+      Vec2* t = learner->gridTargets();
+      for (int j = 0; j < learner->gridRows(); ++j)
+        for (int k = 0; k < learner->gridCols(); ++k)
+          t[j * learner->gridCols() + k] = Vec2(k * VignettingLearner::kGridPx + (c.x - prev_c.x),
+                                                j * VignettingLearner::kGridPx + (c.y - prev_c.y));
+      learner->observe(u.ptr<float>(), prev.ptr<float>());
     }
     prev = u;
     prev_c = c;
   }
+  return sum / images;
+}
+
+/// circle() with a new learner, and what it learned.
+Learned fly(double strength, double bump, int images) {
+  VignettingLearner learner;
+  learner.configure(kW, kH, kCx, kCy);
+  const cv::Mat mean = circle(&learner, strength, bump, images);
   Learned out;
   double a1 = 0.0, a2 = 0.0;
   out.ok = learner.estimate(&a1, &a2, &out.sigma);
   out.corner_ln = a1 + a2;
-  sum /= images;
   const cv::Rect centre(static_cast<int>(kCx) - 5, static_cast<int>(kCy) - 5, 10, 10), corner(0, kH - 10, 10, 10);
-  out.mean_corner_over_centre = cv::mean(sum(corner))[0] / cv::mean(sum(centre))[0];
+  out.mean_corner_over_centre = cv::mean(mean(corner))[0] / cv::mean(mean(centre))[0];
   std::printf("[ vignetting ] lens %.1f, ground bump %.1f: corner ln V %+.4f +- %.4f (truth %+.4f) after %d pairs; "
               "the temporal mean's corner / centre %.3f\n",
               strength, bump, out.corner_ln, out.sigma, std::log(1.0 - 0.35 * strength), learner.pairs(),
@@ -103,6 +108,20 @@ TEST(VignettingLearner, FindsTheLensFromTheGroundsMotion) {
   EXPECT_NEAR(l.corner_ln, truth, 0.02);
   EXPECT_LT(std::abs(l.corner_ln - truth), 3.0 * l.sigma + 0.005);
   EXPECT_LT(l.sigma, 0.02);
+}
+
+// Every pair is asked for until the corner is known to kSettledSigmaLn, then every kSettledEvery-th.
+TEST(VignettingLearner, OnceSettledEveryFourthPairIsAskedFor) {
+  VignettingLearner learner;
+  learner.configure(kW, kH, kCx, kCy);
+  int asked = 0;
+  for (int i = 0; i < 40; ++i) asked += learner.due() ? 1 : 0;
+  EXPECT_EQ(asked, 40);  // nothing learned: not settled
+  // Settled: the lens of the tests learned from 200 pairs (FindsTheLensFromTheGroundsMotion: 1-sigma 0.007).
+  circle(&learner, 1.0, 0.0, 200);
+  asked = 0;
+  for (int i = 0; i < 40; ++i) asked += learner.due() ? 1 : 0;
+  EXPECT_EQ(asked, 40 / VignettingLearner::kSettledEvery);
 }
 
 // A bright region of the ground broader than the image, under a camera that circles over it, darkens the temporal
