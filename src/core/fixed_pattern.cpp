@@ -5,7 +5,6 @@
 #include <cmath>
 #include <stdexcept>
 
-#include <Eigen/Dense>
 #include <opencv2/core/hal/intrin.hpp>
 
 #include "diekf/image_preprocessor.h"
