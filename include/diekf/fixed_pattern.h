@@ -100,7 +100,8 @@ class FixedPattern {
   /// and sum of squares; false (I untouched) when there is none or the model is inactive.
   bool reapply(float* I, double* sum, double* sum_sq) const;
 
-  /// Forgets everything learned (the next images are used as they come until the start-up is done again).
+  /// Forgets everything learned (the next images are used as they come until the start-up is done again) but the
+  /// vignetting learner's pairs: the lens is the same after the projector's dots are removed.
   void reset();
 
   /// True once the start-up is done and the model corrects the images.
