@@ -26,6 +26,8 @@
 // All buffers are allocated by configure(); observe() does not allocate.
 #pragma once
 
+#include <array>
+#include <cstdint>
 #include <vector>
 
 #include "diekf/types.h"
@@ -89,6 +91,7 @@ class VignettingLearner {
   // One pair's samples: ln ratio, the two regressors, the weight.
   std::vector<float> d_, z1_, z2_, w_;
   std::vector<float> scratch_, median_;  // normalised residuals and their copy for the median
+  std::array<uint32_t, 2048> select_counts_{};  // scratch of the median (internal::kthSmallest)
   // Normal equations (centred per pair) summed with forgetting, and the scores' outer products.
   Mat2 N_ = Mat2::Zero();
   Vec2 b_ = Vec2::Zero();

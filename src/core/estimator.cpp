@@ -322,6 +322,13 @@ struct Estimator::Impl {
     }
   }
 
+  /// The warp of the pair just updated by the updated state, at the update's time (the state's lag behind image
+  /// `img`): where a current pixel's ground lies in the reference, for the learners of the dots' gain and the
+  /// vignetting.
+  internal::IntervalWarp updatedPairWarp(const PendingImage& img) const {
+    return internal::IntervalWarp(x, update.lastGyroMean(), update.lastInterval(), img.t_s - imu.stateTime());
+  }
+
   /// The working image of frame slot `slot` before the fixed pattern's correction (FixedPattern::lastImage), kept
   /// for the vignetting's learner while fixed_pattern/radial_vignetting is on (a copy into the slot's buffer).
   void keepUncorrected(int slot) {
@@ -343,8 +350,7 @@ struct Estimator::Impl {
     VignettingLearner& learner = fixed_pattern.vignettingLearner();
     if (!learner.due()) return;
     const PinholeK K = scaledFocal(img_pre.workingK(), img_pre.focalScale());
-    const double interval_s = update.lastInterval(), lag_s = img.t_s - imu.stateTime();
-    const internal::IntervalWarp warp(x, update.lastGyroMean(), interval_s, lag_s);
+    const internal::IntervalWarp warp = updatedPairWarp(img);
     Vec2* target = learner.gridTargets();
     for (int j = 0; j < learner.gridRows(); ++j)
       for (int i = 0; i < learner.gridCols(); ++i)
@@ -362,9 +368,7 @@ struct Estimator::Impl {
     if (!dot_gain.learning()) return;
     if (!pair_ok || !img.raw_kept || !ref_raw_valid || !health.converged()) return;
     const PinholeK& K = camera.K;
-    const Vec3 gyro = update.lastGyroMean();
-    const double interval_s = update.lastInterval(), lag_s = img.t_s - imu.stateTime();
-    const internal::IntervalWarp warp(x, gyro, interval_s, lag_s);  // (pixel-independent: once for the grid)
+    const internal::IntervalWarp warp = updatedPairWarp(img);  // (pixel-independent: once for the grid)
     Vec2* target = dot_gain.gridTargets();
     const size_t n = dot_gain_rays.size();
     for (size_t k = 0; k < n; ++k) {

@@ -78,9 +78,8 @@ bool ImageUpdate::usable(const cv::Mat& gray8, std::string* why) const {
 // offset still uncertain by a few ms mis-predicts as much (over the slow start of the simulated flights a 3 ms
 // offset error was taken for a 5-10 % focal error, which the later turns did not undo).
 bool ImageUpdate::estimatesFocalScale(double t_img_s, const HealthMonitor& health, const ErrorCov& P) const {
-  const double gate_s = params_.focal_start_sigma_time_offset_s;
   return params_.estimate_focal_scale && timeStatesSettled(t_img_s, health) &&
-         (!params_.estimate_time_offset || P(ErrIdx::kTd, ErrIdx::kTd) < gate_s * gate_s);
+         offsetKnownTo(P, params_.focal_start_sigma_time_offset_s);
 }
 
 // The time offset (docs/algorithm.md section 3.6): the state's rates at its time and the change of the filtered
@@ -104,9 +103,8 @@ ImageTiming ImageUpdate::timingFor(double t_img_s, const ImuPropagator& imu, con
   // The readout once the offset is known to a few ms (when it is estimated): early on, with both uncertain, a
   // large offset was partly taken for a readout (19 ms of readout for a 20 ms offset on a global-shutter flight,
   // the offset then 10 s late).
-  const double gate_s = params_.readout_start_sigma_time_offset_s;
-  timing.estimate_readout = params_.estimate_readout && settled &&
-                            (!params_.estimate_time_offset || P(ErrIdx::kTd, ErrIdx::kTd) < gate_s * gate_s);
+  timing.estimate_readout =
+      params_.estimate_readout && settled && offsetKnownTo(P, params_.readout_start_sigma_time_offset_s);
   timing.rates_valid = timing.estimate_offset || timing.consider_offset || timing.estimate_readout || x.readout_s != 0.0;
   timing.estimate_focal_scale = estimatesFocalScale(t_img_s, health, P);
   // The gyro's noise in the interval's rotation (docs/noise_model.md section 6), measured from its samples.

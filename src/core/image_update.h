@@ -68,6 +68,10 @@ class ImageUpdate {
   bool timeStatesSettled(double t_img_s, const HealthMonitor& health) const {
     return health.converged() && t_img_s - health.convergedSince() >= params_.time_offset_start_s;
   }
+  /// Whether the time offset, when estimated, is known to sigma_s (its variance in P); true when it is not estimated.
+  bool offsetKnownTo(const ErrorCov& P, double sigma_s) const {
+    return !params_.estimate_time_offset || P(ErrIdx::kTd, ErrIdx::kTd) < sigma_s * sigma_s;
+  }
   /// Whether the update of an image at t_img_s estimates the focal-length scale (docs/algorithm.md section 3.8):
   /// estimate_focal_scale, the time states settled, and the time offset (when estimated) known to
   /// focal_start_sigma_time_offset_s (its variance in P).

@@ -1,6 +1,8 @@
 // The lens's radial vignetting learned from the ground's motion: see vignetting_learner.h.
 #include "diekf/vignetting_learner.h"
 
+#include "select.h"
+
 #include <algorithm>
 #include <cmath>
 #include <limits>
@@ -101,10 +103,8 @@ bool VignettingLearner::observe(const float* cur, const float* ref) {
   t.resize(n);  // (reserved by configure: no allocation)
   for (size_t i = 0; i < n; ++i)
     t[i] = std::abs(static_cast<float>(d_[i] - a_prev.x() * z1_[i] - a_prev.y() * z2_[i] - c)) * std::sqrt(w_[i]);
-  std::vector<float>& med = median_;
-  med.assign(t.begin(), t.end());
-  std::nth_element(med.begin(), med.begin() + static_cast<std::ptrdiff_t>(n / 2), med.end());
-  const double scale = 1.4826 * med[n / 2];
+  median_.assign(t.begin(), t.end());
+  const double scale = 1.4826 * internal::kthSmallest(median_.data(), n, n / 2, &select_counts_);
   const double limit = kHuberSigma * scale;
 
   double Sw = 0.0, Sd = 0.0;
