@@ -20,8 +20,10 @@
 //
 // The statistics only learn from frames whose ground moved by a sizeable part of decorrelation_px since the
 // last one (the filter's own velocity, distance and rotation rate say how far, imageMotionPx) and that the
-// filter accepted; before startup_samples independent samples nothing is corrected. All buffers are allocated
-// in the constructor: no allocation per frame.
+// filter accepted; before startup_samples independent samples nothing is corrected but the radial vignetting,
+// applied alone once significant (its learner needs no start-up: the ground cancels in its pair ratios). A field
+// that brightens the corner is never applied (a lens darkens its periphery). All buffers are allocated in the
+// constructor: no allocation per frame.
 #pragma once
 
 #include <algorithm>
@@ -83,7 +85,8 @@ class FixedPattern {
   /// mean holds and whether the mean now and an earlier snapshot of it are of different ground. The fields are
   /// computed only while the mean holds at least `min_ground_patches` different patches of ground
   /// (independentPatches: a camera hovering or holding its position sees one patch again and again, which the
-  /// mean cannot tell from a fixed pattern): before, nothing is corrected; after, the last fields stay.
+  /// mean cannot tell from a fixed pattern): before, nothing is corrected but the radial vignetting once
+  /// significant (radial_vignetting; every refresh_frames learning frames); after, the last fields stay.
   /// Returns true when the fields changed (the image just learned from should then be corrected again,
   /// ImagePreprocessor::reapplyPattern, so that it and the next image share one correction).
   bool learn(double motion_px, const Vec2& ground_shift_px, const Vec2& ground_turn_scale = Vec2::Zero());
@@ -106,6 +109,9 @@ class FixedPattern {
 
   /// True once the start-up is done and the model corrects the images.
   bool active() const { return active_; }
+  /// True while the images are corrected: once active(), and before that with the radial vignetting alone once
+  /// its learner's estimate is significant (radial_vignetting).
+  bool corrects() const { return active_ || vignetting_only_; }
   /// Independent samples gathered (capped at memory_samples).
   double samples() const { return samples_; }
   /// Per-pixel confidence (CV_32FC1 in [0, 1]) to multiply the update's pixel weights with, or null when every
@@ -139,6 +145,9 @@ class FixedPattern {
   void fitVignetting();
   /// No vignetting: V = 1 everywhere.
   void clearVignetting();
+  /// Before the start-up is done: the fields are the radial vignetting alone (fitVignetting), or none while it is
+  /// not significant. Returns true when the fields changed.
+  bool applyVignettingOnly();
   /// Median of value(i) over every 2nd pixel in x and y (i: the pixel's index). No allocation.
   template <class Value>
   float sampleMedian(Value value);
@@ -218,6 +227,7 @@ class FixedPattern {
   bool last_kept_ = false;    // last_u_ holds the last applied image
   double last_mean_ = 0.0;    // its mean (grey levels)
   bool active_ = false;
+  bool vignetting_only_ = false;  // before active_: the fields are the radial vignetting alone
   bool patches_waived_ = false;     // learn() without the min_ground_patches condition (waivePatchCondition)
   bool has_low_confidence_ = false;
   double strong_fraction_ = 0.0;

@@ -150,6 +150,7 @@ void FixedPattern::reset() {
   last_valid_ = false;
   last_kept_ = false;
   active_ = false;
+  vignetting_only_ = false;
   has_low_confidence_ = false;
   strong_fraction_ = 0.0;
   contrast_share_ = 0.0;
@@ -207,7 +208,7 @@ void FixedPattern::apply(float* I, double* sum, double* sum_sq) {
     float* u = last_u_.ptr<float>();
     for (int i = 0; i < n; ++i) u[i] = I[i] * inv_mean;
   }
-  if (active_ && last_valid_) {
+  if (corrects() && last_valid_) {
     // I' = mean (u - a) / g = (I - mean a) / g
     const float* a = offset_.ptr<float>();
     const float* ig = inv_gain_.ptr<float>();
@@ -220,7 +221,7 @@ void FixedPattern::apply(float* I, double* sum, double* sum_sq) {
 }
 
 bool FixedPattern::reapply(float* I, double* sum, double* sum_sq) const {
-  if (!last_kept_ || !active_) return false;
+  if (!last_kept_ || !corrects()) return false;
   const int n = width_ * height_;
   const float* u = last_u_.ptr<float>();
   const float* a = offset_.ptr<float>();
@@ -272,20 +273,43 @@ bool FixedPattern::learn(double motion_px, const Vec2& ground_shift_px, const Ve
     // The first snapshot of the detail, half-way through the start-up (refresh() takes the later ones).
     computeDetail(scratch_.ptr<float>(), smooth_.ptr<float>(), gain_.ptr<float>());
     takeSnapshot();
-    gain_.setTo(1.f);  // (used as scratch)
+    if (vignetting_only_)  // (gain_ was used as scratch)
+      vig_.copyTo(gain_);
+    else
+      gain_.setTo(1.f);
+  }
+  // Before the start-up is done: the lens's vignetting alone. Its learner fits pair ratios, in which the ground's
+  // texture cancels, so it needs neither the start-up's samples nor different patches of ground; on low-contrast
+  // ground the uncorrected vignetting is what the pair's images share most, and it holds the flow toward "no
+  // motion" (docs/noise_model.md section 11, "The vignetting before the start-up").
+  bool changed = false;
+  if (!active_ && params_.radial_vignetting && frames_since_refresh_ >= params_.refresh_frames) {
+    frames_since_refresh_ = 0;
+    changed = applyVignettingOnly();
   }
   if (samples_ >= params_.startup_samples && (frames_since_refresh_ >= params_.refresh_frames || !active_)) {
     // Only from enough different ground: the mean of one patch of ground seen again and again (hovering, holding
     // a position) is fixed in the image like a pattern, and its structure stands out of its own spread. Counted
     // over cells of the local mean's window, the coarser scale tested (docs/noise_model.md section 11).
     // The estimator waives it while the images deny the motion the IMU measures (waivePatchCondition).
-    if (!patches_waived_ && independentPatches() < params_.min_ground_patches) return false;
+    if (!patches_waived_ && independentPatches() < params_.min_ground_patches) return changed;
     refresh();
     frames_since_refresh_ = 0;
     active_ = true;
+    vignetting_only_ = false;
     return true;
   }
-  return false;
+  return changed;
+}
+
+bool FixedPattern::applyVignettingOnly() {
+  const bool was_on = vignetting_only_;
+  fitVignetting();  // (V = 1 unless its corner stands out of its standard error)
+  vignetting_only_ = vig_corner_ != 1.0;
+  if (!vignetting_only_ && !was_on) return false;
+  vig_.copyTo(gain_);
+  inv_vig_.copyTo(inv_gain_);
+  return true;  // (offset_ stays 0 and confidence_ 1 until the start-up is done)
 }
 
 template <class Value>
@@ -365,6 +389,10 @@ void FixedPattern::fitVignetting() {
   double a1 = 0.0, a2 = 0.0, sigma = 0.0;
   if (!vig_learner_.estimate(&a1, &a2, &sigma)) return;
   const double dev = a1 + a2;
+  // A lens darkens its periphery (the cos^4 law, the barrel's mechanical shading): a brighter corner is the estimate's
+  // error (the first few dozen pairs of a slow flight over sharp edges read up to 3.8 at the corner, 1-sigma 0.08 in
+  // ln), not a field to apply.
+  if (dev > 0.0) return;
   const double kept = shrink(static_cast<float>(dev), static_cast<float>(sigma),
                              static_cast<float>(params_.significance_sigma));
   if (kept == 0.0 || !std::isfinite(kept) || !(std::abs(dev) > 0.0)) return;

@@ -408,6 +408,60 @@ TEST(FixedPattern, RadialVignettingIsFittedAsOneSmoothField) {
   EXPECT_LT(maxGainError(flat.vignetting(), cv::Mat(kH, kW, CV_32FC1, cv::Scalar(1.f))), 0.01);
 }
 
+TEST(FixedPattern, TheLensIsCorrectedBeforeTheStartUp) {
+  // The per-pixel model waits for enough different ground (here never: min_ground_patches out of reach). The
+  // radial vignetting is learned from pair ratios, in which the ground cancels: once its corner is significant it
+  // is applied alone, before the start-up, and nothing else is corrected or reported.
+  const double cx = 70.0, cy = 35.0;
+  const cv::Mat vig = radialVignetting(cx, cy);
+  FixedPatternParams p = params();
+  p.radial_vignetting = true;
+  p.min_ground_patches = 1e9;
+  FixedPattern fp(p, kW, kH, cv::Mat(), Vec2(cx, cy));
+  cv::RNG rng(29);
+  const auto correctedCorrelation = [&](FixedPattern* f) {
+    const cv::Mat g = ground(&rng);
+    cv::Mat img = g.mul(vig);
+    double s = 0, s2 = 0;
+    f->apply(img.ptr<float>(), &s, &s2);
+    return correlation(img, g);
+  };
+  flyOverOneGround(&fp, vig, VignettingLearner::kMinPairs / 2, &rng);  // too few pairs for an estimate
+  EXPECT_FALSE(fp.corrects());
+  const double before = correctedCorrelation(&fp);
+  flyOverOneGround(&fp, vig, 200, &rng);
+  EXPECT_FALSE(fp.active());
+  EXPECT_TRUE(fp.corrects());
+  EXPECT_NEAR(fp.vignettingAtCorner(), 0.65, 0.03);
+  EXPECT_LT(maxGainError(fp.gain(), vig), 0.03);  // the gain in use is the lens's field alone
+  EXPECT_EQ(fp.confidence(), nullptr);
+  EXPECT_EQ(fp.contrastShare(), 0.0);
+  EXPECT_EQ(fp.strongFraction(), 0.0);
+  const double after = correctedCorrelation(&fp);
+  std::printf("[ vignetting before the start-up ] corner %.3f (truth 0.650); a new image against its ground: "
+              "correlation %.4f uncorrected, %.4f corrected\n",
+              fp.vignettingAtCorner(), before, after);
+  EXPECT_GT(after, 0.995);
+  EXPECT_LT(before, after - 0.01);
+
+  // The per-pixel model alone (no radial field) corrects nothing before its start-up.
+  FixedPatternParams q = p;
+  q.radial_vignetting = false;
+  FixedPattern per_pixel(q, kW, kH, cv::Mat(), Vec2(cx, cy));
+  flyOverOneGround(&per_pixel, vig, 200, &rng);
+  EXPECT_FALSE(per_pixel.corrects());
+
+  // A lens does not brighten its periphery: a field that does (here the inverse of the lens's) is the estimate's
+  // error and is not applied, before the start-up or after.
+  FixedPattern brighter(p, kW, kH, cv::Mat(), Vec2(cx, cy));
+  flyOverOneGround(&brighter, 1.0 / vig, 200, &rng);
+  double a1 = 0.0, a2 = 0.0, sigma = 0.0;
+  ASSERT_TRUE(brighter.vignettingLearner().estimate(&a1, &a2, &sigma));
+  EXPECT_GT(a1 + a2, 10.0 * sigma);  // found, and significant
+  EXPECT_FALSE(brighter.corrects());
+  EXPECT_EQ(brighter.vignettingAtCorner(), 1.0);
+}
+
 TEST(FixedPattern, SaturatedPixelsLoseTheirWeight) {
   cv::RNG rng(9);
   FixedPattern fp(params(), kW, kH);
