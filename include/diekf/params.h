@@ -271,7 +271,9 @@ struct InputParams {
   double time_jump_reset_s = 1.0;               ///< a stamp this far backwards resets (closer: rejected), s
   double max_frame_interval_s = 0.25;           ///< longer reference-to-image intervals skip the update, s
   double max_image_gap_s = 1.0;                 ///< no usable image for longer: restart at the next one, s
-  double min_image_contrast_grey = 1.5;         ///< grey-level std (working image) below which it has no texture
+  /// Grey-level std of the 8-bit working image below which it has no texture: about twice a uniform scene's under
+  /// the MYNT EYE's sensor noise at 180 px (0.54); docs/algorithm.md section 3.1.
+  double min_image_contrast_grey = 1.0;
   double min_unclipped_ratio = 0.1;             ///< fraction of working pixels neither 0 nor 255 required
   double max_accel_mps2 = 200.0;                ///< IMU samples with a larger |specific force| are rejected, m/s^2
   double max_gyro_radps = 35.0;                 ///< IMU samples with a larger |rate| are rejected, rad/s

@@ -7,6 +7,8 @@
 #include <random>
 #include <string>
 
+#include <opencv2/imgproc.hpp>
+
 #include "../../src/core/health_monitor.h"
 #include "../../src/core/image_update.h"
 #include "../../src/core/imu_propagator.h"
@@ -15,6 +17,7 @@
 #include "diekf/imu_filter.h"
 #include "diekf/stamp_check.h"
 #include "diekf/state.h"
+#include "mynt_camera.h"
 #include "synthetic_flight.h"
 
 namespace diekf {
@@ -751,6 +754,46 @@ TEST(ImageCheck, ClippedFractionIsCountedExactly) {
   why.clear();
   EXPECT_FALSE(update.usable(cv::Mat(10, 37, CV_8UC1, cv::Scalar(128)), &why));
   EXPECT_NE(why.find("no texture"), std::string::npos) << why;
+}
+
+// "No texture" (input/min_image_contrast_grey, docs/algorithm.md section 3.1) on the MYNT EYE's 752 x 480 at 180 px:
+// a uniform scene under the configured sensor noise (2 grey levels per raw pixel) is refused, with room to spare; a
+// faint texture that the old default, 1.5 grey levels, refused (low-contrast ground, a carpet seen from 1.2 m) is
+// used.
+TEST(ImageCheck, AUniformSceneHasNoTextureAFaintOneHas) {
+  const CameraModel cam = myntEyeCamera();
+  EstimatorParams params;
+  const ImagePreprocessor pre(cam, params.preprocess);
+  const internal::ImageUpdate update(cam, params, pre);
+  const double s = params.photometric.sensor_noise_grey;
+  cv::RNG rng(41);
+  const auto working = [&](double texture_std_raw) {
+    cv::Mat tex(480, 752, CV_32FC1), noise(480, 752, CV_32FC1);
+    rng.fill(tex, cv::RNG::NORMAL, 0.0, 1.0);
+    cv::GaussianBlur(tex, tex, cv::Size(0, 0), 8.0);
+    cv::Scalar m, sd;
+    cv::meanStdDev(tex, m, sd);
+    rng.fill(noise, cv::RNG::NORMAL, 0.0, s);
+    cv::Mat raw;
+    cv::Mat(128.0 + tex * (texture_std_raw / sd[0]) + noise).convertTo(raw, CV_8UC1);  // (rounds)
+    PreprocessedFrame f;
+    ImagePreprocessor(cam, params.preprocess).process(raw, 0.0, &f);
+    return f.gray8.clone();
+  };
+  const auto greyStd = [](const cv::Mat& g) {
+    cv::Scalar m, sd;
+    cv::meanStdDev(g, m, sd);
+    return sd[0];
+  };
+  std::string why;
+  const cv::Mat uniform = working(0.0), faint = working(1.4);
+  std::printf("[no texture] working image's grey-level std: uniform scene %.3f, faint texture %.3f; threshold %.2f\n",
+              greyStd(uniform), greyStd(faint), params.input.min_image_contrast_grey);
+  EXPECT_LT(greyStd(uniform), 0.6 * params.input.min_image_contrast_grey);  // twice over, nearly
+  EXPECT_FALSE(update.usable(uniform, &why));
+  EXPECT_NE(why.find("no texture"), std::string::npos) << why;
+  EXPECT_LT(greyStd(faint), 1.5);  // the old default's side
+  EXPECT_TRUE(update.usable(faint, &why)) << why;
 }
 
 }  // namespace
