@@ -66,6 +66,9 @@ struct FrameResult {
   bool fixed_pattern_active = false; ///< the camera-fixed pattern model corrects the images (start-up done)
   double fixed_pattern_fraction = 0.0;  ///< share of the image under a strong camera-fixed pattern (0..1)
   double fixed_pattern_contrast_share = 0.0;  ///< the learned pattern's share of the image's gradient energy (0..1)
+  /// The lens's radial vignetting divided out of the images, at the working image's farthest corner (relative to
+  /// the principal point; 1: none). Corrected from the first significant estimate, before the start-up too.
+  double vignetting_corner = 1.0;
   /// Side (raw px) of the opening that removes bright dots from the raw images (preprocess/dot_removal_px, or
   /// switched on by fixed_pattern/auto_dot_removal_px); 0: off.
   int dot_removal_px = 0;

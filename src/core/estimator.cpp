@@ -703,6 +703,7 @@ struct Estimator::Impl {
     r.fixed_pattern_active = fixed_pattern.active();
     r.fixed_pattern_fraction = fixed_pattern.strongFraction();
     r.fixed_pattern_contrast_share = fixed_pattern.contrastShare();
+    r.vignetting_corner = fixed_pattern.corrects() ? fixed_pattern.vignettingAtCorner() : 1.0;
     r.dot_removal_px = img_pre.dotRemovalPx();
     r.dot_fill_pct = 100.0 * img_pre.dotFillShare();
     r.dot_gain_pct = 100.0 * img_pre.dotGainShare();

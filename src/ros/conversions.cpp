@@ -157,6 +157,7 @@ bool fillPlanarState(const diekf::FrameResult& r, const std_msgs::Header& header
   m.valid_ratio = r.valid_ratio;
   m.fixed_pattern_fraction = r.fixed_pattern_fraction;
   m.fixed_pattern_contrast_share = r.fixed_pattern_contrast_share;
+  m.vignetting_corner = r.vignetting_corner;
   m.status = statusToMsg(r.status);
   m.status_text = r.message;
   const bool finite = std::isfinite(m.distance) && std::isfinite(m.height) && sigma_v.allFinite() &&

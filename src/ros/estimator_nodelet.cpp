@@ -849,6 +849,7 @@ void EstimatorNodelet::publishResult(const diekf::FrameResult& r) {
     last_dot_gain_pct_ = r.dot_gain_pct;
     last_projector_dot_share_ = r.projector_dot_share;
     fixed_pattern_active_ = r.fixed_pattern_active;
+    last_vignetting_corner_ = r.vignetting_corner;
     update_ms_sum_ += r.update_ms;
     update_ms_max_ = std::max(update_ms_max_, r.update_ms);
     ++update_count_;
@@ -922,6 +923,7 @@ void EstimatorNodelet::filterDiagnostics(diagnostic_updater::DiagnosticStatusWra
   stat.add("row gains estimated", last_row_gains_ ? "yes" : "no");
   stat.add("pairs with a change of the light or exposure (compared standardised; since start)", light_changes_);
   stat.add("camera-fixed pattern learned", fixed_pattern_active_ ? "yes" : "not yet (start-up)");
+  stat.add("lens vignetting divided out, at the image's farthest corner (1 = none)", last_vignetting_corner_);
   stat.add("strong camera-fixed pattern (share of the image; projector, shadow, dirt)", last_fixed_pattern_fraction_);
   stat.add("camera-fixed pattern's share of the image contrast", last_fixed_pattern_contrast_share_);
   stat.add("projector dot removal (opening of the raw images, px; 0 = off)", last_dot_removal_px_);

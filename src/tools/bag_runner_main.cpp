@@ -336,7 +336,7 @@ int run(const RunnerOptions& o) {
     frames.open(out_dir / "frames.csv");
     if (!frames) throw RunError("cannot write " + (out_dir / "frames.csv").string());
     frames << "t,applied,passes,photometric_rms,valid_ratio,nis,noise_sigma,noise_correlation,noise_floor_sigma,nis_scale,gate_inflation,outlier_fraction,time_offset_ms,sigma_time_offset_ms,readout_ms,sigma_readout_ms,focal_scale_pct,sigma_focal_scale_pct,"
-              "fixed_pattern_active,fixed_pattern_fraction,fixed_pattern_contrast_share,brightness_gain,brightness_offset,relief_pct,"
+              "fixed_pattern_active,fixed_pattern_fraction,fixed_pattern_contrast_share,vignetting_corner,brightness_gain,brightness_offset,relief_pct,"
               "dot_removal_px,dot_fill_pct,dot_gain_pct,projector_dot_share,row_banding_pct,row_gains,light_change,stamp_correction_ms,stamp_jitter_ms,imu_notch1_hz,imu_notch2_hz,status,message\n";
     frames.precision(12);
   }
@@ -361,7 +361,8 @@ int run(const RunnerOptions& o) {
                << 1e2 * result.state.focal_scale << ','
                << 1e2 * std::sqrt(std::max(0.0, result.covariance(diekf::ErrIdx::kFs, diekf::ErrIdx::kFs))) << ','
                << (result.fixed_pattern_active ? 1 : 0) << ',' << result.fixed_pattern_fraction << ','
-               << result.fixed_pattern_contrast_share << ',' << result.brightness_gain << ','
+               << result.fixed_pattern_contrast_share << ',' << result.vignetting_corner << ','
+               << result.brightness_gain << ','
                << result.brightness_offset << ',' << 1e2 * result.relief_sigma << ','
                << result.dot_removal_px << ',' << result.dot_fill_pct << ',' << result.dot_gain_pct << ','
                << result.projector_dot_share << ','

@@ -185,6 +185,7 @@ class EstimatorNodelet : public nodelet::Nodelet {
   double last_dot_gain_pct_ = 0.0;
   double last_projector_dot_share_ = -1.0;
   bool fixed_pattern_active_ = false;
+  double last_vignetting_corner_ = 1.0;
   double last_time_offset_ms_ = 0.0, last_sigma_time_offset_ms_ = 0.0;
   double last_focal_scale_pct_ = 0.0, last_sigma_focal_scale_pct_ = 0.0;  // focal length correction, %
   std::uint64_t gated_updates_ = 0;
