@@ -20,7 +20,8 @@
 //
 // The statistics only learn from frames whose ground moved by a sizeable part of decorrelation_px since the
 // last one (the filter's own velocity, distance and rotation rate say how far, imageMotionPx) and that the
-// filter accepted; before startup_samples independent samples nothing is corrected but the radial vignetting,
+// filter accepted, each pixel as far as its own ground moved (a change of scale or a turn moves the ground at the
+// optical centre least: a climb over one spot is no pattern there); before startup_samples independent samples nothing is corrected but the radial vignetting,
 // applied alone once significant (its learner needs no start-up: the ground cancels in its pair ratios). A field
 // that brightens the corner is never applied (a lens darkens its periphery). All buffers are allocated in the
 // constructor: no allocation per frame.
@@ -206,6 +207,8 @@ class FixedPattern {
   cv::Mat gain_, inv_gain_, offset_, confidence_;
   cv::Mat vig_, inv_vig_;          // radial vignetting V and 1 / V
   cv::Mat r2_;                     // squared distance to the optical centre over the farthest corner's (0..1)
+  cv::Mat radius_px_;              // distance to the optical centre, working px
+  cv::Mat pixel_samples_;          // each pixel's independent samples (its ground's motion; learn())
   VignettingLearner vig_learner_;       // the radial vignetting from the ground's motion
   double vig_corner_ = 1.0;
   std::vector<float> median_buf_;

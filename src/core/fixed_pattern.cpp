@@ -112,6 +112,12 @@ FixedPattern::FixedPattern(const FixedPatternParams& params, int width, int heig
     for (int x = 0; x < width; ++x)
       r2_.at<float>(y, x) = static_cast<float>(((x - cx) * (x - cx) + (y - cy) * (y - cy)) * inv_r2max);
   vig_learner_.configure(width, height, cx, cy);
+  radius_px_.create(height, width, CV_32FC1);
+  pixel_samples_.create(height, width, CV_32FC1);
+  pixel_samples_.setTo(0.f);
+  for (int y = 0; y < height; ++y)
+    for (int x = 0; x < width; ++x)
+      radius_px_.at<float>(y, x) = static_cast<float>(std::sqrt((x - cx) * (x - cx) + (y - cy) * (y - cy)));
   median_buf_.reserve(static_cast<size_t>(((width + 1) / 2) * ((height + 1) / 2)));
   smooth_.create(height, width, CV_32FC1);
   scratch_.create(height, width, CV_32FC1);
@@ -129,6 +135,7 @@ FixedPattern::FixedPattern(const FixedPatternParams& params, int width, int heig
 void FixedPattern::reset() {
   m1_.setTo(0.f);
   m2_.setTo(0.f);
+  pixel_samples_.setTo(0.f);
   gain_.setTo(1.f);
   inv_gain_.setTo(1.f);
   offset_.setTo(0.f);
@@ -243,17 +250,37 @@ bool FixedPattern::learn(double motion_px, const Vec2& ground_shift_px, const Ve
   const double w = std::min(1.0, motion_px / params_.decorrelation_px);
   if (!(w > 0.0) || !std::isfinite(w)) return false;
   samples_ = std::min(samples_ + w, params_.memory_samples);
-  const float lambda = static_cast<float>(w / std::max(samples_, w));
+  const float lambda = static_cast<float>(w / std::max(samples_, w));  // (the ground cells' weights below)
+  const float keep = 1.f - lambda;
   const int n = width_ * height_;
   const float* u = last_u_.ptr<float>();
   float* m1 = m1_.ptr<float>();
   float* m2 = m2_.ptr<float>();
-  // Exponentially weighted mean and variance (m2 holds the variance): v <- (1 - l) (v + l d^2), d = u - mean.
-  const float keep = 1.f - lambda;
-  for (int i = 0; i < n; ++i) {
+  // Exponentially weighted mean and variance per pixel (m2 holds the variance): v <- (1 - l) (v + l d^2),
+  // d = u - mean, l = w_p / n_p. Each pixel counts its own ground's motion w_p: a turn or a change of scale moves
+  // the ground at radius r by r times as much, and not at all at the centre (a climb over one spot: the centre
+  // sees the same ground throughout, which its mean cannot tell from a pattern). The shift plus r (|turn| + |log
+  // scale|), an upper estimate as imageMotionPx's, at most motion_px; the caller's w where it gives neither.
+  const double shift = ground_shift_px.allFinite() ? ground_shift_px.norm() : 0.0;
+  const double turn_scale = ground_turn_scale.allFinite() ? ground_turn_scale.cwiseAbs().sum() : 0.0;
+  const bool per_pixel = shift > 0.0 || turn_scale > 0.0;
+  const float w_max = static_cast<float>(w), memory = static_cast<float>(params_.memory_samples);
+  const float w_shift = static_cast<float>(shift / params_.decorrelation_px);
+  const float w_per_radius = static_cast<float>(turn_scale / params_.decorrelation_px);
+  const float* radius = radius_px_.ptr<float>();
+  float* np = pixel_samples_.ptr<float>();
+  // (Branch-free, so that it vectorises: a pixel whose ground did not move has w_p = 0, hence l = 0.)
+  const auto update = [&](int i, float wp) {
+    np[i] = std::min(np[i] + wp, memory);
+    const float l = wp / std::max(np[i], 1e-12f);
     const float d = u[i] - m1[i];
-    m1[i] += lambda * d;
-    m2[i] = keep * (m2[i] + lambda * d * d);
+    m1[i] += l * d;
+    m2[i] = (1.f - l) * (m2[i] + l * d * d);
+  };
+  if (per_pixel) {
+    for (int i = 0; i < n; ++i) update(i, std::min(w_max, w_shift + w_per_radius * radius[i]));
+  } else {
+    for (int i = 0; i < n; ++i) update(i, w_max);
   }
   // The mean's variance and its covariances with the snapshots' means, in units of one sample's variance: the
   // ground is counted per cell of its track through the image (docs/noise_model.md section 11), so that samples
@@ -477,9 +504,7 @@ void FixedPattern::refresh() {
   if (correlation(snapshots_[newest_]) < kSnapshotRenewCorrelation) takeSnapshot();
   const float bulk_s = 1.4826f * sampleMedian([&](int i) { return std::abs(a[i] * inv_S - 1.f); });
   const float k = static_cast<float>(params_.significance_sigma);
-  const float n_eff = static_cast<float>(std::max(1.0, samples_));
-  const float se_rel_s = 1.f / std::sqrt(2.f * n_eff);  // relative standard error of a spread
-  const float se_rel_m = 1.f / std::sqrt(n_eff);        // of a mean, in spreads
+  const float* pixel_samples = pixel_samples_.ptr<float>();
   const float g_floor = static_cast<float>(std::max(1e-3, 0.5 * params_.min_gain));
   const float inv_min_gain = params_.min_gain > 0.0 ? static_cast<float>(1.0 / params_.min_gain) : 0.f;
   has_low_confidence_ = false;
@@ -489,6 +514,9 @@ void FixedPattern::refresh() {
     // (shadow, vignetting, dirt) moves both alike; added light (glare, saturating dots) only the mean. A
     // pattern edge moving a little (the shadow as the drone tilts) raises the spread there, so the mean ratio
     // is the gain unless the spread says that light was added (g_s below g_m).
+    // Standard errors from the pixel's own samples (its ground's motion, learn()).
+    const float n_p = std::max(1.f, pixel_samples[i]);
+    const float se_rel_m = 1.f / std::sqrt(n_p), se_rel_s = 1.f / std::sqrt(2.f * n_p);
     const float se_m = a[i] * inv_level * se_rel_m;  // standard error of g_m from the pixel's own statistics
     const float se_sm = std::max(se_m, bulk_sm), se_dt = std::max(se_m, bulk_dt);
     const float d_sm = shrink(sm[i] - 1.f, se_sm, k), d_dt = shrink(dt[i], se_dt, k);
