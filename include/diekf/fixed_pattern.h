@@ -21,10 +21,10 @@
 // The statistics only learn from frames whose ground moved by a sizeable part of decorrelation_px since the
 // last one (the filter's own velocity, distance and rotation rate say how far, imageMotionPx) and that the
 // filter accepted, each pixel as far as its own ground moved (a change of scale or a turn moves the ground at the
-// optical centre least: a climb over one spot is no pattern there); before startup_samples independent samples nothing is corrected but the radial vignetting,
-// applied alone once significant (its learner needs no start-up: the ground cancels in its pair ratios). A field
-// that brightens the corner is never applied (a lens darkens its periphery). All buffers are allocated in the
-// constructor: no allocation per frame.
+// optical centre least: a climb over one spot is no pattern there). Before startup_samples independent samples
+// nothing is corrected but the radial vignetting, applied alone once significant (its learner needs no start-up:
+// the ground cancels in its pair ratios). A field that brightens the corner is never applied (a lens darkens its
+// periphery). All buffers are allocated in the constructor: no allocation per frame.
 #pragma once
 
 #include <algorithm>

@@ -113,8 +113,7 @@ FixedPattern::FixedPattern(const FixedPatternParams& params, int width, int heig
       r2_.at<float>(y, x) = static_cast<float>(((x - cx) * (x - cx) + (y - cy) * (y - cy)) * inv_r2max);
   vig_learner_.configure(width, height, cx, cy);
   radius_px_.create(height, width, CV_32FC1);
-  pixel_samples_.create(height, width, CV_32FC1);
-  pixel_samples_.setTo(0.f);
+  pixel_samples_.create(height, width, CV_32FC1);  // (zeroed by reset())
   for (int y = 0; y < height; ++y)
     for (int x = 0; x < width; ++x)
       radius_px_.at<float>(y, x) = static_cast<float>(std::sqrt((x - cx) * (x - cx) + (y - cy) * (y - cy)));

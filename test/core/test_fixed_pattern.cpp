@@ -277,8 +277,8 @@ TEST(FixedPattern, AClimbOverOneSpotIsNotAPatternAtTheImagesCentre) {
   // The central quarter of the image: its ground is no pattern.
   const cv::Rect centre(3 * kW / 8, 3 * kH / 8, kW / 4, kH / 4);
   const double centre_dev = cv::norm(fp.gain()(centre) - 1.0, cv::NORM_INF);
-  std::printf("[climb over one spot] start-up after %d images sideways: contrast share %.3f, strong fraction %.3f, largest gain "
-              "deviation in the central quarter %.3f\n",
+  std::printf("[climb over one spot] start-up after %d images sideways: contrast share %.3f, strong fraction %.3f, "
+              "largest gain deviation in the central quarter %.3f\n",
               sideways, fp.contrastShare(), fp.strongFraction(), centre_dev);
   EXPECT_LT(centre_dev, 0.05);
   EXPECT_LT(fp.contrastShare(), 0.005);
