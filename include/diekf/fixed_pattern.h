@@ -206,7 +206,6 @@ class FixedPattern {
   cv::Mat m1_, m2_;     // exponentially weighted mean and variance of u
   cv::Mat gain_, inv_gain_, offset_, confidence_;
   cv::Mat vig_, inv_vig_;          // radial vignetting V and 1 / V
-  cv::Mat r2_;                     // squared distance to the optical centre over the farthest corner's (0..1)
   cv::Mat radius_px_;              // distance to the optical centre, working px
   cv::Mat pixel_samples_;          // each pixel's independent samples (its ground's motion; learn())
   VignettingLearner vig_learner_;       // the radial vignetting from the ground's motion

@@ -102,15 +102,10 @@ FixedPattern::FixedPattern(const FixedPatternParams& params, int width, int heig
   confidence_.create(height, width, CV_32FC1);
   vig_.create(height, width, CV_32FC1);
   inv_vig_.create(height, width, CV_32FC1);
-  // The radial vignetting's radius: from the principal point, 1 at the farthest corner.
+  // The optical centre: the radial vignetting's (its radius, VignettingLearner::radius2, is 1 at the farthest
+  // corner) and the centre of the ground's turn and change of scale (learn()).
   const double cx = optical_centre_px.x() >= 0.0 ? optical_centre_px.x() : 0.5 * (width - 1);
   const double cy = optical_centre_px.y() >= 0.0 ? optical_centre_px.y() : 0.5 * (height - 1);
-  const double dx = std::max(cx, width - 1 - cx), dy = std::max(cy, height - 1 - cy);
-  const double inv_r2max = 1.0 / std::max(1.0, dx * dx + dy * dy);
-  r2_.create(height, width, CV_32FC1);
-  for (int y = 0; y < height; ++y)
-    for (int x = 0; x < width; ++x)
-      r2_.at<float>(y, x) = static_cast<float>(((x - cx) * (x - cx) + (y - cy) * (y - cy)) * inv_r2max);
   vig_learner_.configure(width, height, cx, cy);
   radius_px_.create(height, width, CV_32FC1);
   pixel_samples_.create(height, width, CV_32FC1);  // (zeroed by reset())
@@ -423,15 +418,15 @@ void FixedPattern::fitVignetting() {
                              static_cast<float>(params_.significance_sigma));
   if (kept == 0.0 || !std::isfinite(kept) || !(std::abs(dev) > 0.0)) return;
   const double f = kept / dev;
-  const int n = width_ * height_;
-  const float* r2 = r2_.ptr<float>();
   float* vg = vig_.ptr<float>();
   float* iv = inv_vig_.ptr<float>();
-  for (int i = 0; i < n; ++i) {
-    const double x = r2[i];
-    vg[i] = static_cast<float>(std::clamp(std::exp(f * (a1 * x + a2 * x * x)), 0.05, 2.0));
-    iv[i] = 1.f / vg[i];
-  }
+  for (int y = 0, i = 0; y < height_; ++y)
+    for (int x = 0; x < width_; ++x, ++i) {
+      // The learner's own radius, 1 at the farthest corner (in float, as the field has always been evaluated).
+      const double s = static_cast<float>(vig_learner_.radius2(x, y));
+      vg[i] = static_cast<float>(std::clamp(std::exp(f * (a1 * s + a2 * s * s)), 0.05, 2.0));
+      iv[i] = 1.f / vg[i];
+    }
   vig_corner_ = std::clamp(std::exp(f * dev), 0.05, 2.0);
 }
 

@@ -237,7 +237,7 @@ VignettedRun flyVignetted(bool radial) {
 // it corrects the whole image, not only the corners the per-pixel test finds significant, and it does not count
 // toward the strong fraction the status reports (docs/noise_model.md section 11, "Radial vignetting as one
 // field"), and it is divided out from its first significant estimate, before the start-up ("The vignetting before
-// the start-up"). Measured: d RMSE 0.64 cm with it (1.98 when it waited for the start-up), 4.83 cm with the
+// the start-up"). Measured: d RMSE 0.65 cm with it (1.98 when it waited for the start-up), 4.82 cm with the
 // per-pixel model alone; largest strong fraction 0.007 against 0.025; divided out from 0.90 s, the model active
 // from 3.83 s; corner 0.573 against the render's 0.55.
 TEST(FixedPatternFlight, VignettingIsOneLensField) {
