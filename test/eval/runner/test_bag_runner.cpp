@@ -578,4 +578,64 @@ TEST(BagRunner, CalibrationEnsembleDrawsFromThePriorAndPoolsTheConsistency) {
   EXPECT_EQ(a, b);
 }
 
+TEST(BagRunner, CalibrationEnsembleRestoresTheListedPartsOfTheTrueCalibration) {
+  // scripts/calibration_ensemble.py --restore: the camchain as written with only the listed parts taken from the
+  // simulator's realism.yaml (which calibration error matters); a misspelt part is refused by name.
+  Dirs dirs;
+  const fs::path seq = dirs.root / "flight";
+  fs::create_directories(seq);
+  writeFlightBag((seq / "sequence.bag").string(), 5.0, true);
+  writeCamchain(seq);  // as written: f 120, principal point (80, 50), T_cam_imu diag(1, -1, -1)
+  {
+    std::ofstream f(seq / "realism.yaml");
+    f << "true_intrinsics: [118.0, 118.5, 83.0, 47.0]\n"
+      << "true_T_cam_imu:\n"
+      << "  - [0.0, -1.0, 0.0, 0.01]\n"
+      << "  - [-1.0, 0.0, 0.0, 0.02]\n"
+      << "  - [0.0, 0.0, -1.0, 0.0]\n"
+      << "  - [0.0, 0.0, 0.0, 1.0]\n";
+  }
+  const std::string bin_dir = fs::path(DIEKF_BAG_RUNNER_EXE).parent_path().string();
+  const fs::path ens = dirs.root / "ens";
+  auto ensemble = [&](const std::string& tag, const std::string& restore) {
+    return runCommand("DIEKF_BIN_DIR=\"" + bin_dir + "\" python3 \"" + DIEKF_ENSEMBLE_SCRIPT + "\" --sequences \"" +
+                          seq.string() + "\" --output \"" + ens.string() + "\" --tag " + tag +
+                          " --threads 1 --draws 1 --sigma-focal 0 --sigma-rotation-deg 0 --restore " + restore +
+                          " --runner-args \"--width 64 --quiet\"",
+                      dirs.root);
+  };
+  auto camchain = [&](const std::string& tag) {
+    return YAML::LoadFile((ens / tag / "flight_d0" / "camchain.yaml").string())["cam0"];
+  };
+  RunResult r = ensemble("pp", "principal_point");
+  ASSERT_EQ(r.exit_code, 0) << r.err << r.out;
+  YAML::Node cam = camchain("pp");
+  EXPECT_DOUBLE_EQ(cam["intrinsics"][0].as<double>(), kFocalPx) << "focal lengths as written";
+  EXPECT_DOUBLE_EQ(cam["intrinsics"][1].as<double>(), kFocalPx);
+  EXPECT_DOUBLE_EQ(cam["intrinsics"][2].as<double>(), 83.0) << "principal point restored";
+  EXPECT_DOUBLE_EQ(cam["intrinsics"][3].as<double>(), 47.0);
+  EXPECT_DOUBLE_EQ(cam["T_cam_imu"][0][0].as<double>(), 1.0) << "rotation as written";
+  EXPECT_TRUE(fs::exists(ens / "pp" / "flight_d0" / "estimates.csv"));
+  EXPECT_EQ(YAML::LoadFile((ens / "pp" / "flight_d0" / "draw.json").string())["restored"][0].as<std::string>(),
+            "principal_point");
+
+  r = ensemble("fr", "focal_lengths,rotation");
+  ASSERT_EQ(r.exit_code, 0) << r.err << r.out;
+  cam = camchain("fr");
+  EXPECT_DOUBLE_EQ(cam["intrinsics"][0].as<double>(), 118.0);
+  EXPECT_DOUBLE_EQ(cam["intrinsics"][1].as<double>(), 118.5);
+  EXPECT_DOUBLE_EQ(cam["intrinsics"][2].as<double>(), kCxPx);
+  EXPECT_DOUBLE_EQ(cam["T_cam_imu"][0][1].as<double>(), -1.0) << "the true camera-IMU transform";
+  EXPECT_DOUBLE_EQ(cam["T_cam_imu"][1][3].as<double>(), 0.02);
+
+  r = ensemble("none", "none");
+  ASSERT_EQ(r.exit_code, 0) << r.err << r.out;
+  cam = camchain("none");
+  EXPECT_DOUBLE_EQ(cam["intrinsics"][2].as<double>(), kCxPx) << "nothing restored: as written";
+
+  r = ensemble("bad", "principal_points");
+  EXPECT_NE(r.exit_code, 0);
+  EXPECT_NE(r.err.find("principal_points"), std::string::npos) << r.err;
+}
+
 }  // namespace
