@@ -225,7 +225,7 @@ void MyntEyeStandin::readParams() {
 
 void MyntEyeStandin::advertise() {
   it_ = std::make_unique<image_transport::ImageTransport>(nh_);
-  for (const std::string& s : {"left", "right", "left_rect", "right_rect", "disparity", "disparity_norm", "depth"}) {
+  for (const char* s : {"left", "right", "left_rect", "right_rect", "disparity", "disparity_norm", "depth"}) {
     camera_pubs_[s] = it_->advertiseCamera(topics_[s], 1);
   }
   points_pub_ = nh_.advertise<sensor_msgs::Image>(topics_["points"], 1);  // never published (type irrelevant)
