@@ -174,6 +174,16 @@ RunResult runRunner(const std::string& args, const fs::path& dir) {
   return runCommand(std::string("\"") + DIEKF_BAG_RUNNER_EXE + "\" " + args, dir);
 }
 
+/// scripts/calibration_ensemble.py on one sequence folder, its runs under out/tag, at 64 px, one thread.
+RunResult runEnsemble(const fs::path& seq, const fs::path& out, const std::string& tag, const std::string& args,
+                      const fs::path& dir) {
+  const std::string bin_dir = fs::path(DIEKF_BAG_RUNNER_EXE).parent_path().string();
+  return runCommand("DIEKF_BIN_DIR=\"" + bin_dir + "\" python3 \"" + DIEKF_ENSEMBLE_SCRIPT + "\" --sequences \"" +
+                        seq.string() + "\" --output \"" + out.string() + "\" --tag " + tag +
+                        " --threads 1 --runner-args \"--width 64 --quiet\" " + args,
+                    dir);
+}
+
 std::vector<std::string> readLines(const fs::path& path) {
   std::ifstream f(path);
   std::vector<std::string> lines;
@@ -499,13 +509,9 @@ TEST(BagRunner, CalibrationEnsembleDrawsFromThePriorAndPoolsTheConsistency) {
   fs::create_directories(seq);
   writeFlightBag((seq / "sequence.bag").string(), 5.0, true);
   writeCamchain(seq);
-  const std::string bin_dir = fs::path(DIEKF_BAG_RUNNER_EXE).parent_path().string();
   const fs::path ens = dirs.root / "ens";
   auto ensemble = [&](const std::string& tag, const std::string& args) {
-    return runCommand("DIEKF_BIN_DIR=\"" + bin_dir + "\" python3 \"" + DIEKF_ENSEMBLE_SCRIPT + "\" --sequences \"" +
-                          seq.string() + "\" --output \"" + ens.string() + "\" --tag " + tag +
-                          " --threads 1 --runner-args \"--width 64 --quiet\" " + args,
-                      dirs.root);
+    return runEnsemble(seq, ens, tag, args, dirs.root);
   };
   const std::string drawn = "--draws 2 --seed 7 --sigma-focal 0.05 --sigma-rotation-deg 2";
   RunResult r = ensemble("a", drawn);
@@ -595,14 +601,10 @@ TEST(BagRunner, CalibrationEnsembleRestoresTheListedPartsOfTheTrueCalibration) {
       << "  - [0.0, 0.0, -1.0, 0.0]\n"
       << "  - [0.0, 0.0, 0.0, 1.0]\n";
   }
-  const std::string bin_dir = fs::path(DIEKF_BAG_RUNNER_EXE).parent_path().string();
   const fs::path ens = dirs.root / "ens";
   auto ensemble = [&](const std::string& tag, const std::string& restore) {
-    return runCommand("DIEKF_BIN_DIR=\"" + bin_dir + "\" python3 \"" + DIEKF_ENSEMBLE_SCRIPT + "\" --sequences \"" +
-                          seq.string() + "\" --output \"" + ens.string() + "\" --tag " + tag +
-                          " --threads 1 --draws 1 --sigma-focal 0 --sigma-rotation-deg 0 --restore " + restore +
-                          " --runner-args \"--width 64 --quiet\"",
-                      dirs.root);
+    return runEnsemble(seq, ens, tag, "--draws 1 --sigma-focal 0 --sigma-rotation-deg 0 --restore " + restore,
+                       dirs.root);
   };
   auto camchain = [&](const std::string& tag) {
     return YAML::LoadFile((ens / tag / "flight_d0" / "camchain.yaml").string())["cam0"];
