@@ -74,6 +74,9 @@ struct ProcessNoiseParams {
   double alpha_inv_m_per_sqrt_s = 0.01;         ///< random-walk density on alpha, (1/m)/sqrt(s)
   double alpha_rate_noise_sqrt_s = 0.1;         ///< plus k alpha |mu . vartheta| (relative, with the vertical rate), sqrt(s)
   double vartheta_inv_s_per_sqrt_s = 0.05;      ///< random-walk density on vartheta, (1/s)/sqrt(s)
+  /// The distance's process noise (the two terms above) moves vartheta with alpha, v = vartheta / alpha unchanged:
+  /// the ground's distance changes, the camera's velocity does not (docs/algorithm.md section 2). false: alpha alone.
+  bool alpha_noise_keeps_velocity = true;
   /// The product of the distance's and the acceleration's errors in d vartheta / dt = alpha a + ..., which the
   /// linearisation drops, added to vartheta's process noise as if coherent over this time, s (0: off, the
   /// default; docs/algorithm.md section 2.1).

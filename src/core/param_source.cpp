@@ -327,6 +327,7 @@ const std::vector<Entry>& table() {
                      nonNegative()));
     t.push_back(real("process/vartheta_inv_s_per_sqrt_s",
                      DIEKF_FIELD(double, process.vartheta_inv_s_per_sqrt_s), nonNegative()));
+    t.push_back(flag("process/alpha_noise_keeps_velocity", DIEKF_FIELD(bool, process.alpha_noise_keeps_velocity)));
     t.push_back(real("process/bilinear_accel_time_s", DIEKF_FIELD(double, process.bilinear_accel_time_s),
                      between(0.0, 10.0)));
     t.push_back(real("process/mu_rad_per_sqrt_s", DIEKF_FIELD(double, process.mu_rad_per_sqrt_s), nonNegative()));

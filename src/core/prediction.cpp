@@ -186,6 +186,11 @@ void predict(const Vec3& accel_C, const Vec3& gyro_C, double dt_s, const ImuPara
   const double rate_sigma = process.alpha_rate_noise_sqrt_s * x->alpha *
                             std::abs(x->mu.vector().dot(x->vartheta)) * std::sqrt(dt_s);  // 1/m
   sigma(NoiseIdx::kAlpha) = std::hypot(sigma(NoiseIdx::kAlpha), rate_sigma);
+  // An error of the distance dynamics (ground that is not the plane, the take-off's linearisation) changes the
+  // distance, not the camera's velocity: the increment moves vartheta = alpha v by v = vartheta / alpha per unit of
+  // alpha. On alpha alone it would say the velocity jumped with it.
+  if (process.alpha_noise_keeps_velocity && x->alpha > 0.0)
+    G.block<3, 1>(ErrIdx::kVartheta, NoiseIdx::kAlpha) = x->vartheta / x->alpha;
   Mat3 bilinear = Mat3::Zero();
   if (process.bilinear_accel_time_s > 0.0) {
     // d vartheta/dt = alpha a + ...: the linearisation keeps alpha da and a dalpha, not dalpha da, whose variance

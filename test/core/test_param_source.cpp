@@ -79,6 +79,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          ma.lever_arm_compensation == mb.lever_arm_compensation && ma.gravity_mps2 == mb.gravity_mps2 &&
          pa.alpha_rate_noise_sqrt_s == pb.alpha_rate_noise_sqrt_s && pa.alpha_inv_m_per_sqrt_s == pb.alpha_inv_m_per_sqrt_s &&
          pa.vartheta_inv_s_per_sqrt_s == pb.vartheta_inv_s_per_sqrt_s && pa.bilinear_accel_time_s == pb.bilinear_accel_time_s &&
+         pa.alpha_noise_keeps_velocity == pb.alpha_noise_keeps_velocity &&
          pa.mu_rad_per_sqrt_s == pb.mu_rad_per_sqrt_s && pa.g_rad_per_sqrt_s == pb.g_rad_per_sqrt_s &&
          pa.time_offset_s_per_sqrt_s == pb.time_offset_s_per_sqrt_s && pa.readout_s_per_sqrt_s == pb.readout_s_per_sqrt_s &&
          pa.focal_scale_per_sqrt_s == pb.focal_scale_per_sqrt_s &&

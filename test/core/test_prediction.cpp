@@ -316,6 +316,8 @@ TEST(Prediction, CovarianceStepEqualsDenseFormula) {
     sigma(NoiseIdx::kAlpha) = std::hypot(sigma(NoiseIdx::kAlpha),
                                          proc.alpha_rate_noise_sqrt_s * c.x.alpha *
                                              std::abs(c.x.mu.vector().dot(c.x.vartheta)) * std::sqrt(c.dt_s));
+    // The distance's increment moves vartheta with alpha (alpha_noise_keeps_velocity).
+    G.block<3, 1>(ErrIdx::kVartheta, NoiseIdx::kAlpha) = c.x.vartheta / c.x.alpha;
     ErrorCov expected = F * P0 * F.transpose() + G * sigma.cwiseAbs2().asDiagonal() * G.transpose();
     // The time offset's, readout's and focal scale's random walks (not IMU noises, so not in G).
     expected(ErrIdx::kTd, ErrIdx::kTd) += proc.time_offset_s_per_sqrt_s * proc.time_offset_s_per_sqrt_s * c.dt_s;
@@ -391,6 +393,44 @@ TEST(Prediction, DistanceRateNoiseGrowsWithVerticalMotionOnly) {
   EXPECT_NEAR(alphaVariance(level, 0.1), alphaVariance(level, 0.0), 1e-15);
   // One 10 ms step of a 1.5 /s climb at alpha = 2: (0.1 * 2 * 1.5)^2 * 0.01 = 9e-4 more.
   EXPECT_NEAR(alphaVariance(climb, 0.1) - alphaVariance(climb, 0.0), 9e-4, 1e-9);
+}
+
+TEST(Prediction, DistanceNoiseLeavesTheVelocityUnchanged) {
+  // Only the distance's process noise (its random walk and, in a climb, its rate term): the distance's variance
+  // grows, the velocity v = vartheta / alpha keeps its (zero) variance; with the noise on alpha alone
+  // (alpha_noise_keeps_velocity = false) the velocity's variance grows as (|v| sigma_alpha / alpha)^2.
+  ImuParams imu;
+  imu.accel_noise_density = imu.gyro_noise_density = imu.accel_random_walk = imu.gyro_random_walk = 0.0;
+  auto varianceAfterOneStep = [&](const Vec3& vartheta_inv_s, bool keeps_velocity, double* var_d_m2) {
+    ProcessNoiseParams proc;
+    proc.vartheta_inv_s_per_sqrt_s = proc.mu_rad_per_sqrt_s = proc.g_rad_per_sqrt_s = 0.0;
+    proc.alpha_noise_keeps_velocity = keeps_velocity;
+    State x;
+    x.alpha = 2.0;
+    x.mu = UnitVector(Vec3(0, 0, 1));
+    x.g = UnitVector(Vec3(0, 0, 1));
+    x.vartheta = vartheta_inv_s;
+    ErrorCov P = ErrorCov::Zero();
+    predict(-kG0 * x.g.vector(), Vec3::Zero(), 0.01, imu, proc, &x, &P);
+    *var_d_m2 = std::pow(sigmaDistance_m(x, P), 2);
+    return velocityCovariance(x, P).trace();  // (m/s)^2
+  };
+  const Vec3 level(0.8, -0.3, 0.0), climb(0.8, -0.3, 0.6);
+  double var_d = 0.0, var_d_alone = 0.0;
+  // Level flight: alpha does not move over the step, so v's variance stays zero to rounding.
+  const double var_v = varianceAfterOneStep(level, true, &var_d);
+  const double var_v_alone = varianceAfterOneStep(level, false, &var_d_alone);
+  EXPECT_GT(var_d, 0.0);
+  EXPECT_NEAR(var_d, var_d_alone, 1e-12 * var_d);  // the distance's growth is the same either way
+  // alpha off by e: v = vartheta / alpha off by -vartheta e / alpha^2 and d = 1 / alpha by -e / alpha^2, so
+  // var(v) = |vartheta|^2 var(d).
+  EXPECT_NEAR(var_v_alone, level.squaredNorm() * var_d, 1e-9 * var_v_alone);
+  EXPECT_LT(var_v, 1e-12 * var_v_alone);
+  // A climb: alpha moves by 1.2 % over the step, the velocity's variance stays below 1e-3 of alpha alone's.
+  const double var_v_climb = varianceAfterOneStep(climb, true, &var_d);
+  const double var_v_climb_alone = varianceAfterOneStep(climb, false, &var_d_alone);
+  EXPECT_GT(var_v_climb_alone, var_v_alone);  // the rate term adds to it
+  EXPECT_LT(var_v_climb, 1e-3 * var_v_climb_alone);
 }
 
 TEST(Prediction, CovarianceStaysSymmetricPositiveDefinite) {
