@@ -571,7 +571,9 @@ TEST_F(RealismSim, ImuRateAndArrivalStampsOfAHostReadIMU) {
     const std::int64_t delay = sorted_late[i] - sorted_exact[i];
     EXPECT_GE(delay, 0);
     EXPECT_LT(delay, 6000000);
-    if (i > 0) EXPECT_GE(sorted_late[i] - sorted_late[i - 1], 50000);
+    if (i > 0) {
+      EXPECT_GE(sorted_late[i] - sorted_late[i - 1], 50000);
+    }
     delay_sum += delay * 1e-6;  // ms
   }
   EXPECT_NEAR(delay_sum / sorted_late.size(), 0.8, 0.15);  // E|N(0, 1 ms)| = 0.80 ms
