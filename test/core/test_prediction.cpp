@@ -373,6 +373,20 @@ TEST(Prediction, BilinearTermNeedsBothTheDistanceAndTheAccelerationUncertain) {
   EXPECT_LT((varthetaBlock(P2, proc) - varthetaBlock(P2, off)).cwiseAbs().maxCoeff(), 1e-15);
 }
 
+/// One 10 ms prediction step from P = 0 of a camera looking straight down at alpha = 2 /m, gravity along the optical
+/// axis and the specific force cancelling it, with the given vartheta: the state after it, P into *P.
+State stepAboveLevelGround(const Vec3& vartheta_inv_s, const ImuParams& imu, const ProcessNoiseParams& proc,
+                           ErrorCov* P) {
+  State x;
+  x.alpha = 2.0;
+  x.mu = UnitVector(Vec3(0, 0, 1));
+  x.g = UnitVector(Vec3(0, 0, 1));
+  x.vartheta = vartheta_inv_s;
+  P->setZero();
+  predict(-kG0 * x.g.vector(), Vec3::Zero(), 0.01, imu, proc, &x, P);
+  return x;
+}
+
 TEST(Prediction, DistanceRateNoiseGrowsWithVerticalMotionOnly) {
   // The alpha random walk k alpha |mu . vartheta| adds variance in a climb (vartheta along mu), none in level
   // flight (vartheta orthogonal to mu), and none with k = 0.
@@ -380,13 +394,8 @@ TEST(Prediction, DistanceRateNoiseGrowsWithVerticalMotionOnly) {
   auto alphaVariance = [&](const Vec3& vartheta_inv_s, double k) {
     ProcessNoiseParams proc;
     proc.alpha_rate_noise_sqrt_s = k;
-    State x;
-    x.alpha = 2.0;
-    x.mu = UnitVector(Vec3(0, 0, 1));
-    x.g = UnitVector(Vec3(0, 0, 1));
-    x.vartheta = vartheta_inv_s;
-    ErrorCov P = ErrorCov::Zero();
-    predict(-kG0 * x.g.vector(), Vec3::Zero(), 0.01, imu, proc, &x, &P);
+    ErrorCov P;
+    stepAboveLevelGround(vartheta_inv_s, imu, proc, &P);
     return P(ErrIdx::kAlpha, ErrIdx::kAlpha);
   };
   const Vec3 climb(0.0, 0.0, 1.5), level(1.5, 0.0, 0.0);
@@ -405,13 +414,8 @@ TEST(Prediction, DistanceNoiseLeavesTheVelocityUnchanged) {
     ProcessNoiseParams proc;
     proc.vartheta_inv_s_per_sqrt_s = proc.mu_rad_per_sqrt_s = proc.g_rad_per_sqrt_s = 0.0;
     proc.alpha_noise_keeps_velocity = keeps_velocity;
-    State x;
-    x.alpha = 2.0;
-    x.mu = UnitVector(Vec3(0, 0, 1));
-    x.g = UnitVector(Vec3(0, 0, 1));
-    x.vartheta = vartheta_inv_s;
-    ErrorCov P = ErrorCov::Zero();
-    predict(-kG0 * x.g.vector(), Vec3::Zero(), 0.01, imu, proc, &x, &P);
+    ErrorCov P;
+    const State x = stepAboveLevelGround(vartheta_inv_s, imu, proc, &P);
     *var_d_m2 = std::pow(sigmaDistance_m(x, P), 2);
     return velocityCovariance(x, P).trace();  // (m/s)^2
   };
