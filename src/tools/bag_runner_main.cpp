@@ -39,6 +39,7 @@
 #include "diekf/param_source.h"
 #include "diekf/params.h"
 #include "diekf/photometric_update.h"
+#include "estimate_row.h"
 
 namespace {
 
@@ -180,22 +181,6 @@ cv::Mat imagePixels(const sensor_msgs::ImageConstPtr& msg) {
     return grey;
   }
   return cv->image;  // shares the message's buffer: the caller keeps the message
-}
-
-diekf::eval::EstimateRow toRow(const diekf::FrameResult& r) {
-  diekf::eval::EstimateRow row;
-  row.t_s = r.t_s;
-  row.d_m = r.distance_m();
-  row.h_m = r.height_m();
-  row.v_mps = r.velocity_mps();
-  row.mu = r.state.mu.vector();
-  row.g = r.state.g.vector();
-  row.sigma_d_m = r.sigma_distance_m();
-  row.sigma_v_mps = r.sigma_velocity_mps();
-  row.iterations = r.update_applied ? std::max(1, r.passes) : 0;
-  row.update_ms = r.update_ms;
-  row.status = diekf::toString(r.status);
-  return row;
 }
 
 diekf::EstimatorParams loadParams(const RunnerOptions& o, std::string* config_used) {
@@ -372,10 +357,10 @@ int run(const RunnerOptions& o) {
                << diekf::toString(result.status) << ',' << msg << '\n';
       }
       if (keep_rows) {
-        rows.push_back(toRow(result));
+        rows.push_back(diekf::tools::toEstimateRow(result));
         csv.write(rows.back());
       } else {
-        csv.write(toRow(result));
+        csv.write(diekf::tools::toEstimateRow(result));
         ++soak_rows;
       }
     }

@@ -24,6 +24,7 @@
 #include "diekf/imu_rate.h"
 #include "diekf/params.h"
 #include "diekf/photometric_update.h"
+#include "estimate_row.h"
 
 namespace {
 
@@ -138,22 +139,6 @@ struct Event {
   cv::Mat image;  // kImage
 };
 
-diekf::eval::EstimateRow toRow(const diekf::FrameResult& r) {
-  diekf::eval::EstimateRow row;
-  row.t_s = r.t_s;
-  row.d_m = r.distance_m();
-  row.h_m = r.height_m();
-  row.v_mps = r.velocity_mps();
-  row.mu = r.state.mu.vector();
-  row.g = r.state.g.vector();
-  row.sigma_d_m = r.sigma_distance_m();
-  row.sigma_v_mps = r.sigma_velocity_mps();
-  row.iterations = r.update_applied ? std::max(1, r.passes) : 0;
-  row.update_ms = r.update_ms;
-  row.status = diekf::toString(r.status);
-  return row;
-}
-
 const char* kStatesHeader =
     "t,applied,passes,status,alpha,vartheta_x,vartheta_y,vartheta_z,mu_x,mu_y,mu_z,g_x,g_y,g_z,ba_x,ba_y,ba_z,"
     "bw_x,bw_y,bw_z,d,h,vx,vy,vz,sigma_d,photometric_rms,nis";
@@ -242,7 +227,7 @@ int run(const Options& o) {
     }
     while (estimator.popResult(&result)) {
       ++estimates;
-      if (csv) csv->write(toRow(result));
+      if (csv) csv->write(diekf::tools::toEstimateRow(result));
       if (states != nullptr) writeStateRow(states, result);
     }
     if (!o.quiet) {
