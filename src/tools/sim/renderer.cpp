@@ -38,6 +38,81 @@ std::uint64_t mix(std::uint64_t x) {
 
 constexpr int kNoiseTableSize = 1 << 20;
 
+
+/// The ground plane seen from one sub-frame pose (renderRowsT, renderRowsClutter), everything in level-0 texel
+/// units: the ray r = (x, y, 1) in C meets the plane at X(r) = p + lambda R r, lambda = -dist / (n_C . r).
+struct GroundView {
+  float nx, ny, nz;              // the plane's normal in C
+  float ax, ay, az, bx, by, bz;  // the texture's axes in C, per texel
+  float uc, vc;                  // the camera centre's texel coordinates (modulo the tile)
+  float fdist, fp_scale;         // distance to the plane (> 0 on the normal's side); texels per metre of footprint
+  bool above;                    // the camera on the normal's side
+  // Specular patches (with `spec`): plane coordinates in metres (modulo the mask period) and the light in C.
+  float mu = 0.f, mv = 0.f, t1x = 0.f, t1y = 0.f, t1z = 0.f, t2x = 0.f, t2y = 0.f, t2z = 0.f;
+  float lx = 0.f, ly = 0.f, lz = 0.f, nl2 = 0.f, spec_gain = 0.f;
+
+  GroundView(const CameraPose& P, const Plane& plane, const Texture& tex, const SpecularPatches* spec) {
+    Eigen::Vector3d t1, t2;
+    plane.basis(&t1, &t2);
+    const Eigen::Vector3d origin = -plane.e_m * plane.n;  // a point on the plane (texture origin)
+    const double isu = 1.0 / tex.texelU(), isv = 1.0 / tex.texelV();
+    const Eigen::Vector3d nC = P.R_WC.transpose() * plane.n;
+    const Eigen::Vector3d aC = P.R_WC.transpose() * t1 * isu, bC = P.R_WC.transpose() * t2 * isv;
+    const double dist = plane.n.dot(P.p_WC) + plane.e_m;
+    uc = static_cast<float>(std::fmod(t1.dot(P.p_WC - origin), tex.tileU()) * isu);
+    vc = static_cast<float>(std::fmod(t2.dot(P.p_WC - origin), tex.tileV()) * isv);
+    nx = static_cast<float>(nC.x()), ny = static_cast<float>(nC.y()), nz = static_cast<float>(nC.z());
+    ax = static_cast<float>(aC.x()), ay = static_cast<float>(aC.y()), az = static_cast<float>(aC.z());
+    bx = static_cast<float>(bC.x()), by = static_cast<float>(bC.y()), bz = static_cast<float>(bC.z());
+    fdist = static_cast<float>(dist), fp_scale = tex.invTexelGeo();
+    above = dist > 0.0;
+    if (spec != nullptr) {
+      const Eigen::Vector3d t1C = P.R_WC.transpose() * t1, t2C = P.R_WC.transpose() * t2;
+      const Eigen::Vector3d lC = P.R_WC.transpose() * spec->lightW();
+      mu = static_cast<float>(std::fmod(t1.dot(P.p_WC - origin), SpecularPatches::kPeriodM));
+      mv = static_cast<float>(std::fmod(t2.dot(P.p_WC - origin), SpecularPatches::kPeriodM));
+      t1x = static_cast<float>(t1C.x()), t1y = static_cast<float>(t1C.y()), t1z = static_cast<float>(t1C.z());
+      t2x = static_cast<float>(t2C.x()), t2y = static_cast<float>(t2C.y()), t2z = static_cast<float>(t2C.z());
+      lx = static_cast<float>(lC.x()), ly = static_cast<float>(lC.y()), lz = static_cast<float>(lC.z());
+      nl2 = static_cast<float>(2.0 * nC.dot(lC));
+      spec_gain = static_cast<float>(spec->amplitude() * tex.mean());
+    }
+  }
+
+  /// n . r for the ray r = (x, y, 1); the ray meets the ground in front of the camera where it is below -1e-6 and
+  /// the camera is above.
+  float dn(float x, float y) const { return nx * x + ny * y + nz; }
+
+  /// The ground's radiance along r = (x, y, 1) with `dn` = n . r < 0, `footprint` |r| times the pixel's angular
+  /// size and `inv_norm` 1 / |r| (the renderer's ray table).
+  template <bool kSpecular>
+  float shade(float x, float y, float footprint, float inv_norm, float dn, const Texture& tex,
+              const SpecularPatches* spec) const {
+    const float lambda = -fdist / dn;
+    const float xt = uc + lambda * (ax * x + ay * y + az);
+    const float yt = vc + lambda * (bx * x + by * y + bz);
+    // Footprint: distance x angular size, stretched by 1/sqrt(cos incidence) (area-equivalent side).
+    const float fp = lambda * footprint * fp_scale / std::sqrt(-dn * inv_norm);
+    float val = tex.sampleTexel(xt, yt, fastLog2(fp));
+    if (kSpecular) {
+      // Viewing ray (X -> camera) reflected about n, against the light: (r.l - 2 (n.r)(n.l)) / |r|.
+      float c = inv_norm * (lx * x + ly * y + lz - dn * nl2);
+      if (c > 0.f) {
+        c *= c;  // power 16 by four squarings (kShininess)
+        c *= c;
+        c *= c;
+        c *= c;
+        if (c > 1e-4f) {
+          const float pu = mu + lambda * (t1x * x + t1y * y + t1z);
+          const float pv = mv + lambda * (t2x * x + t2y * y + t2z);
+          val += spec_gain * c * spec->mask(pu, pv);
+        }
+      }
+    }
+    return val;
+  }
+};
+
 }  // namespace
 
 Renderer::Renderer(const CameraModel& cam, int threads) : cam_(cam), threads_(std::max(1, threads)) {
@@ -102,69 +177,18 @@ void Renderer::renderRows(const std::vector<CameraPose>& poses, const Plane& pla
 template <bool kSpecular>
 void Renderer::renderRowsT(const std::vector<CameraPose>& poses, const Plane& plane, const Texture& tex,
                            const SpecularPatches* spec, float* out, int row0, int row1) const {
-  Eigen::Vector3d t1, t2;
-  plane.basis(&t1, &t2);
-  const Eigen::Vector3d origin = -plane.e_m * plane.n;  // a point on the plane (texture origin)
   const float inv_n = 1.0f / static_cast<float>(poses.size());
   const float miss = tex.mean();
-  const double isu = 1.0 / tex.texelU(), isv = 1.0 / tex.texelV();
   for (std::size_t k = 0; k < poses.size(); ++k) {
-    const CameraPose& P = poses[k];
-    // Everything in level-0 texel units: X(r) = p + lambda R r, lambda = -dist / (n_C . r).
-    const Eigen::Vector3d nC = P.R_WC.transpose() * plane.n;
-    const Eigen::Vector3d aC = P.R_WC.transpose() * t1 * isu, bC = P.R_WC.transpose() * t2 * isv;
-    const double dist = plane.n.dot(P.p_WC) + plane.e_m;  // > 0 on the normal's side
-    const float uc = static_cast<float>(std::fmod(t1.dot(P.p_WC - origin), tex.tileU()) * isu);
-    const float vc = static_cast<float>(std::fmod(t2.dot(P.p_WC - origin), tex.tileV()) * isv);
-    const float nx = static_cast<float>(nC.x()), ny = static_cast<float>(nC.y()), nz = static_cast<float>(nC.z());
-    const float ax = static_cast<float>(aC.x()), ay = static_cast<float>(aC.y()), az = static_cast<float>(aC.z());
-    const float bx = static_cast<float>(bC.x()), by = static_cast<float>(bC.y()), bz = static_cast<float>(bC.z());
-    const float fdist = static_cast<float>(dist), fp_scale = tex.invTexelGeo();
-    const bool above = dist > 0.0;
-    // Specular patches: plane coordinates in metres (modulo the mask period) and the light in C.
-    float mu = 0.f, mv = 0.f, t1x = 0.f, t1y = 0.f, t1z = 0.f, t2x = 0.f, t2y = 0.f, t2z = 0.f;
-    float lx = 0.f, ly = 0.f, lz = 0.f, nl2 = 0.f, spec_gain = 0.f;
-    if (kSpecular) {
-      const Eigen::Vector3d t1C = P.R_WC.transpose() * t1, t2C = P.R_WC.transpose() * t2;
-      const Eigen::Vector3d lC = P.R_WC.transpose() * spec->lightW();
-      mu = static_cast<float>(std::fmod(t1.dot(P.p_WC - origin), SpecularPatches::kPeriodM));
-      mv = static_cast<float>(std::fmod(t2.dot(P.p_WC - origin), SpecularPatches::kPeriodM));
-      t1x = static_cast<float>(t1C.x()), t1y = static_cast<float>(t1C.y()), t1z = static_cast<float>(t1C.z());
-      t2x = static_cast<float>(t2C.x()), t2y = static_cast<float>(t2C.y()), t2z = static_cast<float>(t2C.z());
-      lx = static_cast<float>(lC.x()), ly = static_cast<float>(lC.y()), lz = static_cast<float>(lC.z());
-      nl2 = static_cast<float>(2.0 * nC.dot(lC));
-      spec_gain = static_cast<float>(spec->amplitude() * tex.mean());
-    }
+    const GroundView g(poses[k], plane, tex, kSpecular ? spec : nullptr);
     for (int v = row0; v < row1; ++v) {
       const RayEntry* re = &rays_[static_cast<std::size_t>(v) * width_];
       float* o = out + static_cast<std::size_t>(v) * width_;
       for (int u = 0; u < width_; ++u) {
         const RayEntry& e = re[u];
-        const float dn = nx * e.x + ny * e.y + nz;  // n . r (r = (x, y, 1) in C)
-        float val = miss;
-        if (above && dn < -1e-6f) {
-          const float lambda = -fdist / dn;
-          const float xt = uc + lambda * (ax * e.x + ay * e.y + az);
-          const float yt = vc + lambda * (bx * e.x + by * e.y + bz);
-          // Footprint: distance x angular size, stretched by 1/sqrt(cos incidence) (area-equivalent side).
-          const float fp = lambda * e.footprint * fp_scale / std::sqrt(-dn * e.inv_norm);
-          val = tex.sampleTexel(xt, yt, fastLog2(fp));
-          if (kSpecular) {
-            // Viewing ray (X -> camera) reflected about n, against the light: (r.l - 2 (n.r)(n.l)) / |r|.
-            float c = e.inv_norm * (lx * e.x + ly * e.y + lz - dn * nl2);
-            if (c > 0.f) {
-              c *= c;  // power 16 by four squarings (kShininess)
-              c *= c;
-              c *= c;
-              c *= c;
-              if (c > 1e-4f) {
-                const float pu = mu + lambda * (t1x * e.x + t1y * e.y + t1z);
-                const float pv = mv + lambda * (t2x * e.x + t2y * e.y + t2z);
-                val += spec_gain * c * spec->mask(pu, pv);
-              }
-            }
-          }
-        }
+        const float dn = g.dn(e.x, e.y);
+        const float val =
+            g.above && dn < -1e-6f ? g.shade<kSpecular>(e.x, e.y, e.footprint, e.inv_norm, dn, tex, spec) : miss;
         if (k == 0)
           o[u] = val * inv_n;
         else
@@ -213,40 +237,14 @@ void Renderer::renderRowsClutter(const RowBand& band, const Plane& plane, const 
   // The ground exactly as renderRowsT draws it; then every object whose image box holds the pixel is ray cast
   // and the nearest hit (smallest ray parameter lambda along r = (x, y, 1)) is drawn instead.
   const std::vector<CameraPose>& poses = band.poses;
-  Eigen::Vector3d t1, t2;
-  plane.basis(&t1, &t2);
-  const Eigen::Vector3d origin = -plane.e_m * plane.n;
   const float inv_n = 1.0f / static_cast<float>(poses.size());
   const float miss = tex.mean();
-  const double isu = 1.0 / tex.texelU(), isv = 1.0 / tex.texelV();
   std::vector<ObjectView> views;
   views.reserve(clutter.objects().size());
   for (std::size_t k = 0; k < poses.size(); ++k) {
     const CameraPose& P = poses[k];
     const double t_k = band.times.empty() ? 0.0 : band.times[k];
-    const Eigen::Vector3d nC = P.R_WC.transpose() * plane.n;
-    const Eigen::Vector3d aC = P.R_WC.transpose() * t1 * isu, bC = P.R_WC.transpose() * t2 * isv;
-    const double dist = plane.n.dot(P.p_WC) + plane.e_m;
-    const float uc = static_cast<float>(std::fmod(t1.dot(P.p_WC - origin), tex.tileU()) * isu);
-    const float vc = static_cast<float>(std::fmod(t2.dot(P.p_WC - origin), tex.tileV()) * isv);
-    const float nx = static_cast<float>(nC.x()), ny = static_cast<float>(nC.y()), nz = static_cast<float>(nC.z());
-    const float ax = static_cast<float>(aC.x()), ay = static_cast<float>(aC.y()), az = static_cast<float>(aC.z());
-    const float bx = static_cast<float>(bC.x()), by = static_cast<float>(bC.y()), bz = static_cast<float>(bC.z());
-    const float fdist = static_cast<float>(dist), fp_scale = tex.invTexelGeo();
-    const bool above = dist > 0.0;
-    float mu = 0.f, mv = 0.f, t1x = 0.f, t1y = 0.f, t1z = 0.f, t2x = 0.f, t2y = 0.f, t2z = 0.f;
-    float lx = 0.f, ly = 0.f, lz = 0.f, nl2 = 0.f, spec_gain = 0.f;
-    if (kSpecular) {
-      const Eigen::Vector3d t1C = P.R_WC.transpose() * t1, t2C = P.R_WC.transpose() * t2;
-      const Eigen::Vector3d lC = P.R_WC.transpose() * spec->lightW();
-      mu = static_cast<float>(std::fmod(t1.dot(P.p_WC - origin), SpecularPatches::kPeriodM));
-      mv = static_cast<float>(std::fmod(t2.dot(P.p_WC - origin), SpecularPatches::kPeriodM));
-      t1x = static_cast<float>(t1C.x()), t1y = static_cast<float>(t1C.y()), t1z = static_cast<float>(t1C.z());
-      t2x = static_cast<float>(t2C.x()), t2y = static_cast<float>(t2C.y()), t2z = static_cast<float>(t2C.z());
-      lx = static_cast<float>(lC.x()), ly = static_cast<float>(lC.y()), lz = static_cast<float>(lC.z());
-      nl2 = static_cast<float>(2.0 * nC.dot(lC));
-      spec_gain = static_cast<float>(spec->amplitude() * tex.mean());
-    }
+    const GroundView g(P, plane, tex, kSpecular ? spec : nullptr);
     // The objects this sub-frame can see, at the sub-frame's time.
     views.clear();
     for (const SceneObject& ob : clutter.objects()) {
@@ -343,34 +341,16 @@ void Renderer::renderRowsClutter(const RowBand& band, const Plane& plane, const 
             su = px + w.hx, sv = pz - w.z0, cos_hit = std::fabs(dy) * e.inv_norm, gain = 0.5f * (1.f + w.side_gain);
           }
         }
-        const float dn = nx * e.x + ny * e.y + nz;  // n . r (r = (x, y, 1) in C)
+        const float dn = g.dn(e.x, e.y);
         float val = miss;
-        bool ground = above && dn < -1e-6f;
-        if (ground && hit && best < -fdist / dn) ground = false;
+        bool ground = g.above && dn < -1e-6f;
+        if (ground && hit && best < -g.fdist / dn) ground = false;
         if (hit && !ground) {
           // The object's face: same footprint rule as the ground (distance x angle / sqrt(cos incidence)).
           const float fp = best * e.footprint * hit->igeo / std::sqrt(std::max(cos_hit, 1e-3f));
           val = gain * hit->tex->sampleTexel((hit->u0 + su) * hit->isu, (hit->v0 + sv) * hit->isv, fastLog2(fp));
         } else if (ground) {
-          const float lambda = -fdist / dn;
-          const float xt = uc + lambda * (ax * e.x + ay * e.y + az);
-          const float yt = vc + lambda * (bx * e.x + by * e.y + bz);
-          const float fp = lambda * e.footprint * fp_scale / std::sqrt(-dn * e.inv_norm);
-          val = tex.sampleTexel(xt, yt, fastLog2(fp));
-          if (kSpecular) {
-            float c = e.inv_norm * (lx * e.x + ly * e.y + lz - dn * nl2);
-            if (c > 0.f) {
-              c *= c;
-              c *= c;
-              c *= c;
-              c *= c;
-              if (c > 1e-4f) {
-                const float pu = mu + lambda * (t1x * e.x + t1y * e.y + t1z);
-                const float pv = mv + lambda * (t2x * e.x + t2y * e.y + t2z);
-                val += spec_gain * c * spec->mask(pu, pv);
-              }
-            }
-          }
+          val = g.shade<kSpecular>(e.x, e.y, e.footprint, e.inv_norm, dn, tex, spec);
         }
         const bool seen = hit && !ground;
         const float wm = seen && hit->mover ? inv_n : 0.f, wb = seen && !hit->mover ? inv_n : 0.f;
