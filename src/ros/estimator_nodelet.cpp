@@ -42,6 +42,20 @@ bool pushDroppingOldest(Queue* queue, const Item& item, int max_size) {
 
 }  // namespace
 
+template <typename Queue, typename Item>
+bool EstimatorNodelet::enqueue(Queue* queue, const Item& item, int max_size, uint64_t* received, uint64_t* dropped) {
+  bool overflow = false;
+  {
+    std::lock_guard<std::mutex> lock(queue_mutex_);
+    overflow = pushDroppingOldest(queue, item, max_size);
+  }
+  queue_cv_.notify_one();
+  std::lock_guard<std::mutex> lock(stats_mutex_);
+  ++*received;
+  if (overflow) ++*dropped;
+  return overflow;
+}
+
 EstimatorNodelet::~EstimatorNodelet() {
   {
     std::lock_guard<std::mutex> lock(queue_mutex_);
@@ -418,18 +432,8 @@ void EstimatorNodelet::imuCallback(const sensor_msgs::ImuConstPtr& msg) {
     if (imu_rate_meter_.add(t)) finishImuRateMeasurement();
     return;
   }
-  bool overflow = false;
-  {
-    std::lock_guard<std::mutex> lock(queue_mutex_);
-    overflow = pushDroppingOldest(&imu_queue_, sample, settings_.imu_queue_size);
-  }
-  queue_cv_.notify_one();
-  std::lock_guard<std::mutex> lock(stats_mutex_);
-  ++imu_received_;
-  if (overflow) {
-    ++imu_dropped_;
+  if (enqueue(&imu_queue_, sample, settings_.imu_queue_size, &imu_received_, &imu_dropped_))
     NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: IMU queue full (worker not keeping up): oldest sample dropped");
-  }
 }
 
 void EstimatorNodelet::imageCallback(const sensor_msgs::ImageConstPtr& msg) {
@@ -471,18 +475,8 @@ void EstimatorNodelet::imageCallback(const sensor_msgs::ImageConstPtr& msg) {
     NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: late image: %.3f s older than the newest IMU sample",
                           last_imu_stamp_s_ - t_imu_clock);
   }
-  bool overflow = false;
-  {
-    std::lock_guard<std::mutex> lock(queue_mutex_);
-    overflow = pushDroppingOldest(&image_queue_, msg, settings_.image_queue_size);
-  }
-  queue_cv_.notify_one();
-  std::lock_guard<std::mutex> lock(stats_mutex_);
-  ++images_received_;
-  if (overflow) {
-    ++images_dropped_;
+  if (enqueue(&image_queue_, msg, settings_.image_queue_size, &images_received_, &images_dropped_))
     NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: image queue full (update slower than the camera): oldest dropped");
-  }
 }
 
 void EstimatorNodelet::cameraInfoCallback(const sensor_msgs::CameraInfoConstPtr& msg) {

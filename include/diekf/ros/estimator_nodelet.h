@@ -96,6 +96,11 @@ class EstimatorNodelet : public nodelet::Nodelet {
   // Callbacks (nodelet's single-threaded queue: never run concurrently with each other).
   void imuCallback(const sensor_msgs::ImuConstPtr& msg);
   void imageCallback(const sensor_msgs::ImageConstPtr& msg);
+  /// Hands `item` to the worker: appended to `queue` (queue_mutex_; the oldest dropped beyond max_size), the
+  /// worker woken, counted in `received` and, when the queue overflowed, in `dropped` (stats_mutex_). True on
+  /// overflow (the caller warns).
+  template <typename Queue, typename Item>
+  bool enqueue(Queue* queue, const Item& item, int max_size, uint64_t* received, uint64_t* dropped);
   void cameraInfoCallback(const sensor_msgs::CameraInfoConstPtr& msg);
   /// Restarts the filter when ROS time (sim time) jumps backwards ahead of the message stamps.
   void checkClock();
