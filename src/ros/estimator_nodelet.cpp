@@ -42,6 +42,34 @@ bool pushDroppingOldest(Queue* queue, const Item& item, int max_size) {
 
 }  // namespace
 
+template <EstimatorNodelet::Input kInput>
+bool EstimatorNodelet::admitStamp(double t_s) {
+  constexpr bool kImu = kInput == Input::kImu;
+  const char* const name = kImu ? "IMU" : "image";
+  double& last_s = kImu ? last_imu_stamp_s_ : last_image_stamp_s_;
+  if (last_s >= 0.0) {
+    const double dt = t_s - last_s;
+    const diekf::StampStep step = diekf::classifyStampStep(last_s, t_s, params_.input.time_jump_reset_s);
+    if (step == diekf::StampStep::kJumpBack) {
+      NODELET_WARN("diekf: %s time jumped back by %.3f s (bag loop or clock reset): restarting the filter", name, -dt);
+      requestRestart(std::string(name) + " time jumped backwards", true);
+      (kImu ? last_image_stamp_s_ : last_imu_stamp_s_) = -1.0;  // the other input's stamps start again too
+      if (settings_.imu_rate_measure_s > 0.0) startImuRateMeasurement();  // a restarted driver may run at another rate
+    } else if (step != diekf::StampStep::kForward) {
+      NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: %s %s (stamp %.6f s, previous %.6f s) dropped",
+                            step == diekf::StampStep::kDuplicate ? "duplicated" : "out-of-order",
+                            kImu ? "IMU message" : "image", t_s, last_s);
+      std::lock_guard<std::mutex> lock(stats_mutex_);
+      ++(kImu ? imu_dropped_ : images_dropped_);
+      return false;
+    } else if (dt > (kImu ? params_.max_imu_gap_s : 3.0 / settings_.expected_image_rate_hz)) {
+      NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: %s gap of %.3f s before stamp %.6f s", name, dt, t_s);
+    }
+  }
+  last_s = t_s;
+  return true;
+}
+
 template <typename Queue, typename Item>
 bool EstimatorNodelet::enqueue(Queue* queue, const Item& item, int max_size, uint64_t* received, uint64_t* dropped) {
   bool overflow = false;
@@ -403,25 +431,7 @@ void EstimatorNodelet::imuCallback(const sensor_msgs::ImuConstPtr& msg) {
   }
   imu_rate_diag_->tick();
   const double t = sample.t_s;
-  if (last_imu_stamp_s_ >= 0.0) {
-    const double dt = t - last_imu_stamp_s_;
-    const diekf::StampStep step = diekf::classifyStampStep(last_imu_stamp_s_, t, params_.input.time_jump_reset_s);
-    if (step == diekf::StampStep::kJumpBack) {
-      NODELET_WARN("diekf: IMU time jumped back by %.3f s (bag loop or clock reset): restarting the filter", -dt);
-      requestRestart("IMU time jumped backwards", true);
-      last_image_stamp_s_ = -1.0;
-      if (settings_.imu_rate_measure_s > 0.0) startImuRateMeasurement();  // a restarted driver may run at another rate
-    } else if (step != diekf::StampStep::kForward) {
-      NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: %s IMU message (stamp %.6f s, previous %.6f s) dropped",
-                            step == diekf::StampStep::kDuplicate ? "duplicated" : "out-of-order", t, last_imu_stamp_s_);
-      std::lock_guard<std::mutex> lock(stats_mutex_);
-      ++imu_dropped_;
-      return;
-    } else if (dt > params_.max_imu_gap_s) {
-      NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: IMU gap of %.3f s before stamp %.6f s", dt, t);
-    }
-  }
-  last_imu_stamp_s_ = t;
+  if (!admitStamp<Input::kImu>(t)) return;
   if (measuring_imu_rate_) {
     // Held back until the rate is known (the preprocessing is designed for it), then handed over at once.
     imu_rate_buffer_.push_back(sample);
@@ -445,25 +455,7 @@ void EstimatorNodelet::imageCallback(const sensor_msgs::ImageConstPtr& msg) {
   }
   image_rate_diag_->tick();
   const double t = msg->header.stamp.toSec();
-  if (last_image_stamp_s_ >= 0.0) {
-    const double dt = t - last_image_stamp_s_;
-    const diekf::StampStep step = diekf::classifyStampStep(last_image_stamp_s_, t, params_.input.time_jump_reset_s);
-    if (step == diekf::StampStep::kJumpBack) {
-      NODELET_WARN("diekf: image time jumped back by %.3f s: restarting the filter", -dt);
-      requestRestart("image time jumped backwards", true);
-      last_imu_stamp_s_ = -1.0;
-      if (settings_.imu_rate_measure_s > 0.0) startImuRateMeasurement();
-    } else if (step != diekf::StampStep::kForward) {
-      NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: %s image (stamp %.6f s, previous %.6f s) dropped",
-                            step == diekf::StampStep::kDuplicate ? "duplicated" : "out-of-order", t, last_image_stamp_s_);
-      std::lock_guard<std::mutex> lock(stats_mutex_);
-      ++images_dropped_;
-      return;
-    } else if (dt > 3.0 / settings_.expected_image_rate_hz) {
-      NODELET_WARN_THROTTLE(kWarnPeriodS, "diekf: image gap of %.3f s before stamp %.6f s", dt, t);
-    }
-  }
-  last_image_stamp_s_ = t;
+  if (!admitStamp<Input::kImage>(t)) return;
   if (measuring_imu_rate_ || !ready_) {
     std::lock_guard<std::mutex> lock(stats_mutex_);
     ++images_received_;

@@ -5,7 +5,8 @@ nodelet in process) on a short simulated bag replayed with rosbag play.
 Checks: every advertised output topic publishes with its documented type; the TF tree odom -> base_link ->
 camera exists and the static part matches the calibration; /diagnostics carries the filter status; the ~reset
 service (std_srvs/Trigger) brings the filter back to initializing, then tracking again; keys of the node's
-namespace that nothing reads are warned about with the namespace, the key and the closest known key.
+namespace that nothing reads are warned about with the namespace, the key and the closest known key; an IMU sample
+and an image older than the last of their input are dropped, counted on /diagnostics and named in a warning.
 """
 import math
 import os
@@ -16,6 +17,7 @@ import time
 import unittest
 
 import numpy as np
+import rosbag
 import rospy
 import rostest
 import yaml
@@ -23,7 +25,7 @@ from diagnostic_msgs.msg import DiagnosticArray
 from diekf.msg import PlanarState
 from geometry_msgs.msg import TwistWithCovarianceStamped
 from nav_msgs.msg import Odometry, Path
-from sensor_msgs.msg import Image, Range
+from sensor_msgs.msg import Image, Imu, Range
 from std_srvs.srv import Trigger
 from tf2_msgs.msg import TFMessage
 from visualization_msgs.msg import MarkerArray
@@ -212,6 +214,41 @@ class Interface(unittest.TestCase):
             self.assertIn(key, keys)
         restarts = [int(kv.value) for kv in diagnostics[-1].values if kv.key == "filter restarts"]
         self.assertGreaterEqual(restarts[0], 1, "the reset is not counted in /diagnostics")
+
+        # Out-of-order inputs: an IMU sample and an image 0.5 s older than the bag's last of each (less than
+        # input/time_jump_reset_s back, so no restart) are dropped, counted and warned about, each input on its own.
+        def dropped():
+            with self.lock:
+                values = {kv.key: kv.value for kv in self.diagnostics[-1].values}
+            return int(values["IMU messages dropped"]), int(values["images dropped"])
+        before = dropped()
+        last = {}
+        with rosbag.Bag(bag) as b:
+            for topic, msg, _ in b.read_messages(topics=["/mynteye/imu/data_raw", "/mynteye/left/image_raw"]):
+                last[topic] = max(last.get(topic, 0.0), msg.header.stamp.to_sec())
+        imu_pub = rospy.Publisher("/mynteye/imu/data_raw", Imu, queue_size=1)
+        image_pub = rospy.Publisher("/mynteye/left/image_raw", Image, queue_size=1)
+        self.assertTrue(util.wait_for(lambda: imu_pub.get_num_connections() > 0 and
+                                      image_pub.get_num_connections() > 0, 10.0), "the node never connected")
+        imu = Imu()
+        imu.header.stamp = rospy.Time.from_sec(last["/mynteye/imu/data_raw"] - 0.5)
+        imu.linear_acceleration.z = 9.81
+        image = Image()
+        image.header.stamp = rospy.Time.from_sec(last["/mynteye/left/image_raw"] - 0.5)
+        with open(camchain) as f:
+            image.width, image.height = yaml.safe_load(f)["cam0"]["resolution"]
+        image.encoding, image.step = "mono8", image.width
+        image.data = bytes(image.width * image.height)
+        imu_pub.publish(imu)
+        image_pub.publish(image)
+        self.assertTrue(util.wait_for(lambda: all(a > b for a, b in zip(dropped(), before)), 10.0),
+                        "dropped counts on /diagnostics (IMU, images) %s, before %s" % (dropped(), before))
+
+        def warned_dropped(what):
+            with open(log_path) as f:
+                return "diekf: out-of-order %s (stamp" % what in f.read()
+        self.assertTrue(util.wait_for(lambda: warned_dropped("IMU message") and warned_dropped("image"), 5.0),
+                        "no out-of-order warnings in the node's output:\n" + open(log_path).read()[-2000:])
 
 
 if __name__ == "__main__":

@@ -96,6 +96,15 @@ class EstimatorNodelet : public nodelet::Nodelet {
   // Callbacks (nodelet's single-threaded queue: never run concurrently with each other).
   void imuCallback(const sensor_msgs::ImuConstPtr& msg);
   void imageCallback(const sensor_msgs::ImageConstPtr& msg);
+  /// The two inputs whose stamps admitStamp checks.
+  enum class Input { kImu, kImage };
+  /// A new message's stamp against the last of its input (diekf::classifyStampStep, input/time_jump_reset_s): a
+  /// jump back restarts the filter (the other input's stamps start again, the IMU's rate is measured again); a
+  /// duplicated or out-of-order message is counted as dropped and refused (false); a gap is reported (IMU:
+  /// max_imu_gap_s, images: three frame periods). One instantiation per input, so each keeps its own warning
+  /// throttles.
+  template <Input kInput>
+  bool admitStamp(double t_s);
   /// Hands `item` to the worker: appended to `queue` (queue_mutex_; the oldest dropped beyond max_size), the
   /// worker woken, counted in `received` and, when the queue overflowed, in `dropped` (stats_mutex_). True on
   /// overflow (the caller warns).
