@@ -145,7 +145,7 @@ TEST(EvalIo, JsonHasEveryKeyAndNullForNaN) {
                           "coverage2_v", "nees_mean", "nees_median", "coverage2_d_last_half",
                           "coverage2_v_last_half", "nees_mean_last_half", "consistency_frames",
                           "consistency_frames_excluded", "tracking_frames", "tracking_beyond3_d",
-                          "max_abs_z_d_tracking"}) {
+                          "max_abs_z_d_tracking", "tracking_beyond3_v", "max_abs_z_v_tracking"}) {
     EXPECT_NE(json.find("\"" + std::string(key) + "\":"), std::string::npos) << key;
   }
   EXPECT_NE(json.find("\"rmse_velocity_mps\": null"), std::string::npos);

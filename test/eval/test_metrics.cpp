@@ -320,6 +320,8 @@ TEST(MetricsConsistency, TrackingFramesBeyondThreeSigmaOverTheWholeRun) {
   s.est[0].d_m = s.truth[0]->d_m + 5.0 * 0.25;  // the first frame (before any window): 5 sigma
   s.est[1].status = "initializing";             // not counted
   s.est[2].d_m = s.truth[2]->d_m + 3.5 * 0.25;  // 3.5 sigma
+  s.est[4].v_mps.y() = s.truth[4]->v_C_mps.y() - 4.0 * 0.5;  // velocity 4 sigma off on its y axis
+  s.est[0].sigma_v_mps.z() = 0.0;                             // no velocity sigma: its d counts, its v not
   EvaluationOptions opt;
   opt.start_delay_s = 10.0;  // the window holds no frame
   const Evaluation ev = evaluate(s.est, s.truth, opt);
@@ -330,13 +332,20 @@ TEST(MetricsConsistency, TrackingFramesBeyondThreeSigmaOverTheWholeRun) {
   const Evaluation none = evaluate(quiet.est, quiet.truth, opt);
   EXPECT_EQ(none.tracking_frames, 0);
   EXPECT_TRUE(std::isnan(none.max_abs_z_d_tracking));
+  EXPECT_EQ(none.tracking_beyond3_v, 0);
+  EXPECT_TRUE(std::isnan(none.max_abs_z_v_tracking));
   EXPECT_EQ(ev.tracking_frames, 4);
   EXPECT_EQ(ev.tracking_beyond3_d, 2);
   EXPECT_DOUBLE_EQ(ev.max_abs_z_d_tracking, 5.0);
+  // The velocity over frames 2, 3, 4 (frame 0 has no velocity sigma): largest |z_v,i| 1, 3 (not beyond), 4.
+  EXPECT_EQ(ev.tracking_beyond3_v, 1);
+  EXPECT_DOUBLE_EQ(ev.max_abs_z_v_tracking, 4.0);
   // Exactly 3 is not beyond.
   s.est[0].d_m = s.truth[0]->d_m + 3.0 * 0.25;
   EXPECT_EQ(evaluate(s.est, s.truth, opt).tracking_beyond3_d, 1);
-  EXPECT_NE(evaluationSummary(ev).find("|z_d| above 3 on 2, largest 5.0"), std::string::npos) << evaluationSummary(ev);
+  EXPECT_NE(evaluationSummary(ev).find("|z_d| above 3 on 2, largest 5.0; largest |z_v,i| above 3 on 1, largest 4.0"),
+            std::string::npos)
+      << evaluationSummary(ev);
 }
 
 TEST(MetricsConsistency, HandComputedCase) {
@@ -354,6 +363,8 @@ TEST(MetricsConsistency, HandComputedCase) {
   EXPECT_EQ(ev.tracking_frames, 4);
   EXPECT_EQ(ev.tracking_beyond3_d, 0);
   EXPECT_DOUBLE_EQ(ev.max_abs_z_d_tracking, 3.0);
+  EXPECT_EQ(ev.tracking_beyond3_v, 0);  // the largest |z_v,i| of the four: 0, 1, 3, 2
+  EXPECT_DOUBLE_EQ(ev.max_abs_z_v_tracking, 3.0);
   // Second half of the window [1/30, 4/30] s: frames 3 and 4.
   EXPECT_DOUBLE_EQ(ev.coverage2_d_last_half, 1.0);
   EXPECT_DOUBLE_EQ(ev.coverage2_v_last_half, 0.5);

@@ -82,6 +82,9 @@ struct Evaluation {
   int tracking_frames = 0;               ///< such frames
   int tracking_beyond3_d = 0;            ///< of them, those with |z_d| > 3
   double max_abs_z_d_tracking = 0.0;     ///< largest |z_d| over them (NaN when there are none)
+  /// The same for the velocity, over those of the tracking frames whose three sigma_v are finite and positive:
+  int tracking_beyond3_v = 0;            ///< frames with max_i |z_v,i| > 3 (about 0.8 % for consistent Gaussian errors)
+  double max_abs_z_v_tracking = 0.0;     ///< largest |z_v,i| over them and the axes (NaN when there are none)
 };
 
 /// Consistency figures of one set of frames (the fields of the same names in Evaluation).

@@ -194,6 +194,8 @@ std::string evaluationToJson(const Evaluation& e) {
     << "  \"tracking_frames\": " << e.tracking_frames << ",\n"
     << "  \"tracking_beyond3_d\": " << e.tracking_beyond3_d << ",\n"
     << "  \"max_abs_z_d_tracking\": " << jsonNum(e.max_abs_z_d_tracking) << ",\n"
+    << "  \"tracking_beyond3_v\": " << e.tracking_beyond3_v << ",\n"
+    << "  \"max_abs_z_v_tracking\": " << jsonNum(e.max_abs_z_v_tracking) << ",\n"
     << "  \"divergence_reason\": " << jsonString(e.divergence_reason) << "\n"
     << "}\n";
   return o.str();
@@ -230,7 +232,8 @@ std::string evaluationSummary(const Evaluation& e) {
     << "  consistency, last half: within 2 sigma d " << f(e.coverage2_d_last_half, 100.0, 1) << " %, v "
     << f(e.coverage2_v_last_half, 100.0, 1) << " %, NEES mean " << f(e.nees_mean_last_half, 1.0, 2) << "\n"
     << "  status tracking (whole run, start included): " << e.tracking_frames << " frames, |z_d| above 3 on "
-    << e.tracking_beyond3_d << ", largest " << f(e.max_abs_z_d_tracking, 1.0, 1) << "\n"
+    << e.tracking_beyond3_d << ", largest " << f(e.max_abs_z_d_tracking, 1.0, 1) << "; largest |z_v,i| above 3 on "
+    << e.tracking_beyond3_v << ", largest " << f(e.max_abs_z_v_tracking, 1.0, 1) << "\n"
     << "  update time mean " << f(e.update_ms_mean, 1.0, 3) << " ms, median " << f(e.update_ms_median, 1.0, 3)
     << " ms, p99 " << f(e.update_ms_p99, 1.0, 3) << " ms; real-time factor " << f(e.realtime_factor, 1.0, 3)
     << "\n"

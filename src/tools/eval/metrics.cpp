@@ -91,7 +91,7 @@ Evaluation evaluate(const std::vector<EstimateRow>& estimates, const std::vector
   ev.update_ms_mean = ev.update_ms_median = ev.update_ms_p99 = kNaN;
   ev.coverage2_d = ev.coverage2_v = ev.nees_mean = ev.nees_median = kNaN;
   ev.coverage2_d_last_half = ev.coverage2_v_last_half = ev.nees_mean_last_half = kNaN;
-  ev.max_abs_z_d_tracking = kNaN;
+  ev.max_abs_z_d_tracking = ev.max_abs_z_v_tracking = kNaN;
   ev.eval_start_s = kNaN;
   if (estimates.empty()) {
     ev.diverged = true;
@@ -113,7 +113,8 @@ Evaluation evaluate(const std::vector<EstimateRow>& estimates, const std::vector
     ev.update_ms_p99 = percentile(update_ms, 99.0);
   }
 
-  // The status's honesty over the whole run: |z_d| on every frame that says tracking.
+  // The status's honesty over the whole run: |z_d| and the largest |z_v,i| on every frame that says tracking.
+  int tracking_frames_v = 0;
   for (std::size_t i = 0; i < estimates.size(); ++i) {
     const EstimateRow& row = estimates[i];
     if (row.status != "tracking" || !truth[i] || !std::isfinite(row.sigma_d_m) || !(row.sigma_d_m > 0.0)) continue;
@@ -122,6 +123,12 @@ Evaluation evaluate(const std::vector<EstimateRow>& estimates, const std::vector
     if (z > 3.0) ++ev.tracking_beyond3_d;
     ev.max_abs_z_d_tracking = (ev.tracking_frames == 1 || std::isnan(z) || z > ev.max_abs_z_d_tracking)
                                   ? z : ev.max_abs_z_d_tracking;
+    if (!row.sigma_v_mps.allFinite() || !(row.sigma_v_mps.minCoeff() > 0.0)) continue;
+    const double zv = ((row.v_mps - truth[i]->v_C_mps).cwiseAbs().cwiseQuotient(row.sigma_v_mps)).maxCoeff();
+    ++tracking_frames_v;
+    if (zv > 3.0) ++ev.tracking_beyond3_v;
+    ev.max_abs_z_v_tracking = (tracking_frames_v == 1 || std::isnan(zv) || zv > ev.max_abs_z_v_tracking)
+                                  ? zv : ev.max_abs_z_v_tracking;
   }
 
   // Non-finite output anywhere: diverged.
