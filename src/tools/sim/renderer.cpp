@@ -38,7 +38,6 @@ std::uint64_t mix(std::uint64_t x) {
 
 constexpr int kNoiseTableSize = 1 << 20;
 
-
 /// The ground plane seen from one sub-frame pose (renderRowsT, renderRowsClutter), everything in level-0 texel
 /// units: the ray r = (x, y, 1) in C meets the plane at X(r) = p + lambda R r, lambda = -dist / (n_C . r).
 struct GroundView {
