@@ -34,7 +34,8 @@ struct FrameResult {
   std::array<double, 2> imu_notch_hz{};
   State state;                       ///< posterior state
   /// Covariance of the posterior state: the filter's, plus, along the scale direction of (alpha, vartheta), the
-  /// plane's ambiguity over a scene that is not one plane (relief_sigma; photometric/relief_in_covariance), plus
+  /// plane's ambiguity over a scene that is not one plane (relief_sigma; photometric/relief_in_covariance), the
+  /// same relative variance along vartheta alone, the velocity's (photometric/relief_in_velocity_covariance), plus
   /// the calibration's focal-length uncertainty carried through the updates and the dynamics,
   /// sigma_focal_scale^2 s s^T (photometric/focal_scale_in_covariance; s = focal_sensitivity).
   ErrorCov covariance = ErrorCov::Zero();
@@ -61,7 +62,8 @@ struct FrameResult {
                                      ///< fixed pattern's confidence (0..1)
   /// Relative 1-sigma of the plane's distance over a scene that is not one plane (boxes, plants, movers), from
   /// the spread of the inverse depth about the plane beyond noise, smoothed (docs/noise_model.md section 13); in
-  /// `covariance` when photometric/relief_in_covariance. 0: a plane, or not measured.
+  /// `covariance` when photometric/relief_in_covariance (and the velocity's relative 1-sigma when
+  /// photometric/relief_in_velocity_covariance). 0: a plane, or not measured.
   double relief_sigma = 0.0;
   bool fixed_pattern_active = false; ///< the camera-fixed pattern model corrects the images (start-up done)
   double fixed_pattern_fraction = 0.0;  ///< share of the image under a strong camera-fixed pattern (0..1)

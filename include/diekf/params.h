@@ -143,6 +143,10 @@ struct PhotometricParams {
   /// over boxes, plants or movers the images define "the plane" only to that relative accuracy. The filter's own
   /// covariance is not changed (docs/noise_model.md section 13).
   bool relief_in_covariance = true;
+  /// The same relative variance added to the reported velocity's, along v (addMotionAmbiguity): where the image's
+  /// parts move differently (movers), which motion is the ground's is known only to that accuracy, and the scale
+  /// fitted to the images' motion with it (docs/noise_model.md section 13). The filter's own covariance is not changed.
+  bool relief_in_velocity_covariance = true;
   /// While the focal length is not estimated (estimate_focal_scale false, or until its estimate starts), add its
   /// calibration uncertainty (init.sigma_focal_scale) to the reported covariance along the state's error per unit
   /// focal error (FrameResult::focal_sensitivity, carried through every update and prediction: a focal length off

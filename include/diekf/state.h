@@ -52,6 +52,11 @@ Vec3 sigmaVelocity_mps(const State& x, const ErrorCov& P);
 /// relative amount (the distance to which layer of a scene that is not one plane; docs/noise_model.md section 13).
 /// The distance's relative variance grows by relative_var, the velocity v = vartheta / alpha is unchanged.
 void addScaleAmbiguity(const State& x, double relative_var, ErrorCov* P);
+/// The image's motion defined only to a relative variance (a scene whose parts move differently: movers, or
+/// relief the outlier weights kept): P += relative_var g g^T with g = vartheta in the vartheta rows, 0 elsewhere.
+/// The velocity's relative variance grows by relative_var along v (v v^T relative_var), the distance is unchanged
+/// (docs/noise_model.md section 13).
+void addMotionAmbiguity(const State& x, double relative_var, ErrorCov* P);
 /// Adds an uncertain small rotation dtheta of the camera frame, variance `var_rad2` per axis, to P: vartheta, mu
 /// and g turned together by dtheta (vartheta off by dtheta x vartheta, mu and g by dtheta's component in their
 /// tangent planes; alpha unchanged). The velocity's covariance grows by var_rad2 [v]x [v]x^T, the distance's not

@@ -781,6 +781,7 @@ struct Estimator::Impl {
     r.covariance = P;
     // The distance to which layer of a scene that is not one plane (section 13 of docs/noise_model.md).
     if (params.photometric.relief_in_covariance) addScaleAmbiguity(x, relief_var, &r.covariance);
+    if (params.photometric.relief_in_velocity_covariance) addMotionAmbiguity(x, relief_var, &r.covariance);
     // The calibration's focal length, until it is estimated: its error carried through the updates and the dynamics
     // (carryFocalSensitivity; a scale error of the translation's flow, amplified where the gyro's rotation is
     // mis-predicted by it; docs/noise_model.md section 9), then folded into P (foldFocalSensitivity).

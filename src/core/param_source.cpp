@@ -385,6 +385,8 @@ const std::vector<Entry>& table() {
     t.push_back(real("photometric/parallax_time_constant_s",
                      DIEKF_FIELD(double, photometric.parallax_time_constant_s), between(0.0, 100.0)));
     t.push_back(flag("photometric/relief_in_covariance", DIEKF_FIELD(bool, photometric.relief_in_covariance)));
+    t.push_back(flag("photometric/relief_in_velocity_covariance",
+                     DIEKF_FIELD(bool, photometric.relief_in_velocity_covariance)));
     t.push_back(flag("photometric/focal_scale_in_covariance",
                      DIEKF_FIELD(bool, photometric.focal_scale_in_covariance)));
     t.push_back(flag("photometric/camera_rotation_in_covariance",

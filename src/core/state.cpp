@@ -77,6 +77,11 @@ void addScaleAmbiguity(const State& x, double relative_var, ErrorCov* P) {
   P->noalias() += relative_var * g * g.transpose();
 }
 
+void addMotionAmbiguity(const State& x, double relative_var, ErrorCov* P) {
+  if (!(relative_var > 0.0)) return;
+  P->block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta).noalias() += relative_var * x.vartheta * x.vartheta.transpose();
+}
+
 void addFrameRotationUncertainty(const State& x, double var_rad2, ErrorCov* P) {
   if (!(var_rad2 > 0.0)) return;
   // Error of the state per unit rotation dtheta of the frame: d vartheta = dtheta x vartheta = -[vartheta]x dtheta;

@@ -125,6 +125,32 @@ TEST(DerivedUncertainty, ScaleAmbiguityWidensTheDistanceNotTheVelocity) {
   EXPECT_EQ((R - P).cwiseAbs().maxCoeff(), 0.0);
 }
 
+// The image's motion defined only to a relative accuracy (movers): the velocity's covariance grows by
+// relative_var v v^T (found by finite differences of v = vartheta / alpha over vartheta scaled by 1 + e), the
+// distance's and the other states' not.
+TEST(DerivedUncertainty, MotionAmbiguityWidensTheVelocityNotTheDistance) {
+  const State x = sampleState();
+  const ErrorCov P = sampleCovariance();
+  ErrorCov Q = P;
+  const double relative_var = 0.2 * 0.2;
+  addMotionAmbiguity(x, relative_var, &Q);
+  const double h = 1e-6;
+  State a = x, b = x;
+  a.vartheta *= 1.0 + h;
+  b.vartheta *= 1.0 - h;
+  const Vec3 dv_de = (a.velocity_mps() - b.velocity_mps()) / (2.0 * h);  // v per unit relative error
+  const Mat3 added_fd = relative_var * dv_de * dv_de.transpose();
+  ASSERT_GT(added_fd.diagonal().maxCoeff(), 1e-6);
+  EXPECT_LT((velocityCovariance(x, Q) - velocityCovariance(x, P) - added_fd).cwiseAbs().maxCoeff(), 1e-9);
+  EXPECT_NEAR(relativeSigmaDistance(x, Q), relativeSigmaDistance(x, P), 1e-15);
+  ErrorCov D = Q - P;
+  D.block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta).setZero();
+  EXPECT_EQ(D.cwiseAbs().maxCoeff(), 0.0);  // nothing but vartheta's own block
+  ErrorCov R = P;
+  addMotionAmbiguity(x, 0.0, &R);
+  EXPECT_EQ((R - P).cwiseAbs().maxCoeff(), 0.0);
+}
+
 // The calibration's pointing (camera-IMU rotation, principal point) as an uncertain small rotation of the frame:
 // the covariance added equals the spread of the state turned by a rotation of that variance, found by finite
 // differences (vartheta, mu and g turned together); the velocity's covariance grows by var [v]x [v]x^T, the

@@ -97,6 +97,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          ha.outlier_threshold_sigma == hb.outlier_threshold_sigma && ha.outlier_window_fraction == hb.outlier_window_fraction &&
          ha.parallax_tolerance == hb.parallax_tolerance && ha.parallax_time_constant_s == hb.parallax_time_constant_s &&
          ha.relief_in_covariance == hb.relief_in_covariance &&
+         ha.relief_in_velocity_covariance == hb.relief_in_velocity_covariance &&
          ha.focal_scale_in_covariance == hb.focal_scale_in_covariance &&
          ha.camera_rotation_in_covariance == hb.camera_rotation_in_covariance &&
          ha.brightness_model == hb.brightness_model && ha.brightness_row_knots == hb.brightness_row_knots &&
