@@ -758,7 +758,24 @@ struct Estimator::Impl {
                     "%sfixed pattern (projector, shadow, dirt?) on %.0f %% of the image, %.0f %% of its contrast",
                     used > 0 ? "; " : "", 100.0 * r.fixed_pattern_fraction, 100.0 * r.fixed_pattern_contrast_share);
     }
-    if (params.photometric.parallax_tolerance > 0.0 && r.relief_sigma >= params.photometric.parallax_tolerance) {
+    // Converged, but the relief widens the reported distance's relative 1-sigma (section 13) to the tracking
+    // threshold or beyond: the status follows what is published, degraded (the estimate is not changed).
+    const double relative_var_d = relativeSigmaDistance(x, P) * relativeSigmaDistance(x, P);
+    const double tracking_var_d = params.init.tracking_max_relative_sigma_d * params.init.tracking_max_relative_sigma_d;
+    const bool relief_degrades = r.status == FilterStatus::kTracking && params.photometric.relief_in_covariance &&
+                                 relative_var_d < tracking_var_d && relative_var_d + relief_var >= tracking_var_d;
+    const FilterStatus health_status = r.status;  // (a good state to restart from is the health monitor's say)
+    if (relief_degrades) {
+      // The reason first (the message is bounded; the notes after it may be cut).
+      r.status = FilterStatus::kDegraded;
+      char rest[kMessageCapacity];
+      std::snprintf(rest, sizeof(rest), "%s", msg);
+      std::snprintf(msg, sizeof(msg), "sigma_d/d = %.2g with the scene's relief (tracking below %g)%s%s",
+                    std::sqrt(relative_var_d + relief_var), params.init.tracking_max_relative_sigma_d,
+                    rest[0] != '\0' ? "; " : "", rest);
+    }
+    if (relief_degrades ||
+        (params.photometric.parallax_tolerance > 0.0 && r.relief_sigma >= params.photometric.parallax_tolerance)) {
       // The image's motion is not one plane's (section 13): relief, movers, or a state still settling after a
       // start (its error varies the inverse depth over the image too). Say by how much the distance is uncertain.
       const size_t used = std::strlen(msg);
@@ -773,7 +790,7 @@ struct Estimator::Impl {
       std::snprintf(msg + used, sizeof(msg) - used, "%slight flicker: rows banded by %.0f %%%s", used > 0 ? "; " : "",
                     100.0 * r.row_banding, r.row_gains ? " (row gains estimated)" : "");
     }
-    if (r.status == FilterStatus::kTracking && stats.applied && health.badFrames() == 0)
+    if (health_status == FilterStatus::kTracking && stats.applied && health.badFrames() == 0)
       restarts.rememberGood(img.t_s, x);
 
     // Result.
