@@ -5,6 +5,7 @@
 #include <chrono>
 #include <cmath>
 #include <cstdio>
+#include <cstring>
 #include <limits>
 #include <sstream>
 #include <utility>
@@ -769,10 +770,12 @@ struct Estimator::Impl {
       // The reason first (the message is bounded; the notes after it may be cut).
       r.status = FilterStatus::kDegraded;
       char rest[kMessageCapacity];
-      std::snprintf(rest, sizeof(rest), "%s", msg);
-      std::snprintf(msg, sizeof(msg), "sigma_d/d = %.2g with the scene's relief (tracking below %g)%s%s",
-                    std::sqrt(relative_var_d + relief_var), params.init.tracking_max_relative_sigma_d,
-                    rest[0] != '\0' ? "; " : "", rest);
+      static_assert(sizeof(rest) == sizeof(msg), "the message is copied whole");
+      std::memcpy(rest, msg, sizeof(rest));
+      const int n = std::snprintf(msg, sizeof(msg), "sigma_d/d = %.2g with the scene's relief (tracking below %g)%s%s",
+                                  std::sqrt(relative_var_d + relief_var), params.init.tracking_max_relative_sigma_d,
+                                  rest[0] != '\0' ? "; " : "", rest);
+      if (n < 0) msg[0] = '\0';  // (an encoding error; a longer message is cut at the capacity, as intended)
     }
     if (relief_degrades ||
         (params.photometric.parallax_tolerance > 0.0 && r.relief_sigma >= params.photometric.parallax_tolerance)) {
