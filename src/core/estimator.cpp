@@ -761,7 +761,8 @@ struct Estimator::Impl {
     }
     // Converged, but the relief widens the reported distance's relative 1-sigma (section 13) to the tracking
     // threshold or beyond: the status follows what is published, degraded (the estimate is not changed).
-    const double relative_var_d = relativeSigmaDistance(x, P) * relativeSigmaDistance(x, P);
+    const double relative_sigma_d = relativeSigmaDistance(x, P);
+    const double relative_var_d = relative_sigma_d * relative_sigma_d;
     const double tracking_var_d = params.init.tracking_max_relative_sigma_d * params.init.tracking_max_relative_sigma_d;
     const bool relief_degrades = r.status == FilterStatus::kTracking && params.photometric.relief_in_covariance &&
                                  relative_var_d < tracking_var_d && relative_var_d + relief_var >= tracking_var_d;
