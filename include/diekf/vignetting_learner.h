@@ -50,6 +50,11 @@ class VignettingLearner {
   static constexpr double kHuberSigma = 2.0;
   /// Pairs before an estimate is given.
   static constexpr int kMinPairs = 20;
+  /// Least information (the smaller eigenvalue of the normal equations, 1 / ln^2) for an estimate: each
+  /// coefficient known to 1 in ln units from the noise alone. A still camera's pairs hold only rounding (the map's
+  /// interpolation one ulp off the pixels, as with fused multiply-adds on ARM): about 1e-10 there, about 1e3 after
+  /// kMinPairs pairs of ordinary motion.
+  static constexpr double kMinInformation = 1.0;
   /// Once the corner's ln V is known to this 1-sigma, only every kSettledEvery-th pair is observed (due()).
   static constexpr double kSettledSigmaLn = 0.01;
   static constexpr int kSettledEvery = 4;

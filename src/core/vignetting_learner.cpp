@@ -138,11 +138,12 @@ bool VignettingLearner::observe(const float* cur, const float* ref) {
 
 bool VignettingLearner::estimate(double* a1, double* a2, double* sigma_corner_ln) const {
   if (pairs_ < kMinPairs) return false;
-  // Both coefficients determined: the smaller eigenvalue of the symmetric 2 x 2 N a fair part of the larger.
+  // Both coefficients determined: the smaller eigenvalue of the symmetric 2 x 2 N a fair part of the larger, and
+  // above an absolute floor (kMinInformation), which the relative test alone misses when N is rounding only.
   const double tr = N_.trace(), det = N_.determinant();
   const double half_gap = std::sqrt(std::max(0.0, 0.25 * tr * tr - det));
   const double lo = 0.5 * tr - half_gap, hi = 0.5 * tr + half_gap;
-  if (!(lo > 0.0) || !(lo > 1e-9 * hi) || !std::isfinite(hi)) return false;
+  if (!(lo > kMinInformation) || !(lo > 1e-9 * hi) || !std::isfinite(hi)) return false;
   const Mat2 N_inv = N_.inverse();
   const Vec2 a = N_inv * b_;
   const Mat2 cov = N_inv * G_ * N_inv;
