@@ -58,6 +58,10 @@ struct ImuParams {
   /// low-pass (VibrationNotch).
   bool aliased_notch = true;
   int decimation_factor = 5;                    ///< keep every n-th filtered sample (500 Hz -> 100 Hz)
+  /// Each kept sample is the mean of the decimation_factor filtered samples up to it (the lever-arm term
+  /// included), stamped at their middle: a prediction step then integrates what the steps at the input rate
+  /// would have (integrate-and-dump); false: the n-th filtered sample itself.
+  bool decimation_mean = true;
   bool compensate_filter_delay = true;          ///< shift output stamps back by the filter's group delay
   bool lever_arm_compensation = true;           ///< add w x (w x r) for the IMU-camera translation
   bool prime_from_mean = true;                  ///< start the low-pass from the mean of its first samples (one

@@ -93,6 +93,10 @@ ImuPreprocessor::ImuPreprocessor(const Eigen::Isometry3d& T_cam_imu, const ImuPa
   // designed coefficients; approaches sum_k 2 sin(theta_k) / Omega_c for fc << fs).
   double delay_samples = 0.0;
   for (const Biquad6& s : sections_) delay_samples += s.dcDelaySamples();
+  // The decimation's boxcar (imu/decimation_mean): the mean of D samples is centred (D - 1) / 2 periods back.
+  const int boxcar = params.decimation_mean ? params.decimation_factor : 1;
+  boxcar_.assign(static_cast<size_t>(boxcar), Vec6::Zero());
+  delay_samples += 0.5 * (boxcar - 1);
   delay_s_ = delay_samples / fs;
   // Folded vibration tones notched before the low-pass (docs/algorithm.md section 4, "Notches").
   if (vibrationNotchesOn(params)) notch_.emplace(fs, notchOptions(params));
@@ -141,6 +145,16 @@ std::vector<double> ImuPreprocessor::impulseResponse(int extra) const {
   return h;
 }
 
+std::vector<double> ImuPreprocessor::outputImpulseResponse(int extra) const {
+  const std::vector<double> h = impulseResponse(extra);
+  const int D = boxcarLength();
+  if (D == 1) return h;
+  std::vector<double> g(h.size() + static_cast<size_t>(D - 1), 0.0);  // h convolved with the boxcar
+  for (size_t i = 0; i < h.size(); ++i)
+    for (size_t j = 0; j < static_cast<size_t>(D); ++j) g[i + j] += h[i] / D;
+  return g;
+}
+
 namespace {
 double autocovarianceOf(const std::vector<double>& h, size_t lag) {
   double sum = 0.0;
@@ -151,12 +165,12 @@ double autocovarianceOf(const std::vector<double>& h, size_t lag) {
 
 double ImuPreprocessor::noiseAutocovariance(int lag) const {
   if (lag < 0) lag = -lag;
-  return autocovarianceOf(impulseResponse(lag), static_cast<size_t>(lag));
+  return autocovarianceOf(outputImpulseResponse(lag), static_cast<size_t>(lag));
 }
 
 std::vector<double> ImuPreprocessor::noiseAutocovariances(int step) const {
   step = std::max(1, step);
-  const std::vector<double> h = impulseResponse(0);
+  const std::vector<double> h = outputImpulseResponse(0);
   std::vector<double> r;
   for (size_t lag = 0; lag < h.size() || r.size() < 3; lag += static_cast<size_t>(step))
     r.push_back(autocovarianceOf(h, lag));
@@ -170,6 +184,8 @@ void ImuPreprocessor::reset() {
   counter_ = 0;
   for (Biquad6& s : sections_) s.clear();
   last_gyro_C_.setZero();
+  std::fill(boxcar_.begin(), boxcar_.end(), Vec6::Zero());
+  boxcar_next_ = 0;
   if (notch_) notch_->reset();
 }
 
@@ -181,6 +197,16 @@ void ImuPreprocessor::prime(const Vec6& in) {
     s.settleAt(x, y);
     x = y;
   }
+}
+
+ImuPreprocessor::Vec6 ImuPreprocessor::atCamera(const Vec6& y, const Vec3& w_dot) const {
+  Vec6 z = y;
+  if (params_.lever_arm_compensation) {
+    const Vec3& r = r_imu_to_cam_C_;
+    const Vec3 w = y.tail<3>();
+    z.head<3>() += w_dot.cross(r) + w.cross(w.cross(r));
+  }
+  return z;
 }
 
 ImuPreprocessor::Vec6 ImuPreprocessor::filter(const Vec6& in) {
@@ -206,12 +232,20 @@ bool ImuPreprocessor::push(const ImuSample& raw_imu, ImuSample* out) {
     counter_ = 0;
     settle_left_ = settle_samples_;
     last_gyro_C_ = mean.tail<3>();
+    // The boxcar starts full of the primed (steady) sample, so its first mean is centred as every later one.
+    std::fill(boxcar_.begin(), boxcar_.end(), atCamera(mean, Vec3::Zero()));
+    boxcar_next_ = 0;
   }
   const Vec6 y = filter(in);
   const Vec3 w = y.tail<3>();
   // Backward difference at the nominal input period (robust to stamp jitter; the filter is designed for it).
   const Vec3 w_dot = (w - last_gyro_C_) * params_.input_rate_hz;  // rad/s^2
   last_gyro_C_ = w;
+  const int D = boxcarLength();
+  if (D > 1) {  // every sample into the boxcar, the settling ones included
+    boxcar_[static_cast<size_t>(boxcar_next_)] = atCamera(y, w_dot);
+    boxcar_next_ = (boxcar_next_ + 1) % D;
+  }
   if (settle_left_ > 0) {  // the start-up transient (settleSamples): nothing emitted yet
     --settle_left_;
     return false;
@@ -221,12 +255,16 @@ bool ImuPreprocessor::push(const ImuSample& raw_imu, ImuSample* out) {
   counter_ = (counter_ + 1) % params_.decimation_factor;
   if (!emit) return false;
 
-  out->accel_mps2 = y.head<3>();
-  if (params_.lever_arm_compensation) {
-    const Vec3& r = r_imu_to_cam_C_;
-    out->accel_mps2 += w_dot.cross(r) + w.cross(w.cross(r));
+  Vec6 z;
+  if (D > 1) {
+    z.setZero();
+    for (const Vec6& b : boxcar_) z += b;
+    z /= D;
+  } else {
+    z = atCamera(y, w_dot);
   }
-  out->gyro_radps = w;
+  out->accel_mps2 = z.head<3>();
+  out->gyro_radps = z.tail<3>();
   const double delay_s = delay_s_ + (notch_ ? notch_->delaySamples() / params_.input_rate_hz : 0.0);
   out->t_s = params_.compensate_filter_delay ? raw_imu.t_s - delay_s : raw_imu.t_s;
   return true;

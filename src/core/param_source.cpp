@@ -314,6 +314,7 @@ const std::vector<Entry>& table() {
     t.push_back(integer("imu/aliased_lowpass_order", DIEKF_FIELD(int, imu.aliased_lowpass_order), between(0, 8)));
     t.push_back(flag("imu/aliased_notch", DIEKF_FIELD(bool, imu.aliased_notch)));
     t.push_back(integer("imu/decimation_factor", DIEKF_FIELD(int, imu.decimation_factor), between(1, 1000)));
+    t.push_back(flag("imu/decimation_mean", DIEKF_FIELD(bool, imu.decimation_mean)));
     t.push_back(flag("imu/compensate_filter_delay", DIEKF_FIELD(bool, imu.compensate_filter_delay)));
     t.push_back(flag("imu/lever_arm_compensation", DIEKF_FIELD(bool, imu.lever_arm_compensation)));
     t.push_back(flag("imu/prime_from_mean", DIEKF_FIELD(bool, imu.prime_from_mean)));

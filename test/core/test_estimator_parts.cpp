@@ -496,8 +496,9 @@ TEST(ImuPropagator, GyroNoiseDensityIsMeasuredFromTheSamples) {
   };
   EXPECT_EQ(measure(0.0, 0.0, 0.5, 7e-3), 7e-3) << "before 1 s of samples: the calibration's";
   const double quiet = measure(0.0, 0.0, 30.0, 7e-3), turning = measure(0.0, 0.5, 30.0, 7e-3);
-  // 1.5 rad/s at 137 Hz: 0.03 rad/s left after the low-pass, more than the white noise's 0.013.
-  const double vibrating = measure(1.5, 0.0, 30.0, 7e-3), vibrating_calibrated = measure(1.5, 0.0, 30.0, density);
+  // 4.5 rad/s at 137 Hz: 0.09 rad/s left after the low-pass, 0.02 after the decimation's mean of five (imu/
+  // decimation_mean), more than the white noise's 0.013.
+  const double vibrating = measure(4.5, 0.0, 30.0, 7e-3), vibrating_calibrated = measure(4.5, 0.0, 30.0, density);
   std::printf("density (white %.3g, calibration 7e-3): measured %.3g, turning %.3g, with vibration %.3g; "
               "calibration right, with vibration %.3g rad/s/sqrt(Hz)\n",
               density, quiet, turning, vibrating, vibrating_calibrated);
@@ -516,9 +517,10 @@ TEST(ImuPropagator, GyroNoiseDensityIsMeasuredFromTheSamples) {
 // white noise.
 TEST(ImuPropagator, MeasuredSampleNoiseDoesNotDependOnThePredictionRate) {
   const double density = 2e-2;  // m/s^2/sqrt(Hz)
-  auto measure = [&](int D, double vibration_mps2) {
+  auto measure = [&](int D, double vibration_mps2, bool mean = false) {
     EstimatorParams params;
     params.imu.decimation_factor = D;
+    params.imu.decimation_mean = mean;  // the n-th filtered sample: the same quantity at both rates
     ImuPreprocessor pre(Eigen::Isometry3d::Identity(), params.imu);
     ImuPropagator imu(params);
     imu.setFilterNoise(pre.noiseAutocovariances(D));
@@ -538,14 +540,24 @@ TEST(ImuPropagator, MeasuredSampleNoiseDoesNotDependOnThePredictionRate) {
     return imu.accelSampleVariance().x();
   };
   EstimatorParams params;
+  params.imu.decimation_mean = false;
   const ImuPreprocessor pre(Eigen::Isometry3d::Identity(), params.imu);
   const double white = density * density * params.imu.input_rate_hz * pre.noiseAutocovariance(0);
   const double w100 = measure(5, 0.0), w500 = measure(1, 0.0), v100 = measure(5, 2.0), v500 = measure(1, 2.0);
+  // The default's mean of five (imu/decimation_mean) is a sample of its own: the low-pass's white noise nearly
+  // unchanged (its band is far below the mean's first null at 100 Hz), the 137 Hz tone's residual cut.
+  const double w100_mean = measure(5, 0.0, true), v100_mean = measure(5, 2.0, true);
+  params.imu.decimation_mean = true;
+  const double white_mean = density * density * params.imu.input_rate_hz *
+                            ImuPreprocessor(Eigen::Isometry3d::Identity(), params.imu).noiseAutocovariance(0);
   std::printf("one filtered sample's variance: white noise %.3g; measured at 100 / 500 Hz %.3g / %.3g, with "
-              "vibration %.3g / %.3g (m/s^2)^2\n", white, w100, w500, v100, v500);
+              "vibration %.3g / %.3g (m/s^2)^2; the mean of five: white %.3g, measured %.3g, with vibration %.3g\n",
+              white, w100, w500, v100, v500, white_mean, w100_mean, v100_mean);
   EXPECT_NEAR(w100, white, 0.15 * white);
   EXPECT_NEAR(w500, white, 0.15 * white);
   EXPECT_NEAR(v500 / v100, 1.0, 0.2) << "the prediction rate does not change what the samples show";
+  EXPECT_NEAR(w100_mean, white_mean, 0.15 * white_mean);
+  EXPECT_LT(v100_mean - w100_mean, 0.5 * (v100 - w100)) << "the mean removes most of the tone's residual";
 }
 
 // The distance's column of the prediction Jacobian (docs/algorithm.md section 2.1, "The distance's column"). A

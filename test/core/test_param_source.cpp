@@ -74,7 +74,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          ma.input_rate_hz == mb.input_rate_hz && ma.lowpass_cutoff_hz == mb.lowpass_cutoff_hz &&
          ma.lowpass_order == mb.lowpass_order && ma.max_vibration_hz == mb.max_vibration_hz &&
          ma.aliased_lowpass_order == mb.aliased_lowpass_order && ma.aliased_notch == mb.aliased_notch &&
-         ma.decimation_factor == mb.decimation_factor &&
+         ma.decimation_factor == mb.decimation_factor && ma.decimation_mean == mb.decimation_mean &&
          ma.compensate_filter_delay == mb.compensate_filter_delay &&
          ma.lever_arm_compensation == mb.lever_arm_compensation && ma.gravity_mps2 == mb.gravity_mps2 &&
          pa.alpha_rate_noise_sqrt_s == pb.alpha_rate_noise_sqrt_s && pa.alpha_inv_m_per_sqrt_s == pb.alpha_inv_m_per_sqrt_s &&
