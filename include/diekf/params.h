@@ -319,6 +319,7 @@ struct EstimatorParams {
   bool time_offset_consider = true;             ///< until then, the offset a consider state (its column, held)
   bool estimate_readout = true;                 ///< the rolling-shutter readout time as a filter state
   double max_readout_s = 0.05;                  ///< bound of the estimated readout (either sign), s
+  bool readout_consider = true;  ///< until then, from convergence, the readout a consider state (its column, held)
   double readout_start_sigma_time_offset_s = 0.003;  ///< the readout is estimated once the offset's 1-sigma is below, s
   /// With estimate_focal_scale and the time offset estimated: the focal-length scale is estimated once the offset's
   /// 1-sigma is below this, s (docs/algorithm.md section 3.8)

@@ -105,6 +105,9 @@ struct ImageTiming {
   /// Per pixel (readoutPixelWeights; null or another size: the row's time for every pixel of the row).
   const cv::Mat* pixel_weight = nullptr;
   bool estimate_readout = false;      ///< the update estimates x.readout_s
+  /// The readout's column is in the update but x.readout_s and its variance are held (a consider state, Schmidt),
+  /// while it is not estimated yet: a rolling shutter it cannot yet model widens the update instead of biasing it.
+  bool consider_readout = false;
   bool estimate_focal_scale = false;  ///< the update estimates x.focal_scale (its column: focalScaleMap)
 };
 

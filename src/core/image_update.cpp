@@ -105,7 +105,10 @@ ImageTiming ImageUpdate::timingFor(double t_img_s, const ImuPropagator& imu, con
   // the offset then 10 s late).
   timing.estimate_readout =
       params_.estimate_readout && settled && offsetKnownTo(P, params_.readout_start_sigma_time_offset_s);
-  timing.rates_valid = timing.estimate_offset || timing.consider_offset || timing.estimate_readout || x.readout_s != 0.0;
+  timing.consider_readout = params_.estimate_readout && params_.readout_consider && !timing.estimate_readout &&
+                            health.converged();
+  timing.rates_valid = timing.estimate_offset || timing.consider_offset || timing.estimate_readout ||
+                       timing.consider_readout || x.readout_s != 0.0;
   timing.estimate_focal_scale = estimatesFocalScale(t_img_s, health, P);
   // The gyro's noise in the interval's rotation (docs/noise_model.md section 6), measured from its samples.
   timing.gyro_noise_density_sq = imu.gyroNoiseDensitySq();

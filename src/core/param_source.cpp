@@ -491,6 +491,7 @@ const std::vector<Entry>& table() {
     t.push_back(real("time_offset_start_s", DIEKF_FIELD(double, time_offset_start_s), between(0.0, 1e4)));
     t.push_back(flag("time_offset_consider", DIEKF_FIELD(bool, time_offset_consider)));
     t.push_back(flag("estimate_readout", DIEKF_FIELD(bool, estimate_readout)));
+    t.push_back(flag("readout_consider", DIEKF_FIELD(bool, readout_consider)));
     t.push_back(real("max_readout_s", DIEKF_FIELD(double, max_readout_s), between(0.0, 1.0)));
     t.push_back(real("readout_start_sigma_time_offset_s", DIEKF_FIELD(double, readout_start_sigma_time_offset_s),
                      positive(1.0)));

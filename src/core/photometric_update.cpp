@@ -991,7 +991,7 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
   cfg.reference_weights = ref_map_;  // (update() points it only at maps of the current image's size)
   const bool rolling = m_rows != nullptr && timing != nullptr && timing->row_weight != nullptr &&
                        timing->rows == cur.intensity.rows && dt_s > 0.0 &&
-                       (readout_s != 0.0 || timing->estimate_readout);
+                       (readout_s != 0.0 || timing->estimate_readout || timing->consider_readout);
   if (rolling) {
     cfg.row_weight = timing->row_weight;
     if (timing->pixel_weight != nullptr && timing->pixel_weight->type() == CV_32FC1 &&
@@ -1000,7 +1000,7 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
       cfg.pixel_weight = timing->pixel_weight;
     cfg.readout_s = static_cast<float>(readout_s);
     cfg.readout_over_dt = static_cast<float>(readout_s / dt_s);
-    cfg.row_moments = timing->estimate_readout;
+    cfg.row_moments = timing->estimate_readout || timing->consider_readout;
   }
   const PixelWarp wp(x, K, gyro_mean_C, dt_s, state_lag_s, rolling ? m_rows : nullptr);
   if (!wp.ok) return 0;  // the plane model breaks down within the interval: no measurement
@@ -1331,7 +1331,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     // The time states of the iterate; once the frame holds them (from its first pass, below), the prior's: its later
     // passes see them where the update leaves them.
     const double t_d_j = time_states_frozen ? t_d_prior_s : x_j.t_d_s;
-    const double readout_j = time_states_frozen ? readout_before_s : x_j.readout_s;
+    const double readout_j = time_states_frozen || timing.consider_readout ? readout_before_s : x_j.readout_s;
     const double focal_scale_j = time_states_frozen ? focal_scale_before : x_j.focal_scale;
     // A time offset changed by e within the update: the image sees the state and the gyro window of e later.
     *m = timeOffsetMap(x_j, gyro_mean_C, timing, dt_s);
@@ -1343,7 +1343,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     // Rolling shutter: every row with the motion at its own time (the readout of the iterate); while the readout is
     // estimated, from the expected rates given their readings (docs/algorithm.md section 3.7).
     const bool rolling = timing.rates_valid && timing.row_weight != nullptr &&
-                         (readout_j != 0.0 || timing.estimate_readout);
+                         (readout_j != 0.0 || timing.estimate_readout || timing.consider_readout);
     const ObservedVec m_rows =
         rolling ? stateRateMap(x_seen, gyro_mean_C, timing, dt_s, timing.estimate_readout) : ObservedVec::Zero();
     // One sweep at this iterate with the current brightness, then the brightness's step (state held).
@@ -1488,6 +1488,10 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     x->readout_s = readout_before_s;
     x->focal_scale = focal_scale_before;
     P->block<kTimeStates, kTimeStates>(ErrIdx::kTd, ErrIdx::kTd) = P_time_before;
+  } else if (it.ok && timing.consider_readout) {
+    // The readout alone held (Schmidt): its mean and variance the prior's, its cross-covariances the update's.
+    x->readout_s = readout_before_s;
+    (*P)(ErrIdx::kRo, ErrIdx::kRo) = P_time_before(ErrIdx::kRo - ErrIdx::kTd, ErrIdx::kRo - ErrIdx::kTd);
   }
   use_weight_map_ = false;
   active_map_ = nullptr;

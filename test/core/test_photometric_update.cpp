@@ -1117,6 +1117,60 @@ TEST_F(PhotometricScene, AConsideredOffsetWidensTheUpdateWithoutMoving) {
   EXPECT_LT(s_con.nis, s_off.nis) << "the offset's uncertainty is in the innovation's covariance";
 }
 
+TEST_F(PhotometricScene, AConsideredReadoutWidensTheUpdateWithoutMoving) {
+  // Before the rolling shutter's readout is estimated (docs/algorithm.md section 3.7: once the offset is known to
+  // 3 ms) it is a consider state from the filter's convergence: its column is in the update, its estimate and
+  // variance are held. For the other states that is the Kalman update with the readout estimated (Schmidt), and it
+  // is more cautious than the update without the column: an unmodelled readout of 16 ms in a fast dash put the
+  // velocity 11 sigma off (docs/results.md "The readout as a consider state").
+  PhotometricParams params;
+  params.max_passes = 1;
+  const int rows = scene_->cur.intensity.rows;
+  std::vector<float> row_weight(static_cast<size_t>(rows));
+  for (int y = 0; y < rows; ++y) row_weight[static_cast<size_t>(y)] = (y - 0.5f * (rows - 1)) / (rows - 1);
+  ImageTiming timing;
+  timing.rates_valid = true;
+  timing.gravity_mps2 = 9.81;
+  timing.accel_C = Vec3(0.8, -0.5, -9.81);      // m/s^2
+  timing.rate_change_C = Vec3(0.3, -0.2, 0.1);  // rad/s
+  timing.row_weight = row_weight.data();
+  timing.rows = rows;
+  auto run = [&](bool estimate, bool consider, State* x, ErrorCov* P) {
+    PhotometricUpdate update(params, PreprocessParams{});
+    ImageTiming t = timing;
+    t.estimate_readout = estimate;
+    t.consider_readout = consider;
+    *x = startState(0.0);
+    *P = priorCov();
+    (*P)(ErrIdx::kRo, ErrIdx::kRo) = 0.01 * 0.01;  // s^2: the readout's prior as configured by default
+    return update.update(scene_->ref, scene_->cur, scene_->K, scene_->w_C, scene_->dt_s, x, P, 0.0, t);
+  };
+  State x_est, x_con, x_off;
+  ErrorCov P_est, P_con, P_off;
+  const UpdateStats s_est = run(true, false, &x_est, &P_est);
+  const UpdateStats s_con = run(false, true, &x_con, &P_con);
+  const UpdateStats s_off = run(false, false, &x_off, &P_off);
+  ASSERT_TRUE(s_est.applied && s_con.applied && s_off.applied);
+  ASSERT_LT(s_est.nis, 15.507) << "a probable frame: the estimated readout is not held";
+  EXPECT_NE(x_est.readout_s, 0.0) << "estimated, the frame moves the readout";
+  EXPECT_EQ(x_con.readout_s, 0.0) << "considered, it does not";
+  EXPECT_EQ(P_con(ErrIdx::kRo, ErrIdx::kRo), 0.01 * 0.01);
+  // The other states: the estimated update's.
+  EXPECT_LT((x_con.vartheta - x_est.vartheta).norm(), 1e-9 * (1.0 + x_est.vartheta.norm()));
+  EXPECT_LT((x_con.b_w - x_est.b_w).norm(), 1e-9);
+  ErrorCov diff = P_con - P_est;
+  diff(ErrIdx::kRo, ErrIdx::kRo) = 0.0;
+  EXPECT_LT(diff.cwiseAbs().maxCoeff(), 1e-9 * P_est.cwiseAbs().maxCoeff());
+  const double cross = P_con.block<1, 3>(ErrIdx::kRo, ErrIdx::kVartheta).norm();
+  EXPECT_GT(cross, 0.0) << "the cross-covariance builds up";
+  EXPECT_EQ((P_off.block<1, 3>(ErrIdx::kRo, ErrIdx::kVartheta).norm()), 0.0);
+  const double var_con = P_con.block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta).trace();
+  const double var_off = P_off.block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta).trace();
+  std::printf("tr P_vartheta: readout considered %.4g, ignored %.4g; |P_ro,vartheta| %.3g\n", var_con, var_off, cross);
+  EXPECT_GT(var_con, var_off);
+  EXPECT_GT(P_con.ldlt().vectorD().minCoeff(), 0.0) << "the covariance stays positive definite";
+}
+
 TEST_F(PhotometricScene, RotationModelErrorDiscountsTheGyroRotation) {
   // The gyro's interval rotation off by 0.1 rad/s about the camera's x and y axes (a scale-factor, focal length
   // or timing error of the rotation, far outside the b_w prior). Without the rotation model error the image must
