@@ -105,6 +105,8 @@ ImageTiming ImageUpdate::timingFor(double t_img_s, const ImuPropagator& imu, con
   // the offset then 10 s late).
   timing.estimate_readout =
       params_.estimate_readout && settled && offsetKnownTo(P, params_.readout_start_sigma_time_offset_s);
+  // Until then, from convergence, a consider state (docs/algorithm.md section 3.7): its column widens the update,
+  // its estimate and variance are held, so a rolling shutter not yet modelled is not taken for motion.
   timing.consider_readout = params_.estimate_readout && params_.readout_consider && !timing.estimate_readout &&
                             health.converged();
   timing.rates_valid = timing.estimate_offset || timing.consider_offset || timing.estimate_readout ||
