@@ -1068,6 +1068,40 @@ TEST_F(PhotometricScene, AnImprobableFrameHoldsCorrelatedTimeStates) {
   EXPECT_GT(P.ldlt().vectorD().minCoeff(), 0.0) << "the covariance stays positive definite";
 }
 
+/// The three updates of a consider-state test: a time state (index `idx` of the error state, `field` of State,
+/// prior variance `prior_var`) estimated, considered and ignored, each by `run(variant, x, P)` (0, 1, 2) from the
+/// same prior. Considered, the state and its variance are held; the other states are the estimated update's
+/// (Schmidt); the cross-covariance with vartheta builds up; and the update is more cautious than without the column.
+template <typename Run>
+void expectConsideredStateHeld(Run run, int idx, double State::*field, double prior_var, const char* name) {
+  State x[3];
+  ErrorCov P[3];
+  UpdateStats st[3];
+  for (int v = 0; v < 3; ++v) st[v] = run(v, &x[v], &P[v]);
+  ASSERT_TRUE(st[0].applied && st[1].applied && st[2].applied);
+  ASSERT_LT(st[0].nis, 15.507) << "a probable frame: the estimated " << name << " is not held";
+  EXPECT_NE(x[0].*field, 0.0) << "estimated, the frame moves the " << name;
+  EXPECT_EQ(x[1].*field, 0.0) << "considered, it does not";
+  EXPECT_EQ(P[1](idx, idx), prior_var);
+  EXPECT_LT((x[1].vartheta - x[0].vartheta).norm(), 1e-9 * (1.0 + x[0].vartheta.norm()));
+  EXPECT_LT((x[1].b_w - x[0].b_w).norm(), 1e-9);
+  ErrorCov diff = P[1] - P[0];
+  diff(idx, idx) = 0.0;
+  EXPECT_LT(diff.cwiseAbs().maxCoeff(), 1e-9 * P[0].cwiseAbs().maxCoeff());
+  const double cross = P[1].block<1, 3>(idx, ErrIdx::kVartheta).norm();
+  EXPECT_GT(cross, 0.0) << "the cross-covariance builds up";
+  EXPECT_EQ((P[2].block<1, 3>(idx, ErrIdx::kVartheta).norm()), 0.0);
+  const double var_con = P[1].block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta).trace();
+  const double var_off = P[2].block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta).trace();
+  std::printf("tr P_vartheta: %s considered %.4g, ignored %.4g; |P_%s,vartheta| %.3g\n", name, var_con, var_off, name,
+              cross);
+  EXPECT_GT(var_con, var_off);
+  EXPECT_GT(P[1].ldlt().vectorD().minCoeff(), 0.0) << "the covariance stays positive definite";
+  if (idx == ErrIdx::kTd) {
+    EXPECT_LT(st[1].nis, st[2].nis) << "the offset's uncertainty is in the innovation's covariance";
+  }
+}
+
 TEST_F(PhotometricScene, AConsideredOffsetWidensTheUpdateWithoutMoving) {
   // Before the offset is estimated (docs/algorithm.md section 3.6) it is a consider state: its column is in the
   // update, its estimate and variance are held. For the other states that is the Kalman update with the offset
@@ -1080,49 +1114,23 @@ TEST_F(PhotometricScene, AConsideredOffsetWidensTheUpdateWithoutMoving) {
   timing.gravity_mps2 = 9.81;
   timing.accel_C = Vec3(0.8, -0.5, -9.81);      // m/s^2
   timing.rate_change_C = Vec3(0.3, -0.2, 0.1);  // rad/s between the images: the offset is seen
-  auto run = [&](bool estimate, bool consider, State* x, ErrorCov* P) {
+  auto run = [&](int variant, State* x, ErrorCov* P) {
     PhotometricUpdate update(params, PreprocessParams{});
     ImageTiming t = timing;
-    t.estimate_offset = estimate;
-    t.consider_offset = consider;
+    t.estimate_offset = variant == 0;
+    t.consider_offset = variant == 1;
     *x = startState(0.0);
     *P = priorCov();
     (*P)(ErrIdx::kTd, ErrIdx::kTd) = 0.01 * 0.01;  // s^2: the offset's prior as configured by default
     return update.update(scene_->ref, scene_->cur, scene_->K, scene_->w_C, scene_->dt_s, x, P, 0.0, t);
   };
-  State x_est, x_con, x_off;
-  ErrorCov P_est, P_con, P_off;
-  const UpdateStats s_est = run(true, false, &x_est, &P_est);
-  const UpdateStats s_con = run(false, true, &x_con, &P_con);
-  const UpdateStats s_off = run(false, false, &x_off, &P_off);
-  ASSERT_TRUE(s_est.applied && s_con.applied && s_off.applied);
-  ASSERT_LT(s_est.nis, 15.507) << "a probable frame: the estimated offset is not held";
-  EXPECT_NE(x_est.t_d_s, 0.0) << "estimated, the frame moves the offset";
-  EXPECT_EQ(x_con.t_d_s, 0.0) << "considered, it does not";
-  EXPECT_EQ(P_con(ErrIdx::kTd, ErrIdx::kTd), 0.01 * 0.01);
-  // The other states: the estimated update's.
-  EXPECT_LT((x_con.vartheta - x_est.vartheta).norm(), 1e-9 * (1.0 + x_est.vartheta.norm()));
-  EXPECT_LT((x_con.b_w - x_est.b_w).norm(), 1e-9);
-  ErrorCov diff = P_con - P_est;
-  diff(ErrIdx::kTd, ErrIdx::kTd) = 0.0;
-  EXPECT_LT(diff.cwiseAbs().maxCoeff(), 1e-9 * P_est.cwiseAbs().maxCoeff());
-  const double cross = P_con.block<1, 3>(ErrIdx::kTd, ErrIdx::kVartheta).norm();
-  EXPECT_GT(cross, 0.0) << "the cross-covariance builds up";
-  EXPECT_EQ((P_off.block<1, 3>(ErrIdx::kTd, ErrIdx::kVartheta).norm()), 0.0);
-  // More cautious than ignoring the offset: a larger posterior variance of vartheta.
-  const double var_con = P_con.block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta).trace();
-  const double var_off = P_off.block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta).trace();
-  std::printf("tr P_vartheta: considered %.4g, ignored %.4g; |P_td,vartheta| %.3g\n", var_con, var_off, cross);
-  EXPECT_GT(var_con, var_off);
-  EXPECT_LT(s_con.nis, s_off.nis) << "the offset's uncertainty is in the innovation's covariance";
+  expectConsideredStateHeld(run, ErrIdx::kTd, &State::t_d_s, 0.01 * 0.01, "td");
 }
 
 TEST_F(PhotometricScene, AConsideredReadoutWidensTheUpdateWithoutMoving) {
   // Before the rolling shutter's readout is estimated (docs/algorithm.md section 3.7: once the offset is known to
-  // 3 ms) it is a consider state from the filter's convergence: its column is in the update, its estimate and
-  // variance are held. For the other states that is the Kalman update with the readout estimated (Schmidt), and it
-  // is more cautious than the update without the column: an unmodelled readout of 16 ms in a fast dash put the
-  // velocity 11 sigma off (docs/results.md "The readout as a consider state").
+  // 3 ms) it is a consider state from the filter's convergence, as the offset is above: an unmodelled readout of
+  // 16 ms in a fast dash put the velocity 11 sigma off (docs/results.md "The readout as a consider state").
   PhotometricParams params;
   params.max_passes = 1;
   const int rows = scene_->cur.intensity.rows;
@@ -1135,40 +1143,17 @@ TEST_F(PhotometricScene, AConsideredReadoutWidensTheUpdateWithoutMoving) {
   timing.rate_change_C = Vec3(0.3, -0.2, 0.1);  // rad/s
   timing.row_weight = row_weight.data();
   timing.rows = rows;
-  auto run = [&](bool estimate, bool consider, State* x, ErrorCov* P) {
+  auto run = [&](int variant, State* x, ErrorCov* P) {
     PhotometricUpdate update(params, PreprocessParams{});
     ImageTiming t = timing;
-    t.estimate_readout = estimate;
-    t.consider_readout = consider;
+    t.estimate_readout = variant == 0;
+    t.consider_readout = variant == 1;
     *x = startState(0.0);
     *P = priorCov();
     (*P)(ErrIdx::kRo, ErrIdx::kRo) = 0.01 * 0.01;  // s^2: the readout's prior as configured by default
     return update.update(scene_->ref, scene_->cur, scene_->K, scene_->w_C, scene_->dt_s, x, P, 0.0, t);
   };
-  State x_est, x_con, x_off;
-  ErrorCov P_est, P_con, P_off;
-  const UpdateStats s_est = run(true, false, &x_est, &P_est);
-  const UpdateStats s_con = run(false, true, &x_con, &P_con);
-  const UpdateStats s_off = run(false, false, &x_off, &P_off);
-  ASSERT_TRUE(s_est.applied && s_con.applied && s_off.applied);
-  ASSERT_LT(s_est.nis, 15.507) << "a probable frame: the estimated readout is not held";
-  EXPECT_NE(x_est.readout_s, 0.0) << "estimated, the frame moves the readout";
-  EXPECT_EQ(x_con.readout_s, 0.0) << "considered, it does not";
-  EXPECT_EQ(P_con(ErrIdx::kRo, ErrIdx::kRo), 0.01 * 0.01);
-  // The other states: the estimated update's.
-  EXPECT_LT((x_con.vartheta - x_est.vartheta).norm(), 1e-9 * (1.0 + x_est.vartheta.norm()));
-  EXPECT_LT((x_con.b_w - x_est.b_w).norm(), 1e-9);
-  ErrorCov diff = P_con - P_est;
-  diff(ErrIdx::kRo, ErrIdx::kRo) = 0.0;
-  EXPECT_LT(diff.cwiseAbs().maxCoeff(), 1e-9 * P_est.cwiseAbs().maxCoeff());
-  const double cross = P_con.block<1, 3>(ErrIdx::kRo, ErrIdx::kVartheta).norm();
-  EXPECT_GT(cross, 0.0) << "the cross-covariance builds up";
-  EXPECT_EQ((P_off.block<1, 3>(ErrIdx::kRo, ErrIdx::kVartheta).norm()), 0.0);
-  const double var_con = P_con.block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta).trace();
-  const double var_off = P_off.block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta).trace();
-  std::printf("tr P_vartheta: readout considered %.4g, ignored %.4g; |P_ro,vartheta| %.3g\n", var_con, var_off, cross);
-  EXPECT_GT(var_con, var_off);
-  EXPECT_GT(P_con.ldlt().vectorD().minCoeff(), 0.0) << "the covariance stays positive definite";
+  expectConsideredStateHeld(run, ErrIdx::kRo, &State::readout_s, 0.01 * 0.01, "ro");
 }
 
 TEST_F(PhotometricScene, RotationModelErrorDiscountsTheGyroRotation) {
