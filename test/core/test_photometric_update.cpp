@@ -297,6 +297,52 @@ class PhotometricScene : public ::testing::Test {
     x.g = UnitVector(Vec3(0.0, 0.0, 1.0));
     return x;
   }
+  /// A consider-state test: one update of the pair (one pass) from startState(0) with a time state (`idx` of the
+  /// error state, `field` of State, prior 1-sigma 10 ms) estimated, considered and ignored (the flags `estimate`
+  /// and `consider` of `timing`). Considered, the state and its variance are held; the other states are the
+  /// estimated update's (Schmidt); the cross-covariance with vartheta builds up; and the update is more cautious
+  /// than without the column.
+  static void expectConsideredStateHeld(const ImageTiming& timing, bool ImageTiming::*estimate,
+                                        bool ImageTiming::*consider, int idx, double State::*field, const char* name) {
+    PhotometricParams params;
+    params.max_passes = 1;
+    const double prior_var = 0.01 * 0.01;  // s^2: the time states' priors as configured by default
+    State x[3];
+    ErrorCov P[3];
+    UpdateStats st[3];
+    for (int v = 0; v < 3; ++v) {
+      PhotometricUpdate update(params, PreprocessParams{});
+      ImageTiming t = timing;
+      t.*estimate = v == 0;
+      t.*consider = v == 1;
+      x[v] = startState(0.0);
+      P[v] = priorCov();
+      P[v](idx, idx) = prior_var;
+      st[v] = update.update(scene_->ref, scene_->cur, scene_->K, scene_->w_C, scene_->dt_s, &x[v], &P[v], 0.0, t);
+    }
+    ASSERT_TRUE(st[0].applied && st[1].applied && st[2].applied);
+    ASSERT_LT(st[0].nis, 15.507) << "a probable frame: the estimated " << name << " is not held";
+    EXPECT_NE(x[0].*field, 0.0) << "estimated, the frame moves the " << name;
+    EXPECT_EQ(x[1].*field, 0.0) << "considered, it does not";
+    EXPECT_EQ(P[1](idx, idx), prior_var);
+    EXPECT_LT((x[1].vartheta - x[0].vartheta).norm(), 1e-9 * (1.0 + x[0].vartheta.norm()));
+    EXPECT_LT((x[1].b_w - x[0].b_w).norm(), 1e-9);
+    ErrorCov diff = P[1] - P[0];
+    diff(idx, idx) = 0.0;
+    EXPECT_LT(diff.cwiseAbs().maxCoeff(), 1e-9 * P[0].cwiseAbs().maxCoeff());
+    const double cross = P[1].block<1, 3>(idx, ErrIdx::kVartheta).norm();
+    EXPECT_GT(cross, 0.0) << "the cross-covariance builds up";
+    EXPECT_EQ((P[2].block<1, 3>(idx, ErrIdx::kVartheta).norm()), 0.0);
+    const double var_con = P[1].block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta).trace();
+    const double var_off = P[2].block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta).trace();
+    std::printf("tr P_vartheta: %s considered %.4g, ignored %.4g; |P_%s,vartheta| %.3g\n", name, var_con, var_off,
+                name, cross);
+    EXPECT_GT(var_con, var_off);
+    EXPECT_GT(P[1].ldlt().vectorD().minCoeff(), 0.0) << "the covariance stays positive definite";
+    if (idx == ErrIdx::kTd) {
+      EXPECT_LT(st[1].nis, st[2].nis) << "the offset's uncertainty is in the innovation's covariance";
+    }
+  }
   /// One update of the pair (ref, cur) from startState(0.5) with the given brightness model (all passes): the
   /// updated vartheta; the stats to `st`.
   static Vec3 updatedVartheta(BrightnessModel model, const PreprocessedFrame& ref, const PreprocessedFrame& cur,
@@ -1068,71 +1114,24 @@ TEST_F(PhotometricScene, AnImprobableFrameHoldsCorrelatedTimeStates) {
   EXPECT_GT(P.ldlt().vectorD().minCoeff(), 0.0) << "the covariance stays positive definite";
 }
 
-/// The three updates of a consider-state test: a time state (index `idx` of the error state, `field` of State,
-/// prior variance `prior_var`) estimated, considered and ignored, each by `run(variant, x, P)` (0, 1, 2) from the
-/// same prior. Considered, the state and its variance are held; the other states are the estimated update's
-/// (Schmidt); the cross-covariance with vartheta builds up; and the update is more cautious than without the column.
-template <typename Run>
-void expectConsideredStateHeld(Run run, int idx, double State::*field, double prior_var, const char* name) {
-  State x[3];
-  ErrorCov P[3];
-  UpdateStats st[3];
-  for (int v = 0; v < 3; ++v) st[v] = run(v, &x[v], &P[v]);
-  ASSERT_TRUE(st[0].applied && st[1].applied && st[2].applied);
-  ASSERT_LT(st[0].nis, 15.507) << "a probable frame: the estimated " << name << " is not held";
-  EXPECT_NE(x[0].*field, 0.0) << "estimated, the frame moves the " << name;
-  EXPECT_EQ(x[1].*field, 0.0) << "considered, it does not";
-  EXPECT_EQ(P[1](idx, idx), prior_var);
-  EXPECT_LT((x[1].vartheta - x[0].vartheta).norm(), 1e-9 * (1.0 + x[0].vartheta.norm()));
-  EXPECT_LT((x[1].b_w - x[0].b_w).norm(), 1e-9);
-  ErrorCov diff = P[1] - P[0];
-  diff(idx, idx) = 0.0;
-  EXPECT_LT(diff.cwiseAbs().maxCoeff(), 1e-9 * P[0].cwiseAbs().maxCoeff());
-  const double cross = P[1].block<1, 3>(idx, ErrIdx::kVartheta).norm();
-  EXPECT_GT(cross, 0.0) << "the cross-covariance builds up";
-  EXPECT_EQ((P[2].block<1, 3>(idx, ErrIdx::kVartheta).norm()), 0.0);
-  const double var_con = P[1].block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta).trace();
-  const double var_off = P[2].block<3, 3>(ErrIdx::kVartheta, ErrIdx::kVartheta).trace();
-  std::printf("tr P_vartheta: %s considered %.4g, ignored %.4g; |P_%s,vartheta| %.3g\n", name, var_con, var_off, name,
-              cross);
-  EXPECT_GT(var_con, var_off);
-  EXPECT_GT(P[1].ldlt().vectorD().minCoeff(), 0.0) << "the covariance stays positive definite";
-  if (idx == ErrIdx::kTd) {
-    EXPECT_LT(st[1].nis, st[2].nis) << "the offset's uncertainty is in the innovation's covariance";
-  }
-}
-
 TEST_F(PhotometricScene, AConsideredOffsetWidensTheUpdateWithoutMoving) {
   // Before the offset is estimated (docs/algorithm.md section 3.6) it is a consider state: its column is in the
   // update, its estimate and variance are held. For the other states that is the Kalman update with the offset
   // estimated (Schmidt): the same mean, covariance and cross-covariance; and it is more cautious than the update
   // without the column, whose cross-covariance with the offset stays zero.
-  PhotometricParams params;
-  params.max_passes = 1;
   ImageTiming timing;
   timing.rates_valid = true;
   timing.gravity_mps2 = 9.81;
   timing.accel_C = Vec3(0.8, -0.5, -9.81);      // m/s^2
   timing.rate_change_C = Vec3(0.3, -0.2, 0.1);  // rad/s between the images: the offset is seen
-  auto run = [&](int variant, State* x, ErrorCov* P) {
-    PhotometricUpdate update(params, PreprocessParams{});
-    ImageTiming t = timing;
-    t.estimate_offset = variant == 0;
-    t.consider_offset = variant == 1;
-    *x = startState(0.0);
-    *P = priorCov();
-    (*P)(ErrIdx::kTd, ErrIdx::kTd) = 0.01 * 0.01;  // s^2: the offset's prior as configured by default
-    return update.update(scene_->ref, scene_->cur, scene_->K, scene_->w_C, scene_->dt_s, x, P, 0.0, t);
-  };
-  expectConsideredStateHeld(run, ErrIdx::kTd, &State::t_d_s, 0.01 * 0.01, "td");
+  expectConsideredStateHeld(timing, &ImageTiming::estimate_offset, &ImageTiming::consider_offset, ErrIdx::kTd,
+                            &State::t_d_s, "td");
 }
 
 TEST_F(PhotometricScene, AConsideredReadoutWidensTheUpdateWithoutMoving) {
   // Before the rolling shutter's readout is estimated (docs/algorithm.md section 3.7: once the offset is known to
   // 3 ms) it is a consider state from the filter's convergence, as the offset is above: an unmodelled readout of
   // 16 ms in a fast dash put the velocity 11 sigma off (docs/results.md "The readout as a consider state").
-  PhotometricParams params;
-  params.max_passes = 1;
   const int rows = scene_->cur.intensity.rows;
   std::vector<float> row_weight(static_cast<size_t>(rows));
   for (int y = 0; y < rows; ++y) row_weight[static_cast<size_t>(y)] = (y - 0.5f * (rows - 1)) / (rows - 1);
@@ -1143,17 +1142,8 @@ TEST_F(PhotometricScene, AConsideredReadoutWidensTheUpdateWithoutMoving) {
   timing.rate_change_C = Vec3(0.3, -0.2, 0.1);  // rad/s
   timing.row_weight = row_weight.data();
   timing.rows = rows;
-  auto run = [&](int variant, State* x, ErrorCov* P) {
-    PhotometricUpdate update(params, PreprocessParams{});
-    ImageTiming t = timing;
-    t.estimate_readout = variant == 0;
-    t.consider_readout = variant == 1;
-    *x = startState(0.0);
-    *P = priorCov();
-    (*P)(ErrIdx::kRo, ErrIdx::kRo) = 0.01 * 0.01;  // s^2: the readout's prior as configured by default
-    return update.update(scene_->ref, scene_->cur, scene_->K, scene_->w_C, scene_->dt_s, x, P, 0.0, t);
-  };
-  expectConsideredStateHeld(run, ErrIdx::kRo, &State::readout_s, 0.01 * 0.01, "ro");
+  expectConsideredStateHeld(timing, &ImageTiming::estimate_readout, &ImageTiming::consider_readout, ErrIdx::kRo,
+                            &State::readout_s, "ro");
 }
 
 TEST_F(PhotometricScene, RotationModelErrorDiscountsTheGyroRotation) {
