@@ -108,6 +108,8 @@ struct ImageTiming {
   /// The readout's column is in the update but x.readout_s and its variance are held (a consider state, Schmidt),
   /// while it is not estimated yet: a rolling shutter it cannot yet model widens the update instead of biasing it.
   bool consider_readout = false;
+  /// The readout's column is in the update (estimated or considered): the sweep needs the row moments.
+  bool readoutColumn() const { return estimate_readout || consider_readout; }
   bool estimate_focal_scale = false;  ///< the update estimates x.focal_scale (its column: focalScaleMap)
 };
 

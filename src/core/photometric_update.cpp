@@ -991,7 +991,7 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
   cfg.reference_weights = ref_map_;  // (update() points it only at maps of the current image's size)
   const bool rolling = m_rows != nullptr && timing != nullptr && timing->row_weight != nullptr &&
                        timing->rows == cur.intensity.rows && dt_s > 0.0 &&
-                       (readout_s != 0.0 || timing->estimate_readout || timing->consider_readout);
+                       (readout_s != 0.0 || timing->readoutColumn());
   if (rolling) {
     cfg.row_weight = timing->row_weight;
     if (timing->pixel_weight != nullptr && timing->pixel_weight->type() == CV_32FC1 &&
@@ -1000,7 +1000,7 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
       cfg.pixel_weight = timing->pixel_weight;
     cfg.readout_s = static_cast<float>(readout_s);
     cfg.readout_over_dt = static_cast<float>(readout_s / dt_s);
-    cfg.row_moments = timing->estimate_readout || timing->consider_readout;
+    cfg.row_moments = timing->readoutColumn();
   }
   const PixelWarp wp(x, K, gyro_mean_C, dt_s, state_lag_s, rolling ? m_rows : nullptr);
   if (!wp.ok) return 0;  // the plane model breaks down within the interval: no measurement
@@ -1343,7 +1343,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     // Rolling shutter: every row with the motion at its own time (the readout of the iterate); while the readout is
     // estimated, from the expected rates given their readings (docs/algorithm.md section 3.7).
     const bool rolling = timing.rates_valid && timing.row_weight != nullptr &&
-                         (readout_j != 0.0 || timing.estimate_readout || timing.consider_readout);
+                         (readout_j != 0.0 || timing.readoutColumn());
     const ObservedVec m_rows =
         rolling ? stateRateMap(x_seen, gyro_mean_C, timing, dt_s, timing.estimate_readout) : ObservedVec::Zero();
     // One sweep at this iterate with the current brightness, then the brightness's step (state held).
