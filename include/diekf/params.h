@@ -76,7 +76,7 @@ struct ImuParams {
 
 struct ProcessNoiseParams {
   double alpha_inv_m_per_sqrt_s = 0.01;         ///< random-walk density on alpha, (1/m)/sqrt(s)
-  double alpha_rate_noise_sqrt_s = 0.1;         ///< plus k alpha |mu . vartheta| (relative, with the vertical rate), sqrt(s)
+  double alpha_rate_noise_sqrt_s = 0.03;        ///< plus k alpha |mu . vartheta| (relative, with the vertical rate), sqrt(s)
   double vartheta_inv_s_per_sqrt_s = 0.05;      ///< random-walk density on vartheta, (1/s)/sqrt(s)
   /// The distance's process noise (the two terms above) moves vartheta with alpha, v = vartheta / alpha unchanged:
   /// the ground's distance changes, the camera's velocity does not (docs/algorithm.md section 2). false: alpha alone.

@@ -180,9 +180,9 @@ void predict(const Vec3& accel_C, const Vec3& gyro_C, double dt_s, const ImuPara
 
   NoiseVec sigma = discreteNoiseSigmas(imu, process, dt_s);
   // Model error of the distance dynamics d ln(alpha)/dt = s = mu . vartheta: a relative random walk that grows
-  // with the relative vertical rate |s| (take-off, landing, fast climbs), where the linearisation of the
-  // bilinear terms is worst. Without it, a prior far from the truth (a take-off from the ground with a
-  // prior of 0.25 m) is locked in with an overconfident sigma (docs/results.md).
+  // with the relative vertical rate |s| (take-off, landing, climbs). It stands for a relative error of the
+  // images' rate s that holds over a climb: k = eps sqrt(T) for an error eps over T seconds (0.03: 2 % over 2 s;
+  // docs/algorithm.md section 2, docs/results.md "The distance's rate noise").
   const double rate_sigma = process.alpha_rate_noise_sqrt_s * x->alpha *
                             std::abs(x->mu.vector().dot(x->vartheta)) * std::sqrt(dt_s);  // 1/m
   sigma(NoiseIdx::kAlpha) = std::hypot(sigma(NoiseIdx::kAlpha), rate_sigma);
