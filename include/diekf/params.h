@@ -320,7 +320,9 @@ struct EstimatorParams {
   bool estimate_readout = true;                 ///< the rolling-shutter readout time as a filter state
   double max_readout_s = 0.05;                  ///< bound of the estimated readout (either sign), s
   bool readout_consider = true;  ///< until then, from convergence, the readout a consider state (its column, held)
-  double readout_start_sigma_time_offset_s = 0.003;  ///< the readout is estimated once the offset's 1-sigma is below, s
+  /// With the time offset estimated: the readout is estimated once the offset's 1-sigma is below this, s; 0 (the
+  /// default): from the offset's start, with it (docs/algorithm.md section 3.7)
+  double readout_start_sigma_time_offset_s = 0.0;
   /// With estimate_focal_scale and the time offset estimated: the focal-length scale is estimated once the offset's
   /// 1-sigma is below this, s (docs/algorithm.md section 3.8)
   double focal_start_sigma_time_offset_s = 0.001;

@@ -100,11 +100,14 @@ ImageTiming ImageUpdate::timingFor(double t_img_s, const ImuPropagator& imu, con
   timing.row_weight = readout_row_weight_.data();
   timing.rows = static_cast<int>(readout_row_weight_.size());
   timing.pixel_weight = &readout_pixel_weight_;
-  // The readout once the offset is known to a few ms (when it is estimated): early on, with both uncertain, a
-  // large offset was partly taken for a readout (19 ms of readout for a 20 ms offset on a global-shutter flight,
-  // the offset then 10 s late).
+  // The readout with the offset (by default) or once the offset is known to readout_start_sigma_time_offset_s.
+  // Waiting for 3 ms was the default until session 51: before the offset's column took the expected rates and the
+  // readout was considered until estimated, a 20 ms offset on a global-shutter flight was partly taken for a 19 ms
+  // readout; since, both together find both (test RollingShutter.TheReadoutStartsWithTheOffset), and the wait left
+  // a slow flight over sparse ground with the rolling shutter taken for an offset (docs/results.md).
+  const double readout_start_s = params_.readout_start_sigma_time_offset_s;
   timing.estimate_readout =
-      params_.estimate_readout && settled && offsetKnownTo(P, params_.readout_start_sigma_time_offset_s);
+      params_.estimate_readout && settled && (readout_start_s <= 0.0 || offsetKnownTo(P, readout_start_s));
   // Until then, from convergence, a consider state (docs/algorithm.md section 3.7): its column widens the update,
   // its estimate and variance are held, so a rolling shutter not yet modelled is not taken for motion.
   timing.consider_readout = params_.estimate_readout && params_.readout_consider && !timing.estimate_readout &&

@@ -1129,8 +1129,9 @@ TEST_F(PhotometricScene, AConsideredOffsetWidensTheUpdateWithoutMoving) {
 }
 
 TEST_F(PhotometricScene, AConsideredReadoutWidensTheUpdateWithoutMoving) {
-  // Before the rolling shutter's readout is estimated (docs/algorithm.md section 3.7: once the offset is known to
-  // 3 ms) it is a consider state from the filter's convergence, as the offset is above: an unmodelled readout of
+  // Before the rolling shutter's readout is estimated (docs/algorithm.md section 3.7: with the offset, or once the
+  // offset is known to readout_start_sigma_time_offset_s) it is a consider state from the filter's convergence, as
+  // the offset is above: an unmodelled readout of
   // 16 ms in a fast dash put the velocity 11 sigma off (docs/results.md "The readout as a consider state").
   const int rows = scene_->cur.intensity.rows;
   std::vector<float> row_weight(static_cast<size_t>(rows));
