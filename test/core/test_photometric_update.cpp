@@ -1131,8 +1131,8 @@ TEST_F(PhotometricScene, AConsideredOffsetWidensTheUpdateWithoutMoving) {
 TEST_F(PhotometricScene, AConsideredReadoutWidensTheUpdateWithoutMoving) {
   // Before the rolling shutter's readout is estimated (docs/algorithm.md section 3.7: with the offset, or once the
   // offset is known to readout_start_sigma_time_offset_s) it is a consider state from the filter's convergence, as
-  // the offset is above: an unmodelled readout of
-  // 16 ms in a fast dash put the velocity 11 sigma off (docs/results.md "The readout as a consider state").
+  // the offset is above: an unmodelled readout of 16 ms in a fast dash put the velocity 11 sigma off (docs/results.md
+  // "The readout as a consider state").
   const int rows = scene_->cur.intensity.rows;
   std::vector<float> row_weight(static_cast<size_t>(rows));
   for (int y = 0; y < rows; ++y) row_weight[static_cast<size_t>(y)] = (y - 0.5f * (rows - 1)) / (rows - 1);
