@@ -144,8 +144,9 @@ Vec2 focalScaleDerivative(const State& x, const PinholeK& K, const Vec3& gyro_me
 /// row's capture time per second of rolling-shutter readout (docs/algorithm.md section 3.7).
 std::vector<float> readoutRowWeights(const CameraModel& cam, const PinholeK& K_working);
 /// Per working pixel, the same for the pixel itself (its own raw row: barrel distortion bends the rows, so the raw
-/// row varies along a working row), as three planes of a CV_32FC1 Mat of 3 H rows and W columns: the pixel's
-/// weight minus its row's (readoutRowWeights), and the weight's derivatives along x and along y (per working px).
+/// row varies along a working row), as six planes of a CV_32FC1 Mat of 6 H rows and W columns: the pixel's
+/// weight minus its row's (readoutRowWeights), the weight's derivatives along x and along y (per working px) and its
+/// second derivatives xx, xy and yy (per working px squared; the reference pixel's time, docs/algorithm.md §3.7).
 cv::Mat readoutPixelWeights(const CameraModel& cam, const PinholeK& K_working);
 
 /// x as the warp sees it delta_s later along m (stateRateMap): vartheta + delta m_vartheta, mu [+] delta m_mu,

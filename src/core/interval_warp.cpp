@@ -117,7 +117,7 @@ std::vector<float> readoutRowWeights(const CameraModel& cam, const PinholeK& K_w
 
 cv::Mat readoutPixelWeights(const CameraModel& cam, const PinholeK& K_working) {
   const int W = std::max(0, K_working.width), H = std::max(0, K_working.height);
-  cv::Mat out(3 * H, W, CV_32FC1, cv::Scalar(0.0f));
+  cv::Mat out(6 * H, W, CV_32FC1, cv::Scalar(0.0f));
   if (cam.K.height < 2 || W < 2 || H < 2 || !(K_working.fx > 0.0) || !(K_working.fy > 0.0)) return out;
   const std::vector<float> rows = readoutRowWeights(cam, K_working);
   const double v_mid = 0.5 * (cam.K.height - 1), span = cam.K.height - 1;
@@ -128,13 +128,19 @@ cv::Mat readoutPixelWeights(const CameraModel& cam, const PinholeK& K_working) {
       const double v = cam.K.fy * cam.distort(xn).y() + cam.K.cy;  // raw row of the working pixel
       w.at<double>(y, x) = std::isfinite(v) ? (v - v_mid) / span : static_cast<double>(rows[static_cast<size_t>(y)]);
     }
-  // Central differences inside, one-sided at the edges.
+  // Central differences inside, one-sided at the edges (the second ones from the nearest three-point stencil).
+  auto at = [&](int y, int x) { return w.at<double>(y, x); };
   for (int y = 0; y < H; ++y)
     for (int x = 0; x < W; ++x) {
       const int x0 = std::max(0, x - 1), x1 = std::min(W - 1, x + 1), y0 = std::max(0, y - 1), y1 = std::min(H - 1, y + 1);
-      out.at<float>(y, x) = static_cast<float>(w.at<double>(y, x) - rows[static_cast<size_t>(y)]);
-      out.at<float>(H + y, x) = static_cast<float>((w.at<double>(y, x1) - w.at<double>(y, x0)) / (x1 - x0));
-      out.at<float>(2 * H + y, x) = static_cast<float>((w.at<double>(y1, x) - w.at<double>(y0, x)) / (y1 - y0));
+      const int xc = std::clamp(x, 1, W - 2), yc = std::clamp(y, 1, H - 2);  // centres of the second differences
+      out.at<float>(y, x) = static_cast<float>(at(y, x) - rows[static_cast<size_t>(y)]);
+      out.at<float>(H + y, x) = static_cast<float>((at(y, x1) - at(y, x0)) / (x1 - x0));
+      out.at<float>(2 * H + y, x) = static_cast<float>((at(y1, x) - at(y0, x)) / (y1 - y0));
+      out.at<float>(3 * H + y, x) = static_cast<float>(at(y, xc + 1) - 2.0 * at(y, xc) + at(y, xc - 1));
+      out.at<float>(4 * H + y, x) =
+          static_cast<float>((at(y1, x1) - at(y1, x0) - at(y0, x1) + at(y0, x0)) / ((x1 - x0) * (y1 - y0)));
+      out.at<float>(5 * H + y, x) = static_cast<float>(at(yc + 1, x) - 2.0 * at(yc, x) + at(yc - 1, x));
     }
   return out;
 }

@@ -55,6 +55,7 @@ struct PixelWarp {
   float fx, fy, cx, cy, ifx, ify;
   float H[3][3];   // reference ray Q = H q, unitless
   float Hm[3][3] = {};  // rolling shutter: dH/dtau for a pair taken tau later (stateRateMap), 1/s; 0 otherwise
+  float Hx[3][3] = {};  // rolling shutter: dH/dT for the interval T lengthened at the reference image's end, 1/s
   float E[3][3];   // rotation current -> reference
   float C2[3][3];  // b_w row: s_b C2^T gD
   float C3[3][3];  // b_w row: (gD . a) C3 q
@@ -102,6 +103,18 @@ struct PixelWarp {
           for (int r = 0; r < 3; ++r)
             for (int col = 0; col < 3; ++col) Hm[r][col] = static_cast<float>(dH(r, col));
       }
+      // The interval lengthened (shortened) by h at the reference image's end, the state and the current image
+      // where they are: the window's mean rate takes in the rate at the reference image's time, the mean less
+      // half the rate change between the images (m's b_w part is -rate_change / dt).
+      const Vec3 gyro_ref_C = gyro_mean_C + (0.5 * dt_s) * m_rows->segment<3>(5);
+      const IntervalWarp lp(x, (dt_s * gyro_mean_C + h * gyro_ref_C) / (dt_s + h), dt_s + h, state_lag_s);
+      const IntervalWarp lm(x, (dt_s * gyro_mean_C - h * gyro_ref_C) / (dt_s - h), dt_s - h, state_lag_s);
+      if (lp.ok && lm.ok) {
+        const Mat3 dH = (lp.H - lm.H) / (2.0 * h);
+        if (dH.allFinite())
+          for (int r = 0; r < 3; ++r)
+            for (int col = 0; col < 3; ++col) Hx[r][col] = static_cast<float>(dH(r, col));
+      }
     }
     T.setZero();
     const double inv_kappa = ok ? 1.0 / iw.kappa : 0.0;
@@ -125,11 +138,10 @@ struct SweepConfig {
   // Rolling shutter (docs/algorithm.md section 3.7): row y of the current image is captured readout_s
   // row_weight[y] after the image's time; null = global shutter.
   const float* row_weight = nullptr;
-  // Per pixel (ImageTiming::pixel_weight, pixel_stride 1 only): the pixel's weight less its row's, and the weight's
-  // derivatives along x and y; null: every pixel of a row at the row's time.
+  // Per pixel (ImageTiming::pixel_weight, pixel_stride 1 only): the pixel's weight less its row's, the weight's
+  // derivatives along x and y and its second derivatives xx, xy, yy; null: every pixel of a row at the row's time.
   const cv::Mat* pixel_weight = nullptr;
   float readout_s = 0.0f;
-  float readout_over_dt = 0.0f;  // readout / dt: the pair's interval grows by this times w(y) - w(y_r)
   bool row_moments = false;      // also accumulate SweepSums::G1, G2 (the readout's information)
   // (dt / 2) T_vartheta vartheta: with the sweep's rows S' (S = (dt / 2) S' T), S'_vartheta . depth_dir is the
   // residual's derivative over a relative change of the pixel's inverse depth (dr / d rho, section 10).
@@ -420,18 +432,32 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
     const v_float32x4 h0 = v_setall_f32(Hr[0][1] * qy_s + Hr[0][2]);
     const v_float32x4 h1 = v_setall_f32(Hr[1][1] * qy_s + Hr[1][2]);
     const v_float32x4 h2 = v_setall_f32(Hr[2][1] * qy_s + Hr[2][2]);
-    const bool rolling = cfg.row_weight != nullptr && cfg.readout_over_dt != 0.0f;
-    // Local slope of the row weights (per working row), for the reference pixel's own row time.
-    const float slope = rolling ? 0.5f * (cfg.row_weight[std::min(y + 1, H - 1)] - cfg.row_weight[std::max(y - 1, 0)])
-                                : 0.0f;
-    const v_float32x4 rs_k = v_setall_f32(cfg.readout_over_dt * slope), yv = v_setall_f32(yf);
+    const bool rolling = cfg.row_weight != nullptr && cfg.readout_s != 0.0f;
+    // Slope and curvature of the row weights (per working row), for the reference pixel's own row time.
+    const int y_lo = std::max(y - 1, 0), y_hi = std::min(y + 1, H - 1), y_mid = std::clamp(y, 1, std::max(1, H - 2));
+    const float slope = rolling && y_hi > y_lo ? (cfg.row_weight[y_hi] - cfg.row_weight[y_lo]) / (y_hi - y_lo) : 0.0f;
+    const float curv = rolling && H >= 3 ? cfg.row_weight[y_mid + 1] - 2.0f * cfg.row_weight[y_mid] +
+                                               cfg.row_weight[y_mid - 1]
+                                         : 0.0f;
+    const v_float32x4 yv = v_setall_f32(yf);
     // Per pixel (barrel distortion bends the raw rows): the pixel's time less its row's, tau_p - tau = readout dw,
-    // moves its reference ray along Hm q; the reference pixel's own time from the weight's gradient there.
+    // moves its reference ray along Hm q; the reference pixel's own time from the weight's gradient and second
+    // derivatives there.
     const bool per_pixel = rolling && cfg.pixel_weight != nullptr;
     const float* pw_d = per_pixel ? cfg.pixel_weight->ptr<float>(y) + cfg.border : nullptr;
     const float* pw_x = per_pixel ? cfg.pixel_weight->ptr<float>(H + y) + cfg.border : nullptr;
     const float* pw_y = per_pixel ? cfg.pixel_weight->ptr<float>(2 * H + y) + cfg.border : nullptr;
-    const v_float32x4 v_readout = v_setall_f32(cfg.readout_s), v_rs_over_dt = v_setall_f32(cfg.readout_over_dt);
+    const float* pw_xx = per_pixel ? cfg.pixel_weight->ptr<float>(3 * H + y) + cfg.border : nullptr;
+    const float* pw_xy = per_pixel ? cfg.pixel_weight->ptr<float>(4 * H + y) + cfg.border : nullptr;
+    const float* pw_yy = per_pixel ? cfg.pixel_weight->ptr<float>(5 * H + y) + cfg.border : nullptr;
+    const v_float32x4 v_readout = v_setall_f32(cfg.readout_s), v_slope = v_setall_f32(slope),
+                      v_curv = v_setall_f32(curv), half = v_setall_f32(0.5f);
+    // The flow's rate at the reference image's end, D_r Hx q (rolling shutter only).
+    const v_float32x4 Hx00 = v_setall_f32(wp.Hx[0][0]), Hx10 = v_setall_f32(wp.Hx[1][0]),
+                      Hx20 = v_setall_f32(wp.Hx[2][0]);
+    const v_float32x4 hx0 = v_setall_f32(wp.Hx[0][1] * qy_s + wp.Hx[0][2]);
+    const v_float32x4 hx1 = v_setall_f32(wp.Hx[1][1] * qy_s + wp.Hx[1][2]);
+    const v_float32x4 hx2 = v_setall_f32(wp.Hx[2][1] * qy_s + wp.Hx[2][2]);
     const v_float32x4 Hm00 = v_setall_f32(wp.Hm[0][0]), Hm10 = v_setall_f32(wp.Hm[1][0]),
                       Hm20 = v_setall_f32(wp.Hm[2][0]);
     const v_float32x4 hm0 = v_setall_f32(wp.Hm[0][1] * qy_s + wp.Hm[0][2]);
@@ -467,13 +493,31 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
       v_float32x4 rx = v_muladd(fx, Qx * iz, cx);
       v_float32x4 ry = v_muladd(fy, Qy * iz, cy);
       if (rolling) {
-        // The reference pixel's row was read out line_delay (y - y_r) earlier than row y: the pair's
-        // interval is longer by that, and the flow p_r - p with it (first order).
-        const v_float32x4 eps =
-            per_pixel ? v_rs_over_dt * v_muladd(v_load(pw_x + k), xv - rx, v_load(pw_y + k) * (yv - ry))
-                      : rs_k * (yv - ry);
-        rx = v_muladd(eps, rx - xv, rx);
-        ry = v_muladd(eps, ry - yv, ry);
+        // The reference pixel was read out readout (w(p) - w(p_r)) earlier than p: the pair's interval is longer
+        // by delta = -readout (w(p_r) - w(p)) at the reference image's end, and the reference pixel moves by delta
+        // times the flow's rate there, u = D_r Hx q. With D = p_r - p, w(p_r) - w(p) = (grad w + Hess D / 2) . D
+        // to second order, and delta itself moves p_r by delta u: delta = -readout dw / (1 + readout gradient . u).
+        const v_float32x4 Dx = rx - xv, Dy = ry - yv;
+        v_float32x4 gx0, gy0, gx1, gy1;  // the weight's gradient at the middle of D and at p_r
+        if (per_pixel) {
+          const v_float32x4 wxx = v_load(pw_xx + k), wxy = v_load(pw_xy + k), wyy = v_load(pw_yy + k);
+          const v_float32x4 hx = v_muladd(wxx, Dx, wxy * Dy), hy = v_muladd(wxy, Dx, wyy * Dy);
+          const v_float32x4 gxp = v_load(pw_x + k), gyp = v_load(pw_y + k);
+          gx0 = v_muladd(half, hx, gxp);
+          gy0 = v_muladd(half, hy, gyp);
+          gx1 = gxp + hx;
+          gy1 = gyp + hy;
+        } else {
+          gx0 = gx1 = zero;
+          gy0 = v_muladd(half * v_curv, Dy, v_slope);
+          gy1 = v_muladd(v_curv, Dy, v_slope);
+        }
+        const v_float32x4 dw = v_muladd(gx0, Dx, gy0 * Dy);
+        const v_float32x4 Ux = v_muladd(Hx00, qx, hx0), Uy = v_muladd(Hx10, qx, hx1), Uz = v_muladd(Hx20, qx, hx2);
+        const v_float32x4 ux = v_muladd(fx, Ux, (cx - rx) * Uz) * iz, uy = v_muladd(fy, Uy, (cy - ry) * Uz) * iz;
+        const v_float32x4 delta = (zero - v_readout * dw) / v_muladd(v_readout, v_muladd(gx1, ux, gy1 * uy), one);
+        rx = v_muladd(delta, ux, rx);
+        ry = v_muladd(delta, uy, ry);
       }
       // Comparisons are false for NaN: such pixels are invalid.
       v_float32x4 valid = in_front & (rx >= rx_lo) & (rx < rx_hi) & (ry >= ry_lo) & (ry < ry_hi);
@@ -995,11 +1039,10 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
   if (rolling) {
     cfg.row_weight = timing->row_weight;
     if (timing->pixel_weight != nullptr && timing->pixel_weight->type() == CV_32FC1 &&
-        timing->pixel_weight->rows == 3 * cur.intensity.rows && timing->pixel_weight->cols == cur.intensity.cols &&
+        timing->pixel_weight->rows == 6 * cur.intensity.rows && timing->pixel_weight->cols == cur.intensity.cols &&
         cfg.stride == 1)
       cfg.pixel_weight = timing->pixel_weight;
     cfg.readout_s = static_cast<float>(readout_s);
-    cfg.readout_over_dt = static_cast<float>(readout_s / dt_s);
     cfg.row_moments = timing->readoutColumn();
   }
   const PixelWarp wp(x, K, gyro_mean_C, dt_s, state_lag_s, rolling ? m_rows : nullptr);

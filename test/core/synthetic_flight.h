@@ -27,22 +27,27 @@ struct SyntheticFlight {
   Vec3 axis = Vec3(1.0, 0.6, 0.2).normalized();
   double height_m = 0.9;
   double rate = 1.0;
+  Vec3 drift_mps = Vec3::Zero();  // a constant velocity on top of the oscillations (a dash), m/s
+  double angle_rad = 0.08;        // amplitude of the attitude's oscillation about `axis`
+  double angle_freq = 1.3;        // its angular frequency per unit of `rate`, rad/s
 
   Vec3 position(double t) const {
     const double s = rate * t;
-    return Vec3(0.4 * std::sin(0.9 * s), 0.3 * std::sin(0.7 * s + 0.5), height_m + 0.25 * std::sin(0.5 * s));
+    return Vec3(0.4 * std::sin(0.9 * s), 0.3 * std::sin(0.7 * s + 0.5), height_m + 0.25 * std::sin(0.5 * s)) +
+           t * drift_mps;
   }
   Vec3 velocity(double t) const {
     const double s = rate * t;
-    return rate * Vec3(0.36 * std::cos(0.9 * s), 0.21 * std::cos(0.7 * s + 0.5), 0.125 * std::cos(0.5 * s));
+    return rate * Vec3(0.36 * std::cos(0.9 * s), 0.21 * std::cos(0.7 * s + 0.5), 0.125 * std::cos(0.5 * s)) +
+           drift_mps;
   }
   Vec3 acceleration(double t) const {
     const double s = rate * t;
     return rate * rate *
            Vec3(-0.324 * std::sin(0.9 * s), -0.147 * std::sin(0.7 * s + 0.5), -0.0625 * std::sin(0.5 * s));
   }
-  double angle(double t) const { return 0.08 * std::sin(1.3 * rate * t); }
-  double angleRate(double t) const { return 0.08 * 1.3 * rate * std::cos(1.3 * rate * t); }
+  double angle(double t) const { return angle_rad * std::sin(angle_freq * rate * t); }
+  double angleRate(double t) const { return angle_rad * angle_freq * rate * std::cos(angle_freq * rate * t); }
   Mat3 R_WI(double t) const { return Eigen::AngleAxisd(angle(t), axis).toRotationMatrix(); }
   /// Body rate about a fixed axis: omega_I = theta'(t) axis.
   Vec3 gyro_I(double t) const { return angleRate(t) * axis; }
