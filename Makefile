@@ -31,7 +31,7 @@ SUDO := $(shell [ "$$(id -u)" = 0 ] || echo sudo)
 
 APT_PACKAGES := build-essential cmake catkin ros-base-dev libnodeletlib-dev libcv-bridge-dev \
   libimage-transport-dev librosbag-dev librostest-dev libtf2-ros-dev libopencv-dev libeigen3-dev \
-  libyaml-cpp-dev libgtest-dev libgmock-dev libbenchmark-dev python3-matplotlib python3-numpy python3-yaml \
+  libyaml-cpp-dev libgtest-dev libgmock-dev libbenchmark-dev python3-matplotlib python3-numpy python3-scipy python3-yaml \
   ros-message-generation ros-message-runtime libdiagnostic-updater-dev libstd-srvs-dev \
   libnav-msgs-dev libshape-msgs-dev libvisualization-msgs-dev libdiagnostic-msgs-dev \
   libtf2-geometry-msgs-dev libtf2-eigen-dev python3-rosbag python3-rostest python3-roslaunch libnodeletlib-tools ros-base-python-dev rosbash valgrind \

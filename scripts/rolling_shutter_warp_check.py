@@ -17,11 +17,12 @@ Per variant it prints the RMS pixel error against the exact correspondence (work
 least-squares fit of the error field gives: the velocity over distance along the camera's x, y, z in % of the
 speed, and the plane normal about the camera's x and y axes in mrad (RMS over the frames, then the mean).
 
-Usage: rolling_shutter_warp_check.py SEQUENCE_DIR [--from 12] [--to 16] [--width 180] [--step 3]
+Usage: rolling_shutter_warp_check.py SEQUENCE_DIR [--from 12] [--to 16] [--width 180] [--step 3] [--json FILE]
 SEQUENCE_DIR holds sequence.bag (ground truth /mocap/pose, /ground_truth/plane, the image stamps), camchain.yaml
 (Kalibr, radtan or no distortion) and realism.yaml (rolling_shutter_line_time_s), as diekf_simulate writes them.
 """
 import argparse
+import json
 import os
 import sys
 
@@ -44,6 +45,7 @@ def main():
     ap.add_argument('--width', type=int, default=180, help='working width, px')
     ap.add_argument('--step', type=int, default=3, help='every step-th working pixel in x and y')
     ap.add_argument('--image-topic', default='/mynteye/left/image_raw')
+    ap.add_argument('--json', help='also write the table to this file (per variant: px_rms, bias_rms, bias_mean)')
     a = ap.parse_args()
 
     cc = yaml.safe_load(open(os.path.join(a.sequence, 'camchain.yaml')))['cam0']
@@ -190,22 +192,31 @@ def main():
             delta = -line_s * delta_w(hessian) / (1 + line_s * (g1x * u[0] + g1y * u[1]))
             return F + delta * u
 
-        variants = {'before (mean flow, gradient)': mean_flow(False),
-                    'mean flow, second order': mean_flow(True),
-                    'rate at the reference, gradient': reference_rate(False),
-                    'now (rate, second order)': reference_rate(True),
-                    'global-shutter warp': project(H0 @ q)}
+        variants = {'before': mean_flow(False), 'mean_flow_second_order': mean_flow(True),
+                    'rate_gradient': reference_rate(False), 'now': reference_rate(True),
+                    'global_shutter': project(H0 @ q)}
         B = state_basis(ta, tb)
         for name, p_r in variants.items():
             e = (p_r - truth).ravel()
             c = np.linalg.lstsq(B, -e, rcond=None)[0]
             stats.setdefault(name, []).append(np.r_[np.sqrt(np.mean(e ** 2)), c])
+    if not stats:
+        sys.exit('no image pair between %.1f and %.1f s' % (a.t_from, a.t_to))
+    labels = {'before': 'before (mean flow, gradient)', 'mean_flow_second_order': 'mean flow, second order',
+              'rate_gradient': 'rate at the reference, gradient', 'now': 'now (rate, second order)',
+              'global_shutter': 'global-shutter warp'}
     print('%-34s %9s | %-26s | %-16s' % ('variant', 'px RMS', 'v/d bias x y z, % (RMS)', 'normal x y, mrad'))
+    table = {}
     for name, rows in stats.items():
         r = np.array(rows)
         rms, mean = np.sqrt(np.mean(r ** 2, 0)), np.mean(r, 0)
+        table[name] = {'px_rms': float(rms[0]), 'bias_rms': [float(x) for x in rms[1:]],
+                       'bias_mean': [float(x) for x in mean[1:]]}
         print('%-34s %9.4f | %7.3f %7.3f %7.3f    | %6.2f %6.2f  (mean %+.2f %+.2f)' %
-              (name, rms[0], rms[1], rms[2], rms[3], rms[4], rms[5], mean[4], mean[5]))
+              (labels[name], rms[0], rms[1], rms[2], rms[3], rms[4], rms[5], mean[4], mean[5]))
+    if a.json:
+        with open(a.json, 'w') as f:
+            json.dump({'pairs': len(frames), 'pixels': int(q.shape[1]), 'variants': table}, f, indent=1)
 
 
 if __name__ == '__main__':
