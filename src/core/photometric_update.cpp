@@ -515,7 +515,11 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
         const v_float32x4 dw = v_muladd(gx0, Dx, gy0 * Dy);
         const v_float32x4 Ux = v_muladd(Hx00, qx, hx0), Uy = v_muladd(Hx10, qx, hx1), Uz = v_muladd(Hx20, qx, hx2);
         const v_float32x4 ux = v_muladd(fx, Ux, (cx - rx) * Uz) * iz, uy = v_muladd(fy, Uy, (cy - ry) * Uz) * iz;
-        const v_float32x4 delta = (zero - v_readout * dw) / v_muladd(v_readout, v_muladd(gx1, ux, gy1 * uy), one);
+        // (A denominator near 0 is the ground moving as fast as the readout along the image: no time solves it,
+        // and NaN makes the pixel invalid.)
+        const v_float32x4 den = v_muladd(v_readout, v_muladd(gx1, ux, gy1 * uy), one);
+        const v_float32x4 delta =
+            v_select(den > v_setall_f32(0.25f), (zero - v_readout * dw) / den, v_setall_f32(std::numeric_limits<float>::quiet_NaN()));
         rx = v_muladd(delta, ux, rx);
         ry = v_muladd(delta, uy, ry);
       }
