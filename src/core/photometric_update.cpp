@@ -451,7 +451,8 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
     const float* pw_xy = per_pixel ? cfg.pixel_weight->ptr<float>(4 * H + y) + cfg.border : nullptr;
     const float* pw_yy = per_pixel ? cfg.pixel_weight->ptr<float>(5 * H + y) + cfg.border : nullptr;
     const v_float32x4 v_readout = v_setall_f32(cfg.readout_s), v_slope = v_setall_f32(slope),
-                      v_curv = v_setall_f32(curv), half = v_setall_f32(0.5f);
+                      v_curv = v_setall_f32(curv), half = v_setall_f32(0.5f), min_den = v_setall_f32(0.25f),
+                      nan = v_setall_f32(std::numeric_limits<float>::quiet_NaN());
     // The flow's rate at the reference image's end, D_r Hx q (rolling shutter only).
     const v_float32x4 Hx00 = v_setall_f32(wp.Hx[0][0]), Hx10 = v_setall_f32(wp.Hx[1][0]),
                       Hx20 = v_setall_f32(wp.Hx[2][0]);
@@ -501,12 +502,12 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
         v_float32x4 gx0, gy0, gx1, gy1;  // the weight's gradient at the middle of D and at p_r
         if (per_pixel) {
           const v_float32x4 wxx = v_load(pw_xx + k), wxy = v_load(pw_xy + k), wyy = v_load(pw_yy + k);
-          const v_float32x4 hx = v_muladd(wxx, Dx, wxy * Dy), hy = v_muladd(wxy, Dx, wyy * Dy);
+          const v_float32x4 hess_x = v_muladd(wxx, Dx, wxy * Dy), hess_y = v_muladd(wxy, Dx, wyy * Dy);  // Hess D
           const v_float32x4 gxp = v_load(pw_x + k), gyp = v_load(pw_y + k);
-          gx0 = v_muladd(half, hx, gxp);
-          gy0 = v_muladd(half, hy, gyp);
-          gx1 = gxp + hx;
-          gy1 = gyp + hy;
+          gx0 = v_muladd(half, hess_x, gxp);
+          gy0 = v_muladd(half, hess_y, gyp);
+          gx1 = gxp + hess_x;
+          gy1 = gyp + hess_y;
         } else {
           gx0 = gx1 = zero;
           gy0 = v_muladd(half * v_curv, Dy, v_slope);
@@ -518,8 +519,7 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
         // (A denominator near 0 is the ground moving as fast as the readout along the image: no time solves it,
         // and NaN makes the pixel invalid.)
         const v_float32x4 den = v_muladd(v_readout, v_muladd(gx1, ux, gy1 * uy), one);
-        const v_float32x4 delta =
-            v_select(den > v_setall_f32(0.25f), (zero - v_readout * dw) / den, v_setall_f32(std::numeric_limits<float>::quiet_NaN()));
+        const v_float32x4 delta = v_select(den > min_den, (zero - v_readout * dw) / den, nan);
         rx = v_muladd(delta, ux, rx);
         ry = v_muladd(delta, uy, ry);
       }
