@@ -549,6 +549,14 @@ TEST(RollingShutter, RowTimesInTheWarpRecoverTheGlobalShutterAccuracy) {
   EXPECT_LT(std::abs(known.t_d_end_s), 3.0 * known.sigma_t_d_end_s);
 }
 
+/// The flight `o` rendered global-shutter, then with a 16 ms readout whose line delay the camera model knows.
+std::pair<OffsetRun, OffsetRun> globalAndKnownRollingShutter(RunOptions o) {
+  OffsetRun global = runFlight(o);
+  o.readout_s = 0.016;
+  o.tell_line_delay = true;
+  return {std::move(global), runFlight(o)};
+}
+
 // The same through the MYNT EYE's barrel distortion, which bends the raw rows: along the top and bottom working rows
 // the raw row varies by about a quarter of the rows' spacing from the middle row, so one time per working row was
 // up to 1 ms off at the ends of a 16 ms readout (the benchmark's 60 s flight 7: 1.7x / 1.8x the global shutter's
@@ -556,10 +564,7 @@ TEST(RollingShutter, RowTimesInTheWarpRecoverTheGlobalShutterAccuracy) {
 TEST(RollingShutter, EachPixelAtItsOwnRowTimeThroughTheDistortion) {
   RunOptions o;
   o.barrel = true;
-  const OffsetRun global = runFlight(o);
-  o.readout_s = 0.016;
-  o.tell_line_delay = true;
-  const OffsetRun known = runFlight(o);
+  const auto [global, known] = globalAndKnownRollingShutter(o);
   std::printf("[rolling shutter, barrel distortion] 16 ms readout, line delay given: d/v RMSE from 5 s %.2f cm / "
               "%.2f cm/s; global shutter %.2f / %.2f\n",
               100 * known.rmse_d_m, 100 * known.rmse_v_mps, 100 * global.rmse_d_m, 100 * global.rmse_v_mps);
@@ -575,10 +580,7 @@ TEST(RollingShutter, ADashWhilePitchingAsWithAGlobalShutter) {
   RunOptions o;
   o.barrel = true;
   o.dash = true;
-  const OffsetRun global = runFlight(o);
-  o.readout_s = 0.016;
-  o.tell_line_delay = true;
-  const OffsetRun known = runFlight(o);
+  const auto [global, known] = globalAndKnownRollingShutter(o);
   std::printf("[rolling shutter, dash] 16 ms readout, line delay given: d/v RMSE from 5 s %.2f cm / %.2f cm/s, "
               "normal %.2f mrad RMS; global shutter %.2f / %.2f, %.2f\n",
               100 * known.rmse_d_m, 100 * known.rmse_v_mps, 1e3 * known.rms_normal_rad, 100 * global.rmse_d_m,
