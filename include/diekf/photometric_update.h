@@ -147,6 +147,7 @@ std::vector<float> readoutRowWeights(const CameraModel& cam, const PinholeK& K_w
 /// row varies along a working row), as six planes of a CV_32FC1 Mat of 6 H rows and W columns: the pixel's
 /// weight minus its row's (readoutRowWeights), the weight's derivatives along x and along y (per working px) and its
 /// second derivatives xx, xy and yy (per working px squared; the reference pixel's time, docs/algorithm.md §3.7).
+constexpr int kReadoutPixelPlanes = 6;  ///< readoutPixelWeights' planes
 cv::Mat readoutPixelWeights(const CameraModel& cam, const PinholeK& K_working);
 
 /// x as the warp sees it delta_s later along m (stateRateMap): vartheta + delta m_vartheta, mu [+] delta m_mu,

@@ -117,7 +117,7 @@ std::vector<float> readoutRowWeights(const CameraModel& cam, const PinholeK& K_w
 
 cv::Mat readoutPixelWeights(const CameraModel& cam, const PinholeK& K_working) {
   const int W = std::max(0, K_working.width), H = std::max(0, K_working.height);
-  cv::Mat out(6 * H, W, CV_32FC1, cv::Scalar(0.0f));
+  cv::Mat out(kReadoutPixelPlanes * H, W, CV_32FC1, cv::Scalar(0.0f));
   if (cam.K.height < 2 || W < 2 || H < 2 || !(K_working.fx > 0.0) || !(K_working.fy > 0.0)) return out;
   const std::vector<float> rows = readoutRowWeights(cam, K_working);
   const double v_mid = 0.5 * (cam.K.height - 1), span = cam.K.height - 1;

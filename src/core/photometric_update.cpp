@@ -92,29 +92,26 @@ struct PixelWarp {
       P[r][1] = static_cast<float>(iw.P(r, 1));
     }
     if (m_rows != nullptr && ok) {
+      const double h = 1e-4;  // s
+      // dH = (H(+h) - H(-h)) / 2h into `out`, where both warps exist and the difference is finite.
+      auto centralDifference = [h](const IntervalWarp& p, const IntervalWarp& m, float out[3][3]) {
+        if (!p.ok || !m.ok) return;
+        const Mat3 dH = (p.H - m.H) / (2.0 * h);
+        if (!dH.allFinite()) return;
+        for (int r = 0; r < 3; ++r)
+          for (int col = 0; col < 3; ++col) out[r][col] = static_cast<float>(dH(r, col));
+      };
       // Central difference in time along m: the warp of a row captured tau after the image's time is
       // H + tau Hm (first order in tau; the readout of a frame is a few ms).
-      const double h = 1e-4;  // s
-      const IntervalWarp ip(shiftedAlong(x, *m_rows, h), gyro_mean_C, dt_s, state_lag_s);
-      const IntervalWarp im(shiftedAlong(x, *m_rows, -h), gyro_mean_C, dt_s, state_lag_s);
-      if (ip.ok && im.ok) {
-        const Mat3 dH = (ip.H - im.H) / (2.0 * h);
-        if (dH.allFinite())
-          for (int r = 0; r < 3; ++r)
-            for (int col = 0; col < 3; ++col) Hm[r][col] = static_cast<float>(dH(r, col));
-      }
+      centralDifference(IntervalWarp(shiftedAlong(x, *m_rows, h), gyro_mean_C, dt_s, state_lag_s),
+                        IntervalWarp(shiftedAlong(x, *m_rows, -h), gyro_mean_C, dt_s, state_lag_s), Hm);
       // The interval lengthened (shortened) by h at the reference image's end, the state and the current image
       // where they are: the window's mean rate takes in the rate at the reference image's time, the mean less
       // half the rate change between the images (m's b_w part is -rate_change / dt).
       const Vec3 gyro_ref_C = gyro_mean_C + (0.5 * dt_s) * m_rows->segment<3>(5);
-      const IntervalWarp lp(x, (dt_s * gyro_mean_C + h * gyro_ref_C) / (dt_s + h), dt_s + h, state_lag_s);
-      const IntervalWarp lm(x, (dt_s * gyro_mean_C - h * gyro_ref_C) / (dt_s - h), dt_s - h, state_lag_s);
-      if (lp.ok && lm.ok) {
-        const Mat3 dH = (lp.H - lm.H) / (2.0 * h);
-        if (dH.allFinite())
-          for (int r = 0; r < 3; ++r)
-            for (int col = 0; col < 3; ++col) Hx[r][col] = static_cast<float>(dH(r, col));
-      }
+      centralDifference(IntervalWarp(x, (dt_s * gyro_mean_C + h * gyro_ref_C) / (dt_s + h), dt_s + h, state_lag_s),
+                        IntervalWarp(x, (dt_s * gyro_mean_C - h * gyro_ref_C) / (dt_s - h), dt_s - h, state_lag_s),
+                        Hx);
     }
     T.setZero();
     const double inv_kappa = ok ? 1.0 / iw.kappa : 0.0;
@@ -1043,7 +1040,7 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
   if (rolling) {
     cfg.row_weight = timing->row_weight;
     if (timing->pixel_weight != nullptr && timing->pixel_weight->type() == CV_32FC1 &&
-        timing->pixel_weight->rows == 6 * cur.intensity.rows && timing->pixel_weight->cols == cur.intensity.cols &&
+        timing->pixel_weight->rows == kReadoutPixelPlanes * cur.intensity.rows && timing->pixel_weight->cols == cur.intensity.cols &&
         cfg.stride == 1)
       cfg.pixel_weight = timing->pixel_weight;
     cfg.readout_s = static_cast<float>(readout_s);
