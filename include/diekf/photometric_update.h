@@ -125,6 +125,10 @@ struct ImageTiming {
 /// times) is pulled toward zero (errors in the variables; docs/algorithm.md section 3.7).
 ObservedVec stateRateMap(const State& x, const Vec3& gyro_mean_C, const ImageTiming& in, double dt_s,
                          bool expected = false);
+/// The acceleration a + g0 g of stateRateMap (m/s^2, C; with `expected` its expected value given the reading), whose
+/// product with alpha is vartheta's rate: alpha's column in the rolling-shutter rows is the rows' shift along
+/// (T_ro times this, 0, ..., 0) (docs/algorithm.md section 3.7). Zero unless in.rates_valid.
+Vec3 stateRateAcceleration(const State& x, const ImageTiming& in, bool expected = false);
 /// The time offset's Jacobian column as a combination of the observed ones, J_t_d = J_obs m: stateRateMap with
 /// `expected` (the readings' expected values given their noise) when in.estimate_offset, else zero.
 ObservedVec timeOffsetMap(const State& x, const Vec3& gyro_mean_C, const ImageTiming& in, double dt_s);

@@ -67,19 +67,21 @@ using internal::IntervalWarp;
 using internal::kMinDepthRatio;
 using internal::warpWith;
 
+Vec3 stateRateAcceleration(const State& x, const ImageTiming& in, bool expected) {
+  if (!in.rates_valid) return Vec3::Zero();
+  const Vec3 accel = in.accel_C - x.b_a + in.gravity_mps2 * x.g.vector();  // m/s^2
+  return expected ? internal::expectedGivenReading(accel, in.accel_noise_var) : accel;
+}
+
 ObservedVec stateRateMap(const State& x, const Vec3& gyro_mean_C, const ImageTiming& in, double dt_s,
                          bool expected) {
   ObservedVec m = ObservedVec::Zero();
   if (!in.rates_valid || !(dt_s > 0.0)) return m;
-  const Vec3 a = in.accel_C - x.b_a;    // m/s^2
   const Vec3 w = gyro_mean_C - x.b_w;   // rad/s
   const Vec3& th = x.vartheta;
-  Vec3 accel = a + in.gravity_mps2 * x.g.vector();  // m/s^2
-  Vec3 rate_change = in.rate_change_C;              // rad/s
-  if (expected) {
-    accel = internal::expectedGivenReading(accel, in.accel_noise_var);
-    rate_change = internal::expectedGivenReading(rate_change, in.rate_change_noise_var);
-  }
+  const Vec3 accel = stateRateAcceleration(x, in, expected);  // m/s^2
+  Vec3 rate_change = in.rate_change_C;                        // rad/s
+  if (expected) rate_change = internal::expectedGivenReading(rate_change, in.rate_change_noise_var);
   m.segment<3>(0) = x.alpha * accel - w.cross(th) + x.mu.vector().dot(th) * th;
   m.segment<2>(3) = -x.mu.N().transpose() * w;
   m.segment<3>(5) = -rate_change / dt_s;

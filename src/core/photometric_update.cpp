@@ -1044,7 +1044,8 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
         cfg.stride == 1)
       cfg.pixel_weight = timing->pixel_weight;
     cfg.readout_s = static_cast<float>(readout_s);
-    cfg.row_moments = timing->readoutColumn();
+    // The row moments carry the readout's column and alpha's in the rows (section 3.7).
+    cfg.row_moments = timing->readoutColumn() || readout_s != 0.0;
   }
   const PixelWarp wp(x, K, gyro_mean_C, dt_s, state_lag_s, rolling ? m_rows : nullptr);
   if (!wp.ok) return 0;  // the plane model breaks down within the interval: no measurement
@@ -1202,31 +1203,37 @@ struct InnovationSpectrum {
 /// variance var_bw = var_theta / dt^2. Marginalising it (Schur complement) leaves
 ///   A' = A - A_.w (A_ww + I / var_bw)^-1 A_w.,   b' = b - A_.w (A_ww + I / var_bw)^-1 b_w,
 /// the information of the image about everything else, with the rotation-like part of the flow discounted.
-/// The same for the system extended by the readout's column (index 8): the nuisance enters like b_w there too.
-void marginalizeRotationError9(double var_bw, Eigen::Matrix<double, 9, 9>* A, Eigen::Matrix<double, 9, 1>* b) {
-  if (!(var_bw > 0.0) || !std::isfinite(var_bw)) return;
-  constexpr int w0 = 5;
-  const Eigen::Matrix<double, 9, 3> A_xw = A->block<9, 3>(0, w0);
-  const Mat3 S = A->block<3, 3>(w0, w0) + (1.0 / var_bw) * Mat3::Identity();
-  const Eigen::LLT<Mat3> llt(S);
-  if (llt.info() != Eigen::Success) return;
-  const Eigen::Matrix<double, 3, 9> G = llt.solve(A_xw.transpose());
-  *A -= A_xw * G;
-  *A = (0.5 * (*A + A->transpose())).eval();
-  *b -= G.transpose() * b->segment<3>(w0);
-}
-
-void marginalizeRotationError(double var_bw, ObservedInfo* A, ObservedVec* b) {
+/// The same for the system extended by the rolling shutter's columns (the readout's, alpha's; indices 8, 9): the
+/// nuisance enters like b_w there too.
+template <int N>
+void marginalizeRotationError(double var_bw, Eigen::Matrix<double, N, N>* A, Eigen::Matrix<double, N, 1>* b) {
   if (!(var_bw > 0.0) || !std::isfinite(var_bw)) return;
   constexpr int w0 = 5;  // first b_w column of the observed block
-  const Eigen::Matrix<double, 8, 3> A_xw = A->block<8, 3>(0, w0);
-  const Mat3 S = A->block<3, 3>(w0, w0) + (1.0 / var_bw) * Mat3::Identity();
+  const Eigen::Matrix<double, N, 3> A_xw = A->template block<N, 3>(0, w0);
+  const Mat3 S = A->template block<3, 3>(w0, w0) + (1.0 / var_bw) * Mat3::Identity();
   const Eigen::LLT<Mat3> llt(S);
   if (llt.info() != Eigen::Success) return;
-  const Eigen::Matrix<double, 3, 8> G = llt.solve(A_xw.transpose());  // S^-1 A_w.
+  const Eigen::Matrix<double, 3, N> G = llt.solve(A_xw.transpose());  // S^-1 A_w.
   *A -= A_xw * G;
   *A = (0.5 * (*A + A->transpose())).eval();
-  *b -= G.transpose() * b->segment<3>(w0);
+  *b -= G.transpose() * b->template segment<3>(w0);
+}
+
+/// The rolling-shutter rows' dependence on alpha (docs/algorithm.md section 3.7) as a nuisance: column k of the
+/// extended system (A, b) is w_y S m_a, m_a = T_ro (a + g0 g, 0, ..., 0), the derivative of the rows' shift by
+/// alpha; with alpha's prior variance var_alpha it is marginalised like the rotation error (Schur complement),
+///   A' = A - A_.k A_k. / (A_kk + 1 / var_alpha),   b' = b - A_.k b_k / (A_kk + 1 / var_alpha),
+/// and its row and column cleared: the rows' prediction is widened by alpha's uncertainty, alpha is not moved by it.
+template <int N>
+void marginalizeRowsAlpha(int k, double var_alpha, Eigen::Matrix<double, N, N>* A, Eigen::Matrix<double, N, 1>* b) {
+  if (!(var_alpha > 0.0) || !std::isfinite(var_alpha)) return;
+  const double s = (*A)(k, k) + 1.0 / var_alpha;
+  const Eigen::Matrix<double, N, 1> c = A->col(k);
+  *A -= c * c.transpose() / s;
+  *b -= c * ((*b)(k) / s);
+  A->row(k).setZero();
+  A->col(k).setZero();
+  (*b)(k) = 0.0;
 }
 
 /// The image's own measurement of vartheta (UpdateStats::vartheta_image): from the last pass's information (A, b)
@@ -1369,6 +1376,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   const Eigen::Matrix<double, kTimeStates, kTimeStates> P_time_before =
       P->block<kTimeStates, kTimeStates>(ErrIdx::kTd, ErrIdx::kTd);
   bool time_states_frozen = false;
+  const double var_alpha_prior = (*P)(ErrIdx::kAlpha, ErrIdx::kAlpha);  // (1/m)^2
   // Every pass writes the residual image; the RMS and the valid ratio are those of the last linearisation.
   auto linearize_at = [&](const State& x_j, internal::ObsMat* A, internal::ObsVec* b, internal::ObsVec* m,
                           internal::ExtraColumn* readout, internal::CalibrationColumns* calib) {
@@ -1390,6 +1398,50 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
                          (readout_j != 0.0 || timing.readoutColumn());
     const ObservedVec m_rows =
         rolling ? stateRateMap(x_seen, gyro_mean_C, timing, dt_s, timing.estimate_readout) : ObservedVec::Zero();
+    // The rows' shift depends on alpha through m_rows's alpha (a + g0 g): its column w_y S m_alpha, marginalised
+    // below with alpha's prior variance (marginalizeRowsAlpha). Before convergence alpha is barely known and the rows
+    // predicted from it were taken as exact: a flight at 0.84 m started at 0.33 m predicted 2.5 times the rows'
+    // shift in its first climb, the update's NIS reached 273 and the distance was 15-20 cm off for 10 s.
+    ObservedVec m_alpha = ObservedVec::Zero();
+    if (rolling && readout_j != 0.0)
+      m_alpha.head<3>() = readout_j * stateRateAcceleration(x_seen, timing, timing.estimate_readout);
+    // The image's information over the observed columns (A_out, b_out) with the rotation error marginalised. With
+    // the rows' moments the system is extended by the readout's column w_y S m_rows (`with_readout`; its terms go to
+    // `ro`) and by alpha's in the rows w_y S m_alpha (indices 8, 9), alpha's marginalised with its prior variance.
+    auto information = [&](bool with_readout, ObservedInfo* A_out, ObservedVec* b_out, internal::ExtraColumn* ro) {
+      const ObservedVec* columns[2] = {with_readout && sums.has_moments ? &m_rows : nullptr,
+                                       sums.has_moments && !m_alpha.isZero(0.0) ? &m_alpha : nullptr};
+      if (columns[0] == nullptr && columns[1] == nullptr) {
+        *A_out = info_scale * sums.A;
+        *b_out = info_scale * sums.b;
+        marginalizeRotationError(var_bw_equiv, A_out, b_out);
+        return;
+      }
+      Eigen::Matrix<double, 10, 10> Ae = Eigen::Matrix<double, 10, 10>::Zero();
+      Eigen::Matrix<double, 10, 1> be = Eigen::Matrix<double, 10, 1>::Zero();
+      Ae.topLeftCorner<8, 8>() = info_scale * sums.A;
+      be.head<8>() = info_scale * sums.b;
+      for (int k = 0; k < 2; ++k) {
+        if (columns[k] == nullptr) continue;
+        const ObservedVec& mk = *columns[k];
+        const ObservedVec cross = info_scale * (sums.A1 * mk);
+        Ae.block<8, 1>(0, 8 + k) = cross;
+        Ae.block<1, 8>(8 + k, 0) = cross.transpose();
+        for (int l = 0; l < 2; ++l)
+          if (columns[l] != nullptr) Ae(8 + k, 8 + l) = info_scale * mk.dot(sums.A2 * *columns[l]);
+        be(8 + k) = info_scale * mk.dot(sums.b1);
+      }
+      marginalizeRotationError(var_bw_equiv, &Ae, &be);
+      if (columns[1] != nullptr) marginalizeRowsAlpha(9, var_alpha_prior, &Ae, &be);
+      *A_out = Ae.topLeftCorner<8, 8>();
+      *b_out = be.head<8>();
+      if (columns[0] != nullptr && ro != nullptr) {
+        ro->active = true;
+        ro->cross = Ae.block<8, 1>(0, 8);
+        ro->diag = Ae(8, 8);
+        ro->rhs = be(8);
+      }
+    };
     // One sweep at this iterate with the current brightness, then the brightness's step (state held).
     auto sweep_here = [&]() {
       const int n_valid = accumulate(cur, K_j, gyro_mean_C, dt_s, state_lag_s, x_seen, huber_sigma, &sums,
@@ -1456,9 +1508,9 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
       stats.nis_scale = lambda;
       info_scale = 1.0 / (var * corr * lambda);
       // Innovation gate: NIS = b^T (A + A P A)^-1 b ~ chi-square(8) for a consistent filter.
-      ObservedInfo A0 = info_scale * sums.A;
-      ObservedVec b0 = info_scale * sums.b;
-      marginalizeRotationError(var_bw_equiv, &A0, &b0);
+      ObservedInfo A0;
+      ObservedVec b0;
+      information(false, &A0, &b0, nullptr);  // (the rows' alpha as in the update: its uncertainty is the prior's)
       const InnovationSpectrum spectrum(A0, P_obs, b0);
       stats.nis = spectrum.nis(1.0);
       if (adaptive && params_.nis_time_constant_s > 0.0 && std::isfinite(stats.nis) && stats.nis > 0.0) {
@@ -1488,30 +1540,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
       calib->setZero();
       time_states_frozen = true;
     }
-    if (rolling && sums.has_moments && !freeze) {
-      // The readout's column w_y S m_rows (section 3.7) next to the observed ones, the rotation error
-      // marginalised from the extended system.
-      Eigen::Matrix<double, 9, 9> Ae;
-      Eigen::Matrix<double, 9, 1> be;
-      Ae.topLeftCorner<8, 8>() = info_scale * sums.A;
-      const ObservedVec cross = info_scale * (sums.A1 * m_rows);
-      Ae.block<8, 1>(0, 8) = cross;
-      Ae.block<1, 8>(8, 0) = cross.transpose();
-      Ae(8, 8) = info_scale * m_rows.dot(sums.A2 * m_rows);
-      be.head<8>() = info_scale * sums.b;
-      be(8) = info_scale * m_rows.dot(sums.b1);
-      marginalizeRotationError9(var_bw_equiv, &Ae, &be);
-      *A = Ae.topLeftCorner<8, 8>();
-      *b = be.head<8>();
-      readout->active = true;
-      readout->cross = Ae.block<8, 1>(0, 8);
-      readout->diag = Ae(8, 8);
-      readout->rhs = be(8);
-    } else {
-      *A = info_scale * sums.A;
-      *b = info_scale * sums.b;
-      marginalizeRotationError(var_bw_equiv, A, b);
-    }
+    information(rolling && !freeze && timing.readoutColumn(), A, b, readout);
     if (image_only) {
       A_last = *A;
       b_last = *b;

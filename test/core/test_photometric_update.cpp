@@ -297,6 +297,21 @@ class PhotometricScene : public ::testing::Test {
     x.g = UnitVector(Vec3(0.0, 0.0, 1.0));
     return x;
   }
+  /// A rolling shutter over the current image's rows (each row's time per second of readout into `row_weight`,
+  /// which must outlive the timing) with the filtered readings accel_C (m/s^2) and rate_change_C (rad/s).
+  static ImageTiming rollingTiming(const Vec3& accel_C, const Vec3& rate_change_C, std::vector<float>* row_weight) {
+    const int rows = scene_->cur.intensity.rows;
+    row_weight->resize(static_cast<size_t>(rows));
+    for (int y = 0; y < rows; ++y) (*row_weight)[static_cast<size_t>(y)] = (y - 0.5f * (rows - 1)) / (rows - 1);
+    ImageTiming timing;
+    timing.rates_valid = true;
+    timing.gravity_mps2 = 9.81;
+    timing.accel_C = accel_C;
+    timing.rate_change_C = rate_change_C;
+    timing.row_weight = row_weight->data();
+    timing.rows = rows;
+    return timing;
+  }
   /// A consider-state test: one update of the pair (one pass) from startState(0) with a time state (`idx` of the
   /// error state, `field` of State, prior 1-sigma 10 ms) estimated, considered and ignored (the flags `estimate`
   /// and `consider` of `timing`). Considered, the state and its variance are held; the other states are the
@@ -1133,18 +1148,44 @@ TEST_F(PhotometricScene, AConsideredReadoutWidensTheUpdateWithoutMoving) {
   // offset is known to readout_start_sigma_time_offset_s) it is a consider state from the filter's convergence, as
   // the offset is above: an unmodelled readout of 16 ms in a fast dash put the velocity 11 sigma off (docs/results.md
   // "The readout as a consider state").
-  const int rows = scene_->cur.intensity.rows;
-  std::vector<float> row_weight(static_cast<size_t>(rows));
-  for (int y = 0; y < rows; ++y) row_weight[static_cast<size_t>(y)] = (y - 0.5f * (rows - 1)) / (rows - 1);
-  ImageTiming timing;
-  timing.rates_valid = true;
-  timing.gravity_mps2 = 9.81;
-  timing.accel_C = Vec3(0.8, -0.5, -9.81);      // m/s^2
-  timing.rate_change_C = Vec3(0.3, -0.2, 0.1);  // rad/s
-  timing.row_weight = row_weight.data();
-  timing.rows = rows;
+  std::vector<float> row_weight;
+  const ImageTiming timing = rollingTiming(Vec3(0.8, -0.5, -9.81), Vec3(0.3, -0.2, 0.1), &row_weight);
   expectConsideredStateHeld(timing, &ImageTiming::estimate_readout, &ImageTiming::consider_readout, ErrIdx::kRo,
                             &State::readout_s, "ro");
+}
+
+TEST_F(PhotometricScene, TheRowsAllowForAlphasUncertainty) {
+  // A configured 16 ms readout: each row is warped with the motion at its own time, vartheta's rate taking alpha
+  // times the acceleration (docs/algorithm.md section 3.7). With alpha 2.5 times too large (a filter started at
+  // 0.33 m over ground at 0.84 m) the rows mispredict the flow; alpha's variance tells how much. Marginalised with
+  // it, the rows' misprediction is allowed for: the innovation is no longer improbable, vartheta is not pulled by
+  // it, and alpha is not moved by the rows. With alpha known (its variance tiny) the same rows are taken as exact.
+  std::vector<float> row_weight;
+  // 2.7 m/s^2 once gravity g0 g = (0, 0, 9.81) is added.
+  const ImageTiming timing = rollingTiming(Vec3(2.0, -1.5, -9.81 + 1.0), Vec3::Zero(), &row_weight);
+  PhotometricParams params;
+  params.max_passes = 1;
+  const double alpha_wrong = 2.5 / scene_->truth.d_m;  // 1/m
+  double nis[2], err_vartheta[2];
+  for (int v = 0; v < 2; ++v) {
+    PhotometricUpdate update(params, PreprocessParams{});
+    State x = startState(1.0);
+    x.alpha = alpha_wrong;
+    x.readout_s = 0.016;
+    ErrorCov P = priorCov();
+    P(ErrIdx::kAlpha, ErrIdx::kAlpha) = v == 0 ? 1e-8 : 9.0;  // (1/m)^2: known; or the default initial 3 / m
+    const UpdateStats st = update.update(scene_->ref, scene_->cur, scene_->K, scene_->w_C, scene_->dt_s, &x, &P, 0.0,
+                                         timing);
+    ASSERT_TRUE(st.applied);
+    EXPECT_EQ(x.alpha, alpha_wrong) << "the rows do not move alpha";
+    nis[v] = st.nis;
+    err_vartheta[v] = (x.vartheta - scene_->truth.vartheta_inv_s).norm();
+  }
+  std::printf("alpha 2.5x too large, the rows from it: NIS %.1f with alpha taken as known, %.1f with its variance; "
+              "vartheta error %.4f / %.4f 1/s\n",
+              nis[0], nis[1], err_vartheta[0], err_vartheta[1]);
+  EXPECT_LT(nis[1], 0.5 * nis[0]);
+  EXPECT_LT(err_vartheta[1], err_vartheta[0]);
 }
 
 TEST_F(PhotometricScene, RotationModelErrorDiscountsTheGyroRotation) {
