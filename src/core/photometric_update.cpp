@@ -1039,10 +1039,10 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
                        (readout_s != 0.0 || timing->readoutColumn());
   if (rolling) {
     cfg.row_weight = timing->row_weight;
-    if (timing->pixel_weight != nullptr && timing->pixel_weight->type() == CV_32FC1 &&
-        timing->pixel_weight->rows == kReadoutPixelPlanes * cur.intensity.rows && timing->pixel_weight->cols == cur.intensity.cols &&
-        cfg.stride == 1)
-      cfg.pixel_weight = timing->pixel_weight;
+    const cv::Mat* pw = timing->pixel_weight;
+    if (pw != nullptr && pw->type() == CV_32FC1 && pw->rows == kReadoutPixelPlanes * cur.intensity.rows &&
+        pw->cols == cur.intensity.cols && cfg.stride == 1)
+      cfg.pixel_weight = pw;
     cfg.readout_s = static_cast<float>(readout_s);
     // The row moments carry the readout's column and alpha's in the rows (section 3.7).
     cfg.row_moments = timing->readoutColumn() || readout_s != 0.0;
