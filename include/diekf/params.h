@@ -320,6 +320,12 @@ struct EstimatorParams {
   bool estimate_readout = true;                 ///< the rolling-shutter readout time as a filter state
   double max_readout_s = 0.05;                  ///< bound of the estimated readout (either sign), s
   bool readout_consider = true;  ///< until then, from convergence, the readout a consider state (its column, held)
+  /// With estimate_readout and no line delay configured (line_delay_s here or in the camchain): the readout
+  /// estimated from the first image on (the rows' alpha with the readout's uncertainty), its variance given back its
+  /// prior and its correlations dropped when the time offset's estimate starts (time_offset_start_s after
+  /// convergence); false, or a line delay configured: estimated from the offset's start (docs/algorithm.md section
+  /// 3.7, "From the first image")
+  bool readout_from_first_image = true;
   /// With the time offset estimated: the readout is estimated once the offset's 1-sigma is below this, s; 0 (the
   /// default): from the offset's start, with it (docs/algorithm.md section 3.7)
   double readout_start_sigma_time_offset_s = 0.0;

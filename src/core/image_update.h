@@ -65,6 +65,12 @@ class ImageUpdate {
   bool lastPairPhotometric() const { return last_pair_photometric_; }
   /// Whether an image at t_img_s has the time states estimated (not merely considered): the filter has converged
   /// time_offset_start_s before it.
+  /// Whether the readout is estimated from the first image on: estimate_readout and readout_from_first_image, and
+  /// no line delay configured (a configured one is the calibration's, kept as given until the offset's start:
+  /// before convergence the images pulled a correct 16 ms to 10 ms; docs/algorithm.md section 3.7).
+  bool readoutFromFirstImage() const {
+    return params_.estimate_readout && params_.readout_from_first_image && !readout_configured_;
+  }
   bool timeStatesSettled(double t_img_s, const HealthMonitor& health) const {
     return health.converged() && t_img_s - health.convergedSince() >= params_.time_offset_start_s;
   }
@@ -101,6 +107,7 @@ class ImageUpdate {
   std::vector<float> readout_row_weight_;  // per working row: its capture time per second of readout
   cv::Mat readout_pixel_weight_;           // per working pixel: readoutPixelWeights
   bool last_pair_photometric_ = false;
+  bool readout_configured_ = false;  // a line delay configured (parameter or camchain): the readout's prior is known
   Vec3 last_gyro_mean_ = Vec3::Zero();
   double last_interval_s_ = 0.0;
 };

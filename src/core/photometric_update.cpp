@@ -1402,9 +1402,17 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     // below with alpha's prior variance (marginalizeRowsAlpha). Before convergence alpha is barely known and the rows
     // predicted from it were taken as exact: a flight at 0.84 m started at 0.33 m predicted 2.5 times the rows'
     // shift in its first climb, the update's NIS reached 273 and the distance was 15-20 cm off for 10 s.
+    // With the readout's column in the update (estimated or considered) the readout is uncertain too, and the rows'
+    // dependence on alpha is that of a product of two uncertain states: its spread is that of alpha times the
+    // readout's root mean square sqrt(readout^2 + var_readout), not its mean. A readout estimated from the first
+    // image (section 3.7) starts at 0 +- 10 ms with alpha unknown, and with its mean alone the rows' alpha was not
+    // widened at all (fast flights of 5 s, 16 ms readout: 1.72 / 1.11 times the global-shutter errors; 1.53 / 1.05).
+    const double var_readout = P_time_before(ErrIdx::kRo - ErrIdx::kTd, ErrIdx::kRo - ErrIdx::kTd);  // s^2
+    const double readout_rms_s =
+        timing.readoutColumn() ? std::sqrt(readout_j * readout_j + std::max(0.0, var_readout)) : readout_j;
     ObservedVec m_alpha = ObservedVec::Zero();
-    if (rolling && readout_j != 0.0)
-      m_alpha.head<3>() = readout_j * stateRateAcceleration(x_seen, timing, timing.estimate_readout);
+    if (rolling && readout_rms_s != 0.0)
+      m_alpha.head<3>() = readout_rms_s * stateRateAcceleration(x_seen, timing, timing.estimate_readout);
     // The image's information over the observed columns (A_out, b_out) with the rotation error marginalised. With
     // the rows' moments the system is extended by the readout's column w_y S m_rows (`with_readout`; its terms go to
     // `ro`) and by alpha's in the rows w_y S m_alpha (indices 8, 9), alpha's marginalised with its prior variance.

@@ -158,6 +158,7 @@ struct RunOptions {
   double readout_s = 0.0;       // rolling-shutter readout of the rendered images (0: global shutter)
   bool tell_line_delay = false; // the camera model knows the line delay
   bool estimate_readout = false; // estimate the readout time (off here unless a test asks for it)
+  bool readout_from_first_image = true;  // readout_from_first_image (with estimate_readout)
   double focal_error = 0.0;     // the estimator's focal lengths are (1 + focal_error) times the true ones
   bool estimate_focal = false;  // estimate_focal_scale (off here unless a test asks for it)
   bool consider_focal = false;  // focal_scale_consider
@@ -190,6 +191,7 @@ OffsetRun runFlight(const RunOptions& o) {
   params.init.alpha0_inv_m = 1.0 / 0.8;
   params.estimate_time_offset = o.estimate;
   params.estimate_readout = o.estimate_readout;
+  params.readout_from_first_image = o.readout_from_first_image;
   params.estimate_focal_scale = o.estimate_focal;
   params.focal_scale_consider = o.consider_focal;
   if (o.working_width_px > 0) params.preprocess.working_width_px = o.working_width_px;
@@ -615,14 +617,16 @@ TEST(RollingShutter, TheReadoutTimeIsEstimatedOnline) {
   EXPECT_LT(std::abs(global.readout_end_s), 3.0 * global.sigma_readout_end_s + 1e-3);
 }
 
-// Both time states unknown at once, as by default (readout_start_sigma_time_offset_s 0: the readout is estimated
-// from the offset's start, docs/algorithm.md section 3.7). A global-shutter flight with a 15 ms offset is not given
-// a readout for it (before session 51 the readout waited for the offset to be known to 3 ms, since a 20 ms offset
-// had been partly taken for a 19 ms readout), and the same flight under a 16 ms rolling shutter finds both.
+// Both time states unknown at once, the readout estimated from the offset's start (readout_from_first_image
+// false; readout_start_sigma_time_offset_s 0, docs/algorithm.md section 3.7). A global-shutter flight with a 15 ms
+// offset is not given a readout for it (before session 51 the readout waited for the offset to be known to 3 ms,
+// since a 20 ms offset had been partly taken for a 19 ms readout), and the same flight under a 16 ms rolling shutter
+// finds both.
 TEST(RollingShutter, TheReadoutStartsWithTheOffset) {
   RunOptions o;
   o.true_offset_s = 0.015;
   o.estimate_readout = true;
+  o.readout_from_first_image = false;
   const OffsetRun global = runFlight(o);
   o.readout_s = 0.016;
   const OffsetRun rolling = runFlight(o);
@@ -642,6 +646,53 @@ TEST(RollingShutter, TheReadoutStartsWithTheOffset) {
   EXPECT_EQ(rolling.resets, 0);
   ASSERT_GT(td_start_s, 0.0);
   EXPECT_NEAR(ro_start_s, td_start_s, 1e-6) << "the readout starts with the offset";
+  for (const OffsetRun* run : {&global, &rolling}) {
+    EXPECT_LT(run->mean_abs_err_t_d_s, 3e-3);
+    EXPECT_LT(std::abs(run->t_d_end_s - 0.015), 3.0 * run->sigma_t_d_end_s + 1e-3);
+  }
+  EXPECT_LT(std::abs(global.readout_end_s), 3.0 * global.sigma_readout_end_s + 1e-3) << "no readout for the offset";
+  EXPECT_LT(std::abs(rolling.readout_end_s - 0.016), 3.0 * rolling.sigma_readout_end_s + 1e-3);
+}
+
+// The readout estimated from the first image, as by default (readout_from_first_image; docs/algorithm.md section
+// 3.7, "From the first image"), with the time offset still unknown until 2 s after convergence: what the readout took
+// from an offset before then is given back when the offset's estimate starts (its prior variance, its correlations
+// dropped). The global-shutter flight with a 15 ms offset ends without a readout and with the offset, the rolling
+// shutter's with both; the readout moves from the first updates on, and its 1-sigma rises where the offset starts.
+TEST(RollingShutter, TheReadoutFromTheFirstImageLeavesTheOffsetToTheOffset) {
+  RunOptions o;
+  o.true_offset_s = 0.015;
+  o.estimate_readout = true;
+  const OffsetRun global = runFlight(o);
+  o.readout_s = 0.016;
+  const OffsetRun rolling = runFlight(o);
+  double ro_start_s = -1.0, converged_s = -1.0, td_start_s = -1.0;
+  double sigma_ro_before_s = 0.0, sigma_ro_at_start_s = 0.0;  // before the offset's start, and with it
+  for (const FrameResult& r : rolling.results) {
+    if (ro_start_s < 0.0 && r.state.readout_s != 0.0) ro_start_s = r.t_s;
+    if (converged_s < 0.0 && r.status == FilterStatus::kTracking) converged_s = r.t_s;
+    const double sigma_ro_s = std::sqrt(r.covariance(ErrIdx::kRo, ErrIdx::kRo));
+    if (td_start_s < 0.0 && r.state.t_d_s != 0.0) {
+      td_start_s = r.t_s;
+      sigma_ro_at_start_s = sigma_ro_s;
+    }
+    if (td_start_s < 0.0) sigma_ro_before_s = sigma_ro_s;
+  }
+  std::printf("[readout from the first image] global shutter, 15 ms offset: offset %.2f +- %.2f ms, readout %.2f +- "
+              "%.2f ms; 16 ms readout: offset %.2f +- %.2f ms, readout %.2f +- %.2f ms, estimated from %.2f s "
+              "(tracking from %.2f s; the offset from %.2f s, the readout's 1-sigma %.2f ms before, %.2f ms then)\n",
+              1e3 * global.t_d_end_s, 1e3 * global.sigma_t_d_end_s, 1e3 * global.readout_end_s,
+              1e3 * global.sigma_readout_end_s, 1e3 * rolling.t_d_end_s, 1e3 * rolling.sigma_t_d_end_s,
+              1e3 * rolling.readout_end_s, 1e3 * rolling.sigma_readout_end_s, ro_start_s, converged_s, td_start_s,
+              1e3 * sigma_ro_before_s, 1e3 * sigma_ro_at_start_s);
+  EXPECT_EQ(global.resets, 0);
+  EXPECT_EQ(rolling.resets, 0);
+  ASSERT_GT(ro_start_s, 0.0);
+  ASSERT_GT(converged_s, 0.0);
+  EXPECT_LT(ro_start_s, converged_s) << "the readout is estimated before convergence";
+  ASSERT_GT(td_start_s, converged_s);
+  // Measured: 2.34 ms before, 3.83 ms after the first update with the offset (the readout from 10 ms again).
+  EXPECT_GT(sigma_ro_at_start_s, 1.3 * sigma_ro_before_s) << "the readout reopened with the offset's start";
   for (const OffsetRun* run : {&global, &rolling}) {
     EXPECT_LT(run->mean_abs_err_t_d_s, 3e-3);
     EXPECT_LT(std::abs(run->t_d_end_s - 0.015), 3.0 * run->sigma_t_d_end_s + 1e-3);
