@@ -504,10 +504,9 @@ struct Estimator::Impl {
   /// The readout estimated from the first image (readout_from_first_image) learned from the images while the time
   /// offset was not in their model (before convergence) or held (until its start), and while the rows' rates were
   /// uncertain (errors in the variables, a pull toward 0): a flight that hovers until 12 s read 8 +- 1.6 ms against
-  /// 16. When the offset's estimate starts
-  /// the readout keeps its estimate but gets back its prior variance, without its correlations (a principal block of
-  /// P and a variance: P stays positive definite), and its carried focal error is dropped with them
-  /// (docs/algorithm.md section 3.7, "From the first image"). Once per convergence.
+  /// 16. When the offset's estimate starts the readout keeps its estimate but gets back its prior variance, without
+  /// its correlations (a principal block of P and a variance: P stays positive definite), and its carried focal
+  /// error is dropped with them (docs/algorithm.md section 3.7, "From the first image"). Once per convergence.
   void reopenReadoutWithTheOffset(double t_img_s) {
     if (!health.converged()) readout_reopened = false;
     if (readout_reopened || !update.readoutFromFirstImage() || !update.timeStatesSettled(t_img_s, health))

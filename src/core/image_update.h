@@ -63,14 +63,14 @@ class ImageUpdate {
   /// Whether the last apply() ran the photometric update on its pair (not skipped, not the feature mode), and that
   /// pair's mean raw gyro (rad/s) and interval (s).
   bool lastPairPhotometric() const { return last_pair_photometric_; }
-  /// Whether an image at t_img_s has the time states estimated (not merely considered): the filter has converged
-  /// time_offset_start_s before it.
   /// Whether the readout is estimated from the first image on: estimate_readout and readout_from_first_image, and
   /// no line delay configured (a configured one is the calibration's, kept as given until the offset's start:
   /// before convergence the images pulled a correct 16 ms to 10 ms; docs/algorithm.md section 3.7).
   bool readoutFromFirstImage() const {
     return params_.estimate_readout && params_.readout_from_first_image && !readout_configured_;
   }
+  /// Whether an image at t_img_s has the time states estimated (not merely considered): the filter has converged
+  /// time_offset_start_s before it.
   bool timeStatesSettled(double t_img_s, const HealthMonitor& health) const {
     return health.converged() && t_img_s - health.convergedSince() >= params_.time_offset_start_s;
   }
