@@ -356,6 +356,11 @@ const char* toString(ImageStamp stamp);
 /// convention, the exposure time and the whole frame's readout time (rows times line delay).
 double imageStampShift(ImageStamp stamp, double exposure_time_s, double readout_s);
 
+class CameraModel;
+/// The rolling shutter's configured line delay, s per raw row: the parameter line_delay_s, or the camchain's when the
+/// parameter is 0 (0 in both: a global shutter, or a readout the calibration does not give; docs/algorithm.md 3.7).
+double configuredLineDelay_s(const EstimatorParams& p, const CameraModel& cam);
+
 /// "iekf" | "ekf" | "lk" -> mode; throws std::invalid_argument naming the value otherwise.
 UpdateMode parseUpdateMode(const std::string& name);
 const char* toString(UpdateMode mode);

@@ -105,8 +105,7 @@ struct Estimator::Impl {
     const int decimation = std::max(1, p.imu.decimation_factor);
     imu.setFilterNoise(imu_pre.noiseAutocovariances(decimation));
     // Rolling shutter (docs/algorithm.md section 3.7): the stamp at the middle raw row.
-    const double line_delay_raw_s = p.line_delay_s > 0.0 ? p.line_delay_s : cam.line_delay_s;
-    configured_readout_s = line_delay_raw_s * std::max(0, cam.K.height - 1);
+    configured_readout_s = configuredLineDelay_s(p, cam) * std::max(0, cam.K.height - 1);
     stamp_shift_s = imageStampShift(p.image_stamp, p.exposure_time_s, configured_readout_s);
     internal::ScaleInitializer::Config sc;
     sc.window_s = p.init.scale_window_s;

@@ -32,7 +32,7 @@ ImageUpdate::ImageUpdate(const CameraModel& camera, const EstimatorParams& param
   readout_row_weight_ = readoutRowWeights(camera, pre.workingK());
   // ... and each pixel's own (the distortion bends the raw rows).
   readout_pixel_weight_ = readoutPixelWeights(camera, pre.workingK());
-  readout_configured_ = (params.line_delay_s > 0.0 ? params.line_delay_s : camera.line_delay_s) > 0.0;
+  readout_configured_ = configuredLineDelay_s(params, camera) > 0.0;
 }
 
 bool ImageUpdate::usable(const cv::Mat& gray8, std::string* why) const {

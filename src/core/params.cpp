@@ -1,5 +1,7 @@
 #include "diekf/params.h"
 
+#include "diekf/camera_model.h"
+
 #include <stdexcept>
 
 namespace diekf {
@@ -83,6 +85,10 @@ double imageStampShift(ImageStamp stamp, double exposure_time_s, double readout_
       return -half;
   }
   return 0.0;
+}
+
+double configuredLineDelay_s(const EstimatorParams& p, const CameraModel& cam) {
+  return p.line_delay_s > 0.0 ? p.line_delay_s : cam.line_delay_s;
 }
 
 }  // namespace diekf

@@ -1377,6 +1377,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
       P->block<kTimeStates, kTimeStates>(ErrIdx::kTd, ErrIdx::kTd);
   bool time_states_frozen = false;
   const double var_alpha_prior = (*P)(ErrIdx::kAlpha, ErrIdx::kAlpha);  // (1/m)^2
+  const double var_readout_prior = std::max(0.0, (*P)(ErrIdx::kRo, ErrIdx::kRo));  // s^2
   // Every pass writes the residual image; the RMS and the valid ratio are those of the last linearisation.
   auto linearize_at = [&](const State& x_j, internal::ObsMat* A, internal::ObsVec* b, internal::ObsVec* m,
                           internal::ExtraColumn* readout, internal::CalibrationColumns* calib) {
@@ -1407,9 +1408,8 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     // readout's root mean square sqrt(readout^2 + var_readout), not its mean. A readout estimated from the first
     // image (section 3.7) starts at 0 +- 10 ms with alpha unknown, and with its mean alone the rows' alpha was not
     // widened at all (fast flights of 5 s, 16 ms readout: 1.72 / 1.11 times the global-shutter errors; 1.53 / 1.05).
-    const double var_readout = P_time_before(ErrIdx::kRo - ErrIdx::kTd, ErrIdx::kRo - ErrIdx::kTd);  // s^2
     const double readout_rms_s =
-        timing.readoutColumn() ? std::sqrt(readout_j * readout_j + std::max(0.0, var_readout)) : readout_j;
+        timing.readoutColumn() ? std::sqrt(readout_j * readout_j + var_readout_prior) : readout_j;
     ObservedVec m_alpha = ObservedVec::Zero();
     if (rolling && readout_rms_s != 0.0)
       m_alpha.head<3>() = readout_rms_s * stateRateAcceleration(x_seen, timing, timing.estimate_readout);
