@@ -43,6 +43,11 @@ struct UpdateStats {
   /// sums.
   double relief_var = 0.0;
   bool gated = false;            ///< the innovation failed the gate: the update was down-weighted
+  /// The update held these states as consider states (Schmidt: their mean and variance the prior's): the time
+  /// offset, readout and focal scale together (an improbable frame, or the offset not yet estimated), or the
+  /// readout alone.
+  bool time_states_held = false;
+  bool readout_held = false;
   /// Brightness change of the pair (PhotometricParams::brightness_model): the current image is modelled as
   /// brightness_gain I_r + brightness_offset (normalised units); 1 and 0 when not estimated.
   double brightness_gain = 1.0;

@@ -469,8 +469,9 @@ struct Estimator::Impl {
   /// update saw the images of a camera whose focal lengths are (1 + e) x the calibration's, whose flow equals
   /// that of the observed states changed by u e (focalScaleMap, u in the error state), on a prior already off by
   /// s e. It moved the state by K H of what it saw, so s+ = s + K H (u - s), with K H = I - P+ P-^-1 for the
-  /// update as it was applied (its noise model, gate and inflation included).
-  void carryFocalSensitivity(const ErrorCov& P_before, double lag_s) {
+  /// update as it was applied (its noise model, gate and inflation included), but for the states it held (`stats`'
+  /// time states, alpha while the start-up holds it: `alpha_held`).
+  void carryFocalSensitivity(const ErrorCov& P_before, double lag_s, const UpdateStats& stats, bool alpha_held) {
     const ObservedVec m = focalScaleMap(x, img_pre.workingK(), update.lastGyroMean(), update.lastInterval(), lag_s);
     ErrorVec u = ErrorVec::Zero();
     for (int k = 0; k < internal::kObsDim; ++k) u(internal::kObsToErr[k]) = m(k);
@@ -478,7 +479,13 @@ struct Estimator::Impl {
     const Eigen::LDLT<ErrorCov> ldlt(P_before);
     if (ldlt.info() != Eigen::Success) return;
     const ErrorVec du = u - s;
-    const ErrorVec kh = du - P * ldlt.solve(du);
+    ErrorVec kh = du - P * ldlt.solve(du);
+    // (P_before - P) P_before^-1 is the update's K H only in the rows of the states it estimated. A state it held
+    // (a consider state: gain row zero, mean and variance the prior's) keeps its carried error: read through that
+    // identity, the held time offset's grew from 0 until its reported 1-sigma was twice its prior's.
+    if (stats.time_states_held) kh.segment<ErrIdx::kFs - ErrIdx::kTd + 1>(ErrIdx::kTd).setZero();
+    if (stats.readout_held) kh(ErrIdx::kRo) = 0.0;
+    if (alpha_held) kh(ErrIdx::kAlpha) = 0.0;
     if (kh.allFinite()) s += kh;
   }
 
@@ -519,10 +526,31 @@ struct Estimator::Impl {
     imu.focalSensitivity()(ErrIdx::kRo) = 0.0;
   }
 
-  /// Starts the filter at image `t_s`: gravity from the accelerometer, no propagation before.
-  void startAt(double t_s) {
+  /// The gravity direction an automatic restart at this image keeps (init.keep_gravity_on_restart): the running
+  /// filter's estimate, propagated by the gyro to this image, and its covariance, when it knows it at least as well
+  /// as the start-up prior. The restart is for the scale; taken again from the accelerometer, gravity would point
+  /// along the thrust (a multirotor's specific force hardly tilts with it) and a restart in a manoeuvre started as
+  /// far off as the vehicle was tilted (fast flights: 1-6 deg RMS over the next 1.5 s; docs/algorithm.md section 4).
+  bool gravityToKeep(UnitVector* g, Mat2* P_g_out) const {
+    if (!params.init.keep_gravity_on_restart || !state_initialized) return false;
+    const double prior_var = params.init.sigma_g0_rad * params.init.sigma_g0_rad;
+    const Mat2 P_g = P.block<2, 2>(ErrIdx::kG, ErrIdx::kG);
+    if (!x.g.vector().allFinite() || !P_g.allFinite() || P_g.trace() > 2.0 * prior_var) return false;
+    *g = x.g;
+    *P_g_out = P_g;
+    return true;
+  }
+
+  /// Starts the filter at image `t_s`: gravity from the accelerometer (or `kept_g` with its covariance
+  /// `kept_P_g`, gravityToKeep), no propagation before.
+  void startAt(double t_s, const UnitVector* kept_g = nullptr, const Mat2& kept_P_g = Mat2::Zero()) {
     UnitVector g;
-    if (params.init.g0_from_accel && imu.gravityFromAccel(t_s, &g)) x.g = g;
+    if (kept_g != nullptr) {
+      x.g = *kept_g;
+      P.block<2, 2>(ErrIdx::kG, ErrIdx::kG) = kept_P_g;
+    } else if (params.init.g0_from_accel && imu.gravityFromAccel(t_s, &g)) {
+      x.g = g;
+    }
     if (params.init.mu0_from_gravity) x.mu = x.g;  // level-ground prior; sigma_mu0_rad covers inclines
     imu.startAt(t_s);
     imu.focalSensitivity().setZero();
@@ -555,6 +583,9 @@ struct Estimator::Impl {
       for (int i = 0; i < n; ++i) r.imu_notch_hz[static_cast<size_t>(i)] = notch->frequencyHz(i);
     }
     std::string restart_reason;  // set when the filter restarts at this image
+    UnitVector kept_g;               // the gravity direction a restart at this image keeps (gravityToKeep)
+    Mat2 kept_P_g = Mat2::Zero();
+    bool keep_g = false;
     char msg[kMessageCapacity] = "";  // the result's message, formatted without allocation
 
     // Preprocessing.
@@ -572,6 +603,7 @@ struct Estimator::Impl {
       os << "no usable image for " << (img.t_s - last_usable_image_t_s) << " s (more than max_image_gap_s = "
          << params.input.max_image_gap_s << " s)";
       restart_reason = os.str();
+      keep_g = gravityToKeep(&kept_g, &kept_P_g);
       restartAtImage(img.t_s, restart_reason);
     }
 
@@ -595,7 +627,7 @@ struct Estimator::Impl {
 
     // Prediction.
     if (!state_initialized) {
-      if (usable) startAt(img.t_s);  // otherwise the filter keeps waiting for a usable image
+      if (usable) startAt(img.t_s, keep_g ? &kept_g : nullptr, kept_P_g);  // otherwise it waits for a usable image
     } else if (usable && have_reference && params.update_at_interval_midpoint) {
       // The image pair sees the displacement over the whole interval, i.e. its mean velocity, not the velocity
       // at the current image: update the state of the interval's midpoint (exact to second order in the
@@ -636,7 +668,8 @@ struct Estimator::Impl {
       stats = update.apply(frames[ref_index], cur, img.t_s, imu, last_imu_gap_end_s, &health, &x, &P, &skip_reason);
       imu.holdColumnAccel();  // the next predictions' distance column: none of the next innovation's noise
       if (stats.applied && scale_init.holdsAlpha()) holdAlpha(alpha0, var_alpha0);
-      if (carry_focal && stats.applied && update.lastPairPhotometric()) carryFocalSensitivity(P_before, lag_s);
+      if (carry_focal && stats.applied && update.lastPairPhotometric())
+        carryFocalSensitivity(P_before, lag_s, stats, scale_init.holdsAlpha());
       // The focal-length estimate in the resampling (docs/algorithm.md section 3.8): a camchain's focal lengths
       // multiply the distorted coordinates, so the working image is a pinhole image only when it is resampled for
       // the camera's own focal lengths. Re-made when the estimate has moved by kFocalResampleStep.
@@ -741,20 +774,22 @@ struct Estimator::Impl {
       const bool warm = restarts.warmStarted();
       const int bad = health.badFrames();
       const std::string skipped = skip_reason;
+      keep_g = gravityToKeep(&kept_g, &kept_P_g);
       resetFilter();
       if (warm) applyWarmPrior(img.t_s);
       restarts.setWarmStarted(warm);
       health.startRun(bad);
       skip_reason = skipped;
-      if (usable) startAt(img.t_s);
+      if (usable) startAt(img.t_s, keep_g ? &kept_g : nullptr, kept_P_g);
       have_reference = usable;
     }
     if (!reason.empty()) {
+      keep_g = gravityToKeep(&kept_g, &kept_P_g);
       restartAtImage(img.t_s, reason);
       // Restart from this image: it becomes the new reference (if it has texture). Its outlier weights, drawn
       // in its own update just now, stay for the new run's first pair (docs/noise_model.md section 10): without
       // them that pair had no protection, and objects moving on their own set vartheta after every restart.
-      if (usable) startAt(img.t_s);
+      if (usable) startAt(img.t_s, keep_g ? &kept_g : nullptr, kept_P_g);
       have_reference = usable;
     }
 

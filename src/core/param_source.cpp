@@ -280,6 +280,7 @@ const std::vector<Entry>& table() {
     t.push_back(vec3("init/g0", DIEKF_FIELD(Vec3, init.g0), true));
     t.push_back(flag("init/g0_from_accel", DIEKF_FIELD(bool, init.g0_from_accel)));
     t.push_back(flag("init/mu0_from_gravity", DIEKF_FIELD(bool, init.mu0_from_gravity)));
+    t.push_back(flag("init/keep_gravity_on_restart", DIEKF_FIELD(bool, init.keep_gravity_on_restart)));
     t.push_back(real("init/sigma_alpha0_inv_m", DIEKF_FIELD(double, init.sigma_alpha0_inv_m), positive()));
     t.push_back(real("init/sigma_vartheta0_inv_s", DIEKF_FIELD(double, init.sigma_vartheta0_inv_s), positive()));
     t.push_back(real("init/sigma_mu0_rad", DIEKF_FIELD(double, init.sigma_mu0_rad), positive(M_PI)));

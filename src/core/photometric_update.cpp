@@ -1569,10 +1569,12 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     x->readout_s = readout_before_s;
     x->focal_scale = focal_scale_before;
     P->block<kTimeStates, kTimeStates>(ErrIdx::kTd, ErrIdx::kTd) = P_time_before;
+    stats.time_states_held = true;
   } else if (it.ok && timing.consider_readout) {
     // The readout alone held (Schmidt): its mean and variance the prior's, its cross-covariances the update's.
     x->readout_s = readout_before_s;
     (*P)(ErrIdx::kRo, ErrIdx::kRo) = P_time_before(ErrIdx::kRo - ErrIdx::kTd, ErrIdx::kRo - ErrIdx::kTd);
+    stats.readout_held = true;
   }
   use_weight_map_ = false;
   active_map_ = nullptr;

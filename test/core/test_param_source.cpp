@@ -56,7 +56,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
   const DivergenceParams &da = a.divergence, &db = b.divergence;
   return a.mode == b.mode && ia.alpha0_inv_m == ib.alpha0_inv_m && ia.vartheta0_inv_s == ib.vartheta0_inv_s &&
          ia.mu0 == ib.mu0 && ia.g0 == ib.g0 && ia.g0_from_accel == ib.g0_from_accel &&
-         ia.mu0_from_gravity == ib.mu0_from_gravity &&
+         ia.mu0_from_gravity == ib.mu0_from_gravity && ia.keep_gravity_on_restart == ib.keep_gravity_on_restart &&
          ia.warm_restart_sigma_alpha_relative == ib.warm_restart_sigma_alpha_relative &&
          ia.sigma_alpha0_inv_m == ib.sigma_alpha0_inv_m && ia.sigma_vartheta0_inv_s == ib.sigma_vartheta0_inv_s &&
          ia.sigma_mu0_rad == ib.sigma_mu0_rad && ia.sigma_g0_rad == ib.sigma_g0_rad &&

@@ -583,6 +583,49 @@ TEST(Robustness, PersistentlyBadResidualResetsAndRecovers) {
   expectRecovered(h, 4.5, "after unrelated images", before);
 }
 
+/// The angle between the filter's gravity direction and the truth's at result `r`, deg.
+double gravityErrorDeg(const Harness& h, const FrameResult& r) {
+  const Mat3 R_WC = h.flight.R_WI(r.t_s) * testCamera().R_CI().transpose();
+  const Vec3 g_true = R_WC.transpose() * Vec3(0.0, 0.0, -1.0);
+  return std::acos(std::clamp(r.state.g.vector().dot(g_true), -1.0, 1.0)) * 180.0 / M_PI;
+}
+
+TEST(Robustness, ARestartKeepsTheGravityDirection) {
+  // The restarts of PersistentlyBadResidualResetsAndRecovers, in flight: the new runs keep the gravity direction
+  // the gyro carried (init.keep_gravity_on_restart), not the accelerometer's mean over the last 0.5 s, which
+  // holds the flight's acceleration. Its largest error from the first restart until the images have been back
+  // for 1 s, with and without.
+  double worst_deg[2] = {0.0, 0.0};
+  for (const bool keep : {true, false}) {
+    EstimatorParams p = testParams();
+    p.init.keep_gravity_on_restart = keep;
+    Harness h(p);
+    cv::RNG rng(3);
+    h.run(0.0, 3.0);
+    const size_t before = h.results.size();
+    h.run(3.0, 5.5, [&](int j, cv::Mat* img) {
+      if (j / kCamRateHz < 4.5) {
+        *img = cv::Mat(img->size(), CV_8UC1);
+        rng.fill(*img, cv::RNG::UNIFORM, 0, 256);
+      }
+      return true;
+    });
+    expectAllFinite(h.results);
+    ASSERT_GE(h.est.resetCount(), 1);
+    bool restarted = false;
+    for (const FrameResult& r : h.between(3.0, 5.5, before)) {
+      restarted = restarted || r.status == FilterStatus::kReset;
+      if (restarted) worst_deg[keep ? 0 : 1] = std::max(worst_deg[keep ? 0 : 1], gravityErrorDeg(h, r));
+      if (std::getenv("DIEKF_ROBUSTNESS_TRACE") != nullptr) {
+        std::printf("keep %d t %.3f g err %.3f deg %s\n", keep, r.t_s, gravityErrorDeg(h, r), toString(r.status));
+      }
+    }
+    ASSERT_TRUE(restarted);
+  }
+  EXPECT_LT(worst_deg[0], 0.5);
+  EXPECT_LT(worst_deg[0], 0.5 * worst_deg[1]);
+}
+
 TEST(Robustness, CorruptImuDivergenceResetsAndRecovers) {
   // 1 s of a large accelerometer error (6 g, within the plausibility bound) drives the state out of bounds.
   // Known weakness: the filter restarts every other frame during the fault, and a warm restart that still sees
