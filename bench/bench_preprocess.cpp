@@ -8,6 +8,7 @@
 #include <opencv2/imgproc.hpp>
 
 #include "diekf/image_preprocessor.h"
+#include "../src/core/dot_detector.h"
 #include "../src/core/dot_gain.h"
 #include "../test/core/opencv_resample_route.h"
 
@@ -155,6 +156,28 @@ void BM_DotGainObserve(benchmark::State& state) {
 }
 
 BENCHMARK(BM_DotGainObserve)->Arg(17)->Unit(benchmark::kMillisecond);
+
+// One sampled raw image of the projector-dot detector (DotDetector::addImage, 752x480, 5 px element, three contrast
+// levels: the openings, the speck and blob tests, the masks over the samples; images are sampled in the first
+// seconds of motion only). The detector is armed again (untimed) before it reaches its last sample.
+void BM_DotDetectorAddImage(benchmark::State& state) {
+  using diekf::internal::DotDetector;
+  const cv::Mat raw = texturedRaw(752, 480);
+  DotDetector detector;
+  detector.configure(752, 480, 5, 0.5, 0.01, 3);
+  for (auto _ : state) {
+    if (detector.samples() >= DotDetector::kMaxSamples - 1) {
+      state.PauseTiming();
+      detector.configure(752, 480, 5, 0.5, 0.01, 3);
+      state.ResumeTiming();
+    }
+    detector.addImage(raw);
+    detector.notePosition(false);
+    benchmark::ClobberMemory();
+  }
+}
+
+BENCHMARK(BM_DotDetectorAddImage)->Unit(benchmark::kMillisecond);
 
 }  // namespace
 

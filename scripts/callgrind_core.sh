@@ -18,6 +18,8 @@ for w in 90 180 376; do
   echo -n "linearisation sweep, ${w}: "
   $PER_CALL --function 'diekf::PhotometricUpdate::linearize*' -- "$BENCH" --benchmark_filter="BM_PhotometricLinearize/${w}\$"
 done
+echo -n "projector-dot detector, one sampled 752x480 image: "
+$PER_CALL --function 'diekf::internal::DotDetector::addImage*' -- "$BENCH" --benchmark_filter='BM_DotDetectorAddImage$'
 echo -n "prediction step: "
 $PER_CALL --function 'diekf::predict(*' -- "$BENCH" --benchmark_filter='BM_PredictStep$'
 for args in 90/0 90/1 180/0 376/0; do

@@ -87,6 +87,9 @@ void DotDetector::configure(int width, int height, int element_px, double contra
   ensureBytes(scratch_b_, height, width);
   ensureBytes(last_, height, width);
   ensureBytes(larger_, height, width);
+  ensureBytes(blob_lowest_, height, width);
+  blob_lowest_.setTo(255);
+  blob_share_.fill(0.0);
   // Tiles, and blocks made of whole tiles.
   tiles_x_ = (width + kTilePx - 1) / kTilePx;
   tiles_y_ = (height + kTilePx - 1) / kTilePx;
@@ -177,11 +180,35 @@ void DotDetector::addImage(const cv::Mat& grey) {
   }
   grey.copyTo(last_);  // kept for removalElement; contiguous rows for the opening whatever the input's stride
   const uint8_t* src = last_.data;
+  const size_t n = static_cast<size_t>(width_) * static_cast<size_t>(height_);
+  // Blobs: the specks above both the square's and the diamond's opening (in larger_), dilated, their lowest passes
+  // over the samples, and per level the share of the pixels that were blobs in every sample.
   openSquare(src, opened_.data, scratch_a_.data, scratch_b_.data, width_, height_, radius_);
+  openDiamond(src, larger_.data, scratch_a_.data, scratch_b_.data, width_, height_, radius_);
+  uint8_t* both = larger_.data;
+  uint8_t* blobs = scratch_a_.data;
+  uint8_t* blob_lowest = blob_lowest_.data;
+  {
+    using namespace cv;
+    size_t i = 0;
+    for (; i + 16 <= n; i += 16) v_store(both + i, v_max(v_load(both + i), v_load(opened_.data + i)));
+    for (; i < n; ++i) both[i] = std::max(both[i], opened_.data[i]);
+    speckLevels(src, both, n, contrast_q8_.data(), n_levels_, blobs);
+    dilateSquare(blobs, blobs, scratch_b_.data, width_, height_, 1);
+    for (i = 0; i + 16 <= n; i += 16) v_store(blob_lowest + i, v_min(v_load(blob_lowest + i), v_load(blobs + i)));
+    for (; i < n; ++i) blob_lowest[i] = std::min(blob_lowest[i], blobs[i]);
+  }
+  // Pixels per lowest level passed (0 .. levels after a sample), then per level those at or above it.
+  std::array<size_t, kMaxLevels + 1> at_level{};
+  for (size_t i = 0; i < n; ++i) ++at_level[std::min<size_t>(blob_lowest[i], kMaxLevels)];
+  for (int l = 0; l < n_levels_; ++l) {
+    size_t count = 0;
+    for (int v = n_levels_ - l; v <= kMaxLevels; ++v) count += at_level[static_cast<size_t>(v)];
+    blob_share_[static_cast<size_t>(l)] = static_cast<double>(count) / static_cast<double>(n);
+  }
   // The passes of every level in one mask (a pixel passing level l passes every fainter one too), dilated: a pixel
   // is a (dilated) speck at level l when it holds at least levels - l.
   uint8_t* passes = scratch_a_.data;
-  const size_t n = static_cast<size_t>(width_) * static_cast<size_t>(height_);
   speckLevels(src, opened_.data, n, contrast_q8_.data(), n_levels_, passes);
   dilateSquare(passes, passes, scratch_b_.data, width_, height_, 1);
   // The three lowest passes over the samples, in order: M of level l is lowest >= levels - l, the pixels that

@@ -131,6 +131,11 @@ class DotDetector {
   double wholeShare() const {
     return samples_ > 0 ? levels_[static_cast<size_t>(level_)].share_history[static_cast<size_t>(samples_ - 1)] : 0.0;
   }
+  /// The share of the whole image held by blobs fixed in every sample: specks that stand above the opening by a
+  /// diamond of the same size too (the element turned 45 degrees), at the deciding level. A dot is a blob, and
+  /// neither element fits in it; the tip of a bright shape's corner (a wedge) holds the element of its own
+  /// orientation, and a ground of small squares or diamonds (a fine checkerboard) makes specks of one opening only.
+  double blobShare() const { return blob_share_[static_cast<size_t>(level_)]; }
   /// M's share after the last sample over its share after the one before (1 before two samples): the ground's
   /// chance agreements fall by half or more per independent sample, dots stay.
   double wholeShareRatio() const {
@@ -182,6 +187,8 @@ class DotDetector {
   // before a sample): M of level l is lowest_[0] >= levels - l; the pixels that missed at most 1 or 2 samples
   // lowest_[1] and lowest_[2] (fillMask).
   std::array<cv::Mat, kFillMisses + 1> lowest_;
+  cv::Mat blob_lowest_;                        // per pixel the lowest (dilated) blob level passed over the samples
+  std::array<double, kMaxLevels> blob_share_{};  // per level: blobShare()
   int n_levels_ = 1, level_ = 0;
   std::array<Block, kBlocks> blocks_;
   int tiles_x_ = 0, tiles_y_ = 0;

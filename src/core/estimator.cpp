@@ -290,9 +290,12 @@ struct Estimator::Impl {
       // has not moved off yet; filling M from then on keeps the dots from biasing the start-up until the verdict.
       // Only once M has stopped falling (its last sample kept kStableFraction of it: the ground's chance agreements
       // halve or more per sample, dots stay), while it holds twice the share dots must hold and at most
-      // kInterimFillMaxShare; made again when M has shrunk by a tenth (each change starts a new pair).
+      // kInterimFillMaxShare, and its blobs (DotDetector::blobShare: a dot's speck is about half blob) the share
+      // itself; made again when M has shrunk by a tenth (each change starts a new pair). A fine checkerboard's specks
+      // keep M falling as slowly as dots (its periodic ground brings them back), but they are wedges, not blobs.
       const double m = dots.wholeShare();
       if (m >= 2.0 * params.fixed_pattern.dot_detect_share && m <= kInterimFillMaxShare &&
+          dots.blobShare() >= params.fixed_pattern.dot_detect_share &&
           dots.wholeShareRatio() >= internal::DotDetector::kStableFraction &&
           (img_pre.dotFillId() == 0 || m < 0.9 * interim_m_share)) {
         const bool first = img_pre.dotFillId() == 0;
@@ -545,10 +548,23 @@ struct Estimator::Impl {
   /// `kept_P_g`, gravityToKeep), no propagation before.
   void startAt(double t_s, const UnitVector* kept_g = nullptr, const Mat2& kept_P_g = Mat2::Zero()) {
     UnitVector g;
-    if (kept_g != nullptr) {
+    double spread_var_rad2 = 0.0;
+    const bool from_accel = params.init.g0_from_accel && imu.gravityFromAccel(t_s, &g, &spread_var_rad2);
+    bool keep = kept_g != nullptr;
+    if (keep && from_accel) {
+      // The kept direction against the accelerometer's: kept unless they differ beyond what the mean specific force
+      // may be off by (its spread and the frame's turn over the window, the accelerometer bias's prior) and the kept
+      // direction's own variance, chi-square(2) at 99 %. Images of objects moving on their own had turned a run's
+      // gravity 9 deg within 0.3 s of hovering, and restarts that kept it never recovered (docs/algorithm.md §4).
+      const double sigma_ba_rad = params.init.sigma_ba0_mps2 / params.imu.gravity_mps2;
+      const double var_rad2 = spread_var_rad2 + sigma_ba_rad * sigma_ba_rad + 0.5 * kept_P_g.trace();
+      const double angle_rad = std::acos(std::clamp(kept_g->vector().dot(g.vector()), -1.0, 1.0));
+      keep = angle_rad * angle_rad <= kGravityKeepChi2 * var_rad2;
+    }
+    if (keep) {
       x.g = *kept_g;
       P.block<2, 2>(ErrIdx::kG, ErrIdx::kG) = kept_P_g;
-    } else if (params.init.g0_from_accel && imu.gravityFromAccel(t_s, &g)) {
+    } else if (from_accel) {
       x.g = g;
     }
     if (params.init.mu0_from_gravity) x.mu = x.g;  // level-ground prior; sigma_mu0_rad covers inclines
@@ -968,6 +984,7 @@ struct Estimator::Impl {
   cv::Mat ref_raw;                   // the reference image's raw copy while the gain is learned
   bool ref_raw_valid = false;        // ref_raw is the current reference's
   double interim_m_share = 0.0;      // M's share when the interim fill was last made
+  static constexpr double kGravityKeepChi2 = 9.21;  // chi-square(2) at 99 % (startAt's test of a kept gravity)
   /// The interim fill is made while M holds at most this share of the image (more: the ground's specks, a ground the
   /// test cannot tell yet).
   static constexpr double kInterimFillMaxShare = 0.15;

@@ -288,14 +288,22 @@ ImuSample ImuPropagator::imuAt(double t_s) const {
   return out;
 }
 
-bool ImuPropagator::gravityFromAccel(double up_to_t_s, UnitVector* g) const {
+bool ImuPropagator::gravityFromAccel(double up_to_t_s, UnitVector* g, double* spread_var_rad2) const {
   Vec3 sum = Vec3::Zero();
+  Mat3 sum_sq = Mat3::Zero();
   int n = 0;
+  // The rotation of the frame from each sample to the window's end (small angles: the gyro summed backwards).
+  Vec3 turned = Vec3::Zero();
+  double turned_sq = 0.0, last_t = up_to_t_s;
   for (size_t i = buffer_.size(); i-- > 0;) {
     const ImuSample& s = buffer_[i];
     if (s.t_s > up_to_t_s) continue;
     if (up_to_t_s - s.t_s > 0.5) break;
+    turned += s.gyro_radps * (last_t - s.t_s);
+    last_t = s.t_s;
+    turned_sq += turned.squaredNorm();
     sum += s.accel_mps2;
+    sum_sq.noalias() += s.accel_mps2 * s.accel_mps2.transpose();
     ++n;
   }
   if (n == 0) return false;
@@ -304,6 +312,11 @@ bool ImuPropagator::gravityFromAccel(double up_to_t_s, UnitVector* g) const {
   if (!f.allFinite() || std::abs(f.norm() - g0) > 0.1 * g0) return false;
   // Specific force at rest points up, gravity down.
   *g = UnitVector(-f);
+  if (spread_var_rad2 != nullptr) {
+    const Mat3 cov = sum_sq / n - f * f.transpose();
+    const Vec3 u = f.normalized();
+    *spread_var_rad2 = std::max(0.0, 0.5 * (cov.trace() - u.dot(cov * u))) / f.squaredNorm() + 0.5 * turned_sq / n;
+  }
   return true;
 }
 

@@ -100,8 +100,11 @@ class ImuPropagator {
   ErrorVec& focalSensitivity() { return focal_sensitivity_; }
 
   /// Gravity direction from the mean specific force of the filtered samples of the 0.5 s up to up_to_t_s, if
-  /// the vehicle is near rest (|mean| within 10 % of g): g = -f/|f|. False otherwise.
-  bool gravityFromAccel(double up_to_t_s, UnitVector* g) const;
+  /// the vehicle is near rest (|mean| within 10 % of g): g = -f/|f|. False otherwise. `spread_var_rad2` (optional):
+  /// per tangent axis, rad^2, how far the mean may be from gravity: the samples' variance across f over |f|^2 plus
+  /// the mean square angle the frame turned from each sample to the window's end (the gyro summed). A multirotor's
+  /// specific force points along its thrust: tilting into a manoeuvre turns the frame, not the samples.
+  bool gravityFromAccel(double up_to_t_s, UnitVector* g, double* spread_var_rad2 = nullptr) const;
 
  private:
   /// Nominal period of the filtered samples, s.

@@ -208,6 +208,57 @@ void openSquare(const uint8_t* src, uint8_t* dst, uint8_t* a, uint8_t* b, int w,
   rankSquare<true>(b, dst, a, w, h, r);   // then dilation into dst
 }
 
+namespace {
+
+/// One erosion (kMax false) or dilation (true) of a w x h image by the 3 x 3 cross into dst (src != dst); what
+/// lies outside the image does not count. 16 pixels at a time inside each row.
+template <bool kMax>
+void crossStep(const uint8_t* src, uint8_t* dst, int w, int h) {
+  using namespace cv;
+  const auto pick = [](uint8_t x, uint8_t y) -> uint8_t { return kMax ? std::max(x, y) : std::min(x, y); };
+  const auto pick16 = [](const v_uint8x16& x, const v_uint8x16& y) { return kMax ? v_max(x, y) : v_min(x, y); };
+  for (int y = 0; y < h; ++y) {
+    const uint8_t* row = src + static_cast<size_t>(y) * static_cast<size_t>(w);
+    const uint8_t* up = y > 0 ? row - w : row;
+    const uint8_t* down = y + 1 < h ? row + w : row;
+    uint8_t* out = dst + static_cast<size_t>(y) * static_cast<size_t>(w);
+    const auto one = [&](int x) {
+      const uint8_t left = row[x > 0 ? x - 1 : x], right = row[x + 1 < w ? x + 1 : x];
+      out[x] = pick(pick(pick(row[x], up[x]), pick(down[x], left)), right);
+    };
+    int x = 0;
+    if (w > 0) one(x++);
+    for (; x + 17 <= w; x += 16) {  // (reads row[x - 1] .. row[x + 16])
+      const v_uint8x16 c = v_load(row + x), l = v_load(row + x - 1), r = v_load(row + x + 1);
+      v_store(out + x, pick16(pick16(pick16(c, l), pick16(r, v_load(up + x))), v_load(down + x)));
+    }
+    for (; x < w; ++x) one(x);
+  }
+}
+
+}  // namespace
+
+void openDiamond(const uint8_t* src, uint8_t* dst, uint8_t* a, uint8_t* b, int w, int h, int r) {
+  const size_t n = static_cast<size_t>(w) * static_cast<size_t>(h);
+  if (r <= 0) {
+    std::copy(src, src + n, dst);
+    return;
+  }
+  // Erosions src -> a -> b -> a ..., dilations on, the last one into dst.
+  const uint8_t* cur = src;
+  uint8_t* bufs[2] = {a, b};
+  int next = 0;
+  for (int i = 0; i < r; ++i, next ^= 1) {
+    crossStep<false>(cur, bufs[next], w, h);
+    cur = bufs[next];
+  }
+  for (int i = 0; i < r; ++i, next ^= 1) {
+    uint8_t* out = i + 1 == r ? dst : bufs[next];
+    crossStep<true>(cur, out, w, h);
+    cur = out;
+  }
+}
+
 void dilateSquare(const uint8_t* src, uint8_t* dst, uint8_t* a, int w, int h, int r) {
   rankSquare<true>(src, dst, a, w, h, r);
 }

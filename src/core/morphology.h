@@ -14,6 +14,10 @@ namespace internal {
 /// dst; a and b: scratch images of the same size. src and dst may not overlap a or b.
 void openSquare(const uint8_t* src, uint8_t* dst, uint8_t* a, uint8_t* b, int w, int h, int r);
 
+/// Grey-scale opening of a w x h image by a diamond (the pixels within L1 distance r: a square turned 45 degrees)
+/// into dst, as r erosions and then r dilations by the 3 x 3 cross; a and b: scratch images of the same size. src
+/// and dst may not overlap a or b.
+void openDiamond(const uint8_t* src, uint8_t* dst, uint8_t* a, uint8_t* b, int w, int h, int r);
 /// Grey-scale dilation (maximum) of a w x h image over a square of side 2 r + 1 into dst; a: scratch of the same
 /// size. src and dst may be the same buffer; neither may be a.
 void dilateSquare(const uint8_t* src, uint8_t* dst, uint8_t* a, int w, int h, int r);

@@ -147,6 +147,47 @@ TEST(DotDetector, MorphologyEqualsOpenCv) {
   }
 }
 
+TEST(DotDetector, DiamondOpeningEqualsOpenCv) {
+  // The opening by the diamond of L1 radius r against OpenCV's: r erosions, then r dilations, by the 3 x 3 cross.
+  cv::RNG rng(5);
+  const cv::Mat cross = cv::getStructuringElement(cv::MORPH_CROSS, cv::Size(3, 3));
+  for (const cv::Size size : {cv::Size(101, 77), cv::Size(20, 9), cv::Size(7, 4), cv::Size(1, 5), cv::Size(6, 1)}) {
+    cv::Mat img(size, CV_8UC1);
+    rng.fill(img, cv::RNG::UNIFORM, 0, 256);
+    cv::Mat out(size, CV_8UC1), a(size, CV_8UC1), b(size, CV_8UC1);
+    for (int r : {0, 1, 2, 3, 5}) {
+      cv::Mat expected = img.clone();
+      if (r > 0) cv::morphologyEx(img, expected, cv::MORPH_OPEN, cross, cv::Point(-1, -1), r);
+      internal::openDiamond(img.data, out.data, a.data, b.data, img.cols, img.rows, r);
+      EXPECT_EQ(cv::norm(out, expected, cv::NORM_INF), 0.0) << size << " r = " << r;
+    }
+  }
+}
+
+TEST(DotDetector, AFineTurnedCheckerboardHasSpecksButNoBlobs) {
+  // Squares of 8 px turned 45 degrees (the simulator's checkerboard at half resolution): no 5 px square fits in
+  // them, so most of their pixels are specks; the diamond does, so none is a blob. The simulator's projector dots on
+  // a flat ground: about half of their specks are blobs.
+  cv::Mat board(kH, kW, CV_8UC1);
+  for (int y = 0; y < kH; ++y)
+    for (int x = 0; x < kW; ++x) {
+      const int u = static_cast<int>(std::floor((x + y) / 11.3)), v = static_cast<int>(std::floor((x - y) / 11.3));
+      board.at<uint8_t>(y, x) = ((u + v) & 1) != 0 ? 200 : 40;
+    }
+  DotDetector checker;
+  checker.configure(kW, kH, 5, 0.5, 0.01);
+  checker.addImage(board);
+  EXPECT_GT(checker.wholeShare(), 0.2);
+  EXPECT_LT(checker.blobShare(), 0.01);
+  cv::Mat lit;
+  cv::Mat(projectorGain(1500, 1.5) * 100.0).convertTo(lit, CV_8UC1);
+  DotDetector dots;
+  dots.configure(kW, kH, 5, 0.5, 0.01);
+  dots.addImage(lit);
+  EXPECT_GT(dots.wholeShare(), 0.02);
+  EXPECT_GT(dots.blobShare(), 0.3 * dots.wholeShare());
+}
+
 TEST(DotDetector, SpeckMaskIsTheDefinitionExactly) {
   // 16 bytes at a time against the definition in plain integers, over random images with saturated pixels and an
   // opening below them (an opening never exceeds its image), for several contrasts and a length with a tail.

@@ -403,6 +403,35 @@ TEST(RestartPolicy, WarmPriorFromAStateAtLeastALagOld) {
   EXPECT_EQ(policy.lastReason(), "test");
 }
 
+TEST(ImuPropagator, GravityFromTheAccelerometerWithHowFarItMayBeOff) {
+  // At rest the samples agree and the frame does not turn: no spread. A multirotor turning at a constant rate
+  // about x with its specific force along its thrust (fixed in its frame): the samples agree, but the frame turned
+  // by w (t_end - t_i) from each: the spread is the mean square of that, per tangent axis.
+  EstimatorParams params;
+  params.imu.input_rate_hz = 100.0;
+  params.imu.decimation_factor = 1;
+  for (const double rate_radps : {0.0, 0.4}) {
+    ImuPropagator imu(params);
+    for (int i = 0; i <= 100; ++i) {
+      ImuSample s;
+      s.t_s = 0.01 * i;
+      s.gyro_radps = Vec3(rate_radps, 0.0, 0.0);
+      s.accel_mps2 = Vec3(0.0, 0.0, -9.81);
+      ASSERT_TRUE(imu.push(s));
+    }
+    UnitVector g;
+    double spread_rad2 = -1.0;
+    ASSERT_TRUE(imu.gravityFromAccel(1.0, &g, &spread_rad2));
+    EXPECT_LT((g.vector() - Vec3(0.0, 0.0, 1.0)).norm(), 1e-12);
+    // The samples in (0.5, 1.0], 0.01 s apart: mean of (w k 0.01)^2 for k = 0..49 (the window's end is the newest).
+    double expected = 0.0;
+    int n = 0;
+    for (int k = 0; k <= 50; ++k, ++n) expected += std::pow(rate_radps * 0.01 * k, 2);
+    expected *= 0.5 / n;
+    EXPECT_NEAR(spread_rad2, expected, 0.05 * expected + 1e-15) << "rate " << rate_radps;
+  }
+}
+
 TEST(ImuPropagator, IntervalMeanGyroAndInterpolation) {
   EstimatorParams params;
   params.imu.input_rate_hz = 100.0;
