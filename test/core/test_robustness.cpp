@@ -555,6 +555,17 @@ TEST(Robustness, DroppedImagesSkipUpdateAndKeepState) {
 // ---------------------------------------------------------------------------------------------------------
 // Divergence detection
 // ---------------------------------------------------------------------------------------------------------
+/// An image filter: textured but unrelated images (uniform noise from `rng`) before flight time `until_s`.
+std::function<bool(int, cv::Mat*)> unrelatedImagesUntil(double until_s, cv::RNG* rng) {
+  return [until_s, rng](int j, cv::Mat* img) {
+    if (j / kCamRateHz < until_s) {
+      *img = cv::Mat(img->size(), CV_8UC1);
+      rng->fill(*img, cv::RNG::UNIFORM, 0, 256);
+    }
+    return true;
+  };
+}
+
 TEST(Robustness, PersistentlyBadResidualResetsAndRecovers) {
   // 1.5 s of textured but unrelated images (noise): the residual stays high, the filter restarts after
   // bad_frames_before_reset frames and converges once the real images return.
@@ -562,13 +573,7 @@ TEST(Robustness, PersistentlyBadResidualResetsAndRecovers) {
   cv::RNG rng(3);
   h.run(0.0, 3.0);
   const size_t before = h.results.size();
-  h.run(3.0, 8.0, [&](int j, cv::Mat* img) {
-    if (j / kCamRateHz < 4.5) {
-      *img = cv::Mat(img->size(), CV_8UC1);
-      rng.fill(*img, cv::RNG::UNIFORM, 0, 256);
-    }
-    return true;
-  });
+  h.run(3.0, 8.0, unrelatedImagesUntil(4.5, &rng));
   expectAllFinite(h.results);
   EXPECT_GE(h.est.resetCount(), 1);
   EXPECT_GE(countStatus(h.between(3.0, 4.5, before), FilterStatus::kReset), 1);
@@ -614,13 +619,7 @@ TEST(Robustness, ARestartKeepsTheGravityDirection) {
     cv::RNG rng(3);
     h.run(0.0, 3.0);
     const size_t before = h.results.size();
-    h.run(3.0, 5.5, [&](int j, cv::Mat* img) {
-      if (j / kCamRateHz < 4.5) {
-        *img = cv::Mat(img->size(), CV_8UC1);
-        rng.fill(*img, cv::RNG::UNIFORM, 0, 256);
-      }
-      return true;
-    });
+    h.run(3.0, 5.5, unrelatedImagesUntil(4.5, &rng));
     expectAllFinite(h.results);
     ASSERT_GE(h.est.resetCount(), 1);
     bool restarted = false;
