@@ -17,8 +17,9 @@ struct InitParams {
   Vec3 g0 = Vec3(0.0, 0.0, 1.0);                ///< initial gravity direction in C (normalised on use)
   bool g0_from_accel = true;                    ///< initialise g from the first filtered accelerometer samples
   bool mu0_from_gravity = true;                 ///< initialise mu as the initial gravity direction (level ground)
-  /// an automatic restart during a run keeps the gravity direction the filter carried, with its covariance, instead
-  /// of taking it again from the accelerometer, which in flight points along the thrust (docs/algorithm.md §4)
+  /// an automatic restart during a run keeps the gravity direction the filter carried, with its covariance, unless
+  /// the accelerometer contradicts it, instead of taking it again from the accelerometer, which in flight points
+  /// along the thrust (docs/algorithm.md §4)
   bool keep_gravity_on_restart = true;
   double sigma_alpha0_inv_m = 3.0;              ///< 1-sigma of alpha0, 1/m
   double sigma_vartheta0_inv_s = 1.0;           ///< 1-sigma of each vartheta0 axis, 1/s

@@ -531,9 +531,10 @@ struct Estimator::Impl {
 
   /// The gravity direction an automatic restart at this image keeps (init.keep_gravity_on_restart): the running
   /// filter's estimate, propagated by the gyro to this image, and its covariance, when it knows it at least as well
-  /// as the start-up prior. The restart is for the scale; taken again from the accelerometer, gravity would point
-  /// along the thrust (a multirotor's specific force hardly tilts with it) and a restart in a manoeuvre started as
-  /// far off as the vehicle was tilted (fast flights: 1-6 deg RMS over the next 1.5 s; docs/algorithm.md section 4).
+  /// as the start-up prior (startAt then tests it against the accelerometer). The restart is for the scale; taken
+  /// again from the accelerometer, gravity would point along the thrust (a multirotor's specific force hardly tilts
+  /// with it) and a restart in a manoeuvre started as far off as the vehicle was tilted (fast flights: 0.5-6 deg RMS
+  /// over the next 1.5 s; docs/algorithm.md section 4).
   bool gravityToKeep(UnitVector* g, Mat2* P_g_out) const {
     if (!params.init.keep_gravity_on_restart || !state_initialized) return false;
     const double prior_var = params.init.sigma_g0_rad * params.init.sigma_g0_rad;
