@@ -529,42 +529,51 @@ struct Estimator::Impl {
     imu.focalSensitivity()(ErrIdx::kRo) = 0.0;
   }
 
+  /// A gravity direction in C and its tangent covariance, carried through a restart (gravityToKeep).
+  struct KeptGravity {
+    bool valid = false;  // false: none kept (the accelerometer's, or g0)
+    UnitVector g;
+    Mat2 P = Mat2::Zero();
+  };
+
   /// The gravity direction an automatic restart at this image keeps (init.keep_gravity_on_restart): the running
   /// filter's estimate, propagated by the gyro to this image, and its covariance, when it knows it at least as well
   /// as the start-up prior (startAt then tests it against the accelerometer). The restart is for the scale; taken
   /// again from the accelerometer, gravity would point along the thrust (a multirotor's specific force hardly tilts
   /// with it) and a restart in a manoeuvre started as far off as the vehicle was tilted (fast flights: 0.5-6 deg RMS
   /// over the next 1.5 s; docs/algorithm.md section 4).
-  bool gravityToKeep(UnitVector* g, Mat2* P_g_out) const {
-    if (!params.init.keep_gravity_on_restart || !state_initialized) return false;
+  KeptGravity gravityToKeep() const {
+    KeptGravity kept;
+    if (!params.init.keep_gravity_on_restart || !state_initialized) return kept;
     const double prior_var = params.init.sigma_g0_rad * params.init.sigma_g0_rad;
     const Mat2 P_g = P.block<2, 2>(ErrIdx::kG, ErrIdx::kG);
-    if (!x.g.vector().allFinite() || !P_g.allFinite() || P_g.trace() > 2.0 * prior_var) return false;
-    *g = x.g;
-    *P_g_out = P_g;
-    return true;
+    if (!x.g.vector().allFinite() || !P_g.allFinite() || P_g.trace() > 2.0 * prior_var) return kept;
+    kept.valid = true;
+    kept.g = x.g;
+    kept.P = P_g;
+    return kept;
   }
 
-  /// Starts the filter at image `t_s`: gravity from the accelerometer (or `kept_g` with its covariance
-  /// `kept_P_g`, gravityToKeep), no propagation before.
-  void startAt(double t_s, const UnitVector* kept_g = nullptr, const Mat2& kept_P_g = Mat2::Zero()) {
+  /// Starts the filter at image `t_s`: gravity from the accelerometer (or `kept`'s, gravityToKeep), no propagation
+  /// before.
+  void startAt(double t_s, const KeptGravity& kept) {
     UnitVector g;
     double spread_var_rad2 = 0.0;
     const bool from_accel = params.init.g0_from_accel && imu.gravityFromAccel(t_s, &g, &spread_var_rad2);
-    bool keep = kept_g != nullptr;
+    bool keep = kept.valid;
     if (keep && from_accel) {
       // The kept direction against the accelerometer's: kept unless they differ beyond what the mean specific force
       // may be off by (its spread and the frame's turn over the window, the accelerometer bias's prior) and the kept
       // direction's own variance, chi-square(2) at 99 %. Images of objects moving on their own had turned a run's
       // gravity 9 deg within 0.3 s of hovering, and restarts that kept it never recovered (docs/algorithm.md §4).
       const double sigma_ba_rad = params.init.sigma_ba0_mps2 / params.imu.gravity_mps2;
-      const double var_rad2 = spread_var_rad2 + sigma_ba_rad * sigma_ba_rad + 0.5 * kept_P_g.trace();
-      const double angle_rad = std::acos(std::clamp(kept_g->vector().dot(g.vector()), -1.0, 1.0));
+      const double var_rad2 = spread_var_rad2 + sigma_ba_rad * sigma_ba_rad + 0.5 * kept.P.trace();
+      const double angle_rad = std::acos(std::clamp(kept.g.vector().dot(g.vector()), -1.0, 1.0));
       keep = angle_rad * angle_rad <= kGravityKeepChi2 * var_rad2;
     }
     if (keep) {
-      x.g = *kept_g;
-      P.block<2, 2>(ErrIdx::kG, ErrIdx::kG) = kept_P_g;
+      x.g = kept.g;
+      P.block<2, 2>(ErrIdx::kG, ErrIdx::kG) = kept.P;
     } else if (from_accel) {
       x.g = g;
     }
@@ -600,9 +609,7 @@ struct Estimator::Impl {
       for (int i = 0; i < n; ++i) r.imu_notch_hz[static_cast<size_t>(i)] = notch->frequencyHz(i);
     }
     std::string restart_reason;  // set when the filter restarts at this image
-    UnitVector kept_g;               // the gravity direction a restart at this image keeps (gravityToKeep)
-    Mat2 kept_P_g = Mat2::Zero();
-    bool keep_g = false;
+    KeptGravity kept_g;               // the gravity direction a restart at this image keeps (gravityToKeep)
     char msg[kMessageCapacity] = "";  // the result's message, formatted without allocation
 
     // Preprocessing.
@@ -620,7 +627,7 @@ struct Estimator::Impl {
       os << "no usable image for " << (img.t_s - last_usable_image_t_s) << " s (more than max_image_gap_s = "
          << params.input.max_image_gap_s << " s)";
       restart_reason = os.str();
-      keep_g = gravityToKeep(&kept_g, &kept_P_g);
+      kept_g = gravityToKeep();
       restartAtImage(img.t_s, restart_reason);
     }
 
@@ -644,7 +651,7 @@ struct Estimator::Impl {
 
     // Prediction.
     if (!state_initialized) {
-      if (usable) startAt(img.t_s, keep_g ? &kept_g : nullptr, kept_P_g);  // otherwise it waits for a usable image
+      if (usable) startAt(img.t_s, kept_g);  // otherwise it waits for a usable image
     } else if (usable && have_reference && params.update_at_interval_midpoint) {
       // The image pair sees the displacement over the whole interval, i.e. its mean velocity, not the velocity
       // at the current image: update the state of the interval's midpoint (exact to second order in the
@@ -791,22 +798,22 @@ struct Estimator::Impl {
       const bool warm = restarts.warmStarted();
       const int bad = health.badFrames();
       const std::string skipped = skip_reason;
-      keep_g = gravityToKeep(&kept_g, &kept_P_g);
+      kept_g = gravityToKeep();
       resetFilter();
       if (warm) applyWarmPrior(img.t_s);
       restarts.setWarmStarted(warm);
       health.startRun(bad);
       skip_reason = skipped;
-      if (usable) startAt(img.t_s, keep_g ? &kept_g : nullptr, kept_P_g);
+      if (usable) startAt(img.t_s, kept_g);
       have_reference = usable;
     }
     if (!reason.empty()) {
-      keep_g = gravityToKeep(&kept_g, &kept_P_g);
+      kept_g = gravityToKeep();
       restartAtImage(img.t_s, reason);
       // Restart from this image: it becomes the new reference (if it has texture). Its outlier weights, drawn
       // in its own update just now, stay for the new run's first pair (docs/noise_model.md section 10): without
       // them that pair had no protection, and objects moving on their own set vartheta after every restart.
-      if (usable) startAt(img.t_s, keep_g ? &kept_g : nullptr, kept_P_g);
+      if (usable) startAt(img.t_s, kept_g);
       have_reference = usable;
     }
 
