@@ -35,6 +35,7 @@ struct ErrIdx {
   static constexpr int kTd = 14;  ///< camera-IMU time offset (docs/algorithm.md section 3.6)
   static constexpr int kRo = 15;  ///< rolling-shutter readout time of a frame (docs/algorithm.md section 3.7)
   static constexpr int kFs = 16;  ///< relative error of the calibrated focal length (docs/algorithm.md section 3.8)
+  static constexpr int kTimeStates = kFs - kTd + 1;  ///< the sensors' states from kTd on: offset, readout, focal scale
 };
 
 /// Skew-symmetric matrix [v]x with [v]x u = v x u.

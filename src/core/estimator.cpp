@@ -486,7 +486,7 @@ struct Estimator::Impl {
     // (P_before - P) P_before^-1 is the update's K H only in the rows of the states it estimated. A state it held
     // (a consider state: gain row zero, mean and variance the prior's) keeps its carried error: read through that
     // identity, the held time offset's grew from 0 until its reported 1-sigma was twice its prior's.
-    if (stats.time_states_held) kh.segment<ErrIdx::kFs - ErrIdx::kTd + 1>(ErrIdx::kTd).setZero();
+    if (stats.time_states_held) kh.segment<ErrIdx::kTimeStates>(ErrIdx::kTd).setZero();
     if (stats.readout_held) kh(ErrIdx::kRo) = 0.0;
     if (alpha_held) kh(ErrIdx::kAlpha) = 0.0;
     if (kh.allFinite()) s += kh;

@@ -1371,10 +1371,9 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   }
   PassSums sums;
   // The time states before the update (offset, readout, focal scale), kept when the frame may not move them.
-  constexpr int kTimeStates = ErrIdx::kFs - ErrIdx::kTd + 1;
   const double readout_before_s = x->readout_s, focal_scale_before = x->focal_scale;  // (the offset: t_d_prior_s)
-  const Eigen::Matrix<double, kTimeStates, kTimeStates> P_time_before =
-      P->block<kTimeStates, kTimeStates>(ErrIdx::kTd, ErrIdx::kTd);
+  const Eigen::Matrix<double, ErrIdx::kTimeStates, ErrIdx::kTimeStates> P_time_before =
+      P->block<ErrIdx::kTimeStates, ErrIdx::kTimeStates>(ErrIdx::kTd, ErrIdx::kTd);
   bool time_states_frozen = false;
   const double var_alpha_prior = (*P)(ErrIdx::kAlpha, ErrIdx::kAlpha);  // (1/m)^2
   const double var_readout_prior = std::max(0.0, (*P)(ErrIdx::kRo, ErrIdx::kRo));  // s^2
@@ -1568,7 +1567,7 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     x->t_d_s = t_d_prior_s;
     x->readout_s = readout_before_s;
     x->focal_scale = focal_scale_before;
-    P->block<kTimeStates, kTimeStates>(ErrIdx::kTd, ErrIdx::kTd) = P_time_before;
+    P->block<ErrIdx::kTimeStates, ErrIdx::kTimeStates>(ErrIdx::kTd, ErrIdx::kTd) = P_time_before;
     stats.time_states_held = true;
   } else if (it.ok && timing.consider_readout) {
     // The readout alone held (Schmidt): its mean and variance the prior's, its cross-covariances the update's.
