@@ -555,26 +555,28 @@ TEST(Robustness, DroppedImagesSkipUpdateAndKeepState) {
 // ---------------------------------------------------------------------------------------------------------
 // Divergence detection
 // ---------------------------------------------------------------------------------------------------------
-/// An image filter: textured but unrelated images (uniform noise from `rng`) before flight time `until_s`.
-std::function<bool(int, cv::Mat*)> unrelatedImagesUntil(double until_s, cv::RNG* rng) {
-  return [until_s, rng](int j, cv::Mat* img) {
-    if (j / kCamRateHz < until_s) {
+/// The flight to 3 s, then textured but unrelated images (uniform noise) until 4.5 s and the flight's own images again
+/// until `end_s`. Returns the index of the first result from 3 s on.
+size_t runWithUnrelatedImages(Harness* h, double end_s) {
+  cv::RNG rng(3);
+  h->run(0.0, 3.0);
+  const size_t before = h->results.size();
+  h->run(3.0, end_s, [&](int j, cv::Mat* img) {
+    if (j / kCamRateHz < 4.5) {
       *img = cv::Mat(img->size(), CV_8UC1);
-      rng->fill(*img, cv::RNG::UNIFORM, 0, 256);
+      rng.fill(*img, cv::RNG::UNIFORM, 0, 256);
     }
     return true;
-  };
+  });
+  expectAllFinite(h->results);
+  return before;
 }
 
 TEST(Robustness, PersistentlyBadResidualResetsAndRecovers) {
   // 1.5 s of textured but unrelated images (noise): the residual stays high, the filter restarts after
   // bad_frames_before_reset frames and converges once the real images return.
   Harness h;
-  cv::RNG rng(3);
-  h.run(0.0, 3.0);
-  const size_t before = h.results.size();
-  h.run(3.0, 8.0, unrelatedImagesUntil(4.5, &rng));
-  expectAllFinite(h.results);
+  const size_t before = runWithUnrelatedImages(&h, 8.0);
   EXPECT_GE(h.est.resetCount(), 1);
   EXPECT_GE(countStatus(h.between(3.0, 4.5, before), FilterStatus::kReset), 1);
   // The first restart is the one the unrelated images caused, and says so.
@@ -616,11 +618,7 @@ TEST(Robustness, ARestartKeepsTheGravityDirection) {
     h.flight.angle_rad = 0.3;
     h.flight.angle_freq = 3.1;
     h.own_images = true;
-    cv::RNG rng(3);
-    h.run(0.0, 3.0);
-    const size_t before = h.results.size();
-    h.run(3.0, 5.5, unrelatedImagesUntil(4.5, &rng));
-    expectAllFinite(h.results);
+    const size_t before = runWithUnrelatedImages(&h, 5.5);
     ASSERT_GE(h.est.resetCount(), 1);
     bool restarted = false;
     for (const FrameResult& r : h.between(3.0, 5.5, before)) {
