@@ -101,6 +101,10 @@ struct ImageTiming {
   /// expected rates given these noisy readings (stateRateMap with `expected`; zero: the readings as they are).
   Vec3 accel_noise_var = Vec3::Zero();
   Vec3 rate_change_noise_var = Vec3::Zero();
+  /// The rate change's mean square over the recent frames (rates_window_s; ImageUpdate), (rad/s)^2 per axis of C:
+  /// its expected value shrinks the reading by the share of that power its noise explains (expectedGivenReadings).
+  /// Zero: the reading's own square.
+  Vec3 rate_change_mean_sq = Vec3::Zero();
   double gravity_mps2 = 9.81;         ///< magnitude of gravity, m/s^2
   /// Rolling shutter: working row y is captured readout row_weight[y] after the image's time, with the readout
   /// time (first to last raw row) of the state (State::readout_s; 0: global shutter); row_weight[y] is the
@@ -124,10 +128,11 @@ struct ImageTiming {
 ///   m = (alpha (a + g0 g) - w x vartheta + (mu . vartheta) vartheta,  -N(mu)^T w,  -(w_cur - w_ref) / dt)
 /// with a = accel - b_a and w = gyro_mean - b_w; over [d_vartheta, d_mu, d_b_w]. Zero unless in.rates_valid.
 /// `expected`: the acceleration a + g0 g and the rate change, each a reading of one or two filtered samples, are
-/// replaced by their expected values given the readings, r max(0, 1 - var / r^2) per component (var:
-/// in.accel_noise_var, in.rate_change_noise_var): in slow flight the readings are mostly noise (and the tilt's and
-/// the bias's errors), a motion the images do not show; a state fitted against them (the readout, from the rows'
-/// times) is pulled toward zero (errors in the variables; docs/algorithm.md section 3.7).
+/// replaced by their expected values given the readings, r max(0, 1 - var / p) per component (var:
+/// in.accel_noise_var, in.rate_change_noise_var; p the reading's own square, for the rate change its mean square
+/// over the recent frames, in.rate_change_mean_sq, when set): in slow flight the readings are mostly noise (and the
+/// tilt's and the bias's errors), a motion the images do not show; a state fitted against them (the readout, from
+/// the rows' times) is pulled toward zero (errors in the variables; docs/algorithm.md section 3.7).
 ObservedVec stateRateMap(const State& x, const Vec3& gyro_mean_C, const ImageTiming& in, double dt_s,
                          bool expected = false);
 /// The acceleration a + g0 g of stateRateMap (m/s^2, C; with `expected` its expected value given the reading), whose

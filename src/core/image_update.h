@@ -14,6 +14,7 @@
 #include "diekf/params.h"
 #include "diekf/photometric_update.h"
 #include "diekf/state.h"
+#include "expected_value.h"
 #include "health_monitor.h"
 #include "imu_propagator.h"
 
@@ -86,7 +87,10 @@ class ImageUpdate {
   double lastInterval() const { return last_interval_s_; }
 
   /// Forgets the photometric noise estimates (a new run); the outlier weights stay (PhotometricUpdate).
-  void resetNoiseModel() { photometric_.resetNoiseModel(); }
+  void resetNoiseModel() {
+    photometric_.resetNoiseModel();
+    rate_change_power_.reset();
+  }
   /// Forgets the outlier weights (a new run without the last image).
   void forgetWeights() { photometric_.forgetWeights(); }
   /// Residual image of the last photometric update.
@@ -98,7 +102,7 @@ class ImageUpdate {
   /// The timing of the pair (docs/algorithm.md sections 3.6, 3.7): which of the time offset and the readout
   /// are estimated in this update, and the rates they need.
   ImageTiming timingFor(double t_img_s, const ImuPropagator& imu, const HealthMonitor& health, const State& x,
-                        const ErrorCov& P) const;
+                        const ErrorCov& P);
 
   const EstimatorParams& params_;
   const ImagePreprocessor& pre_;
@@ -110,6 +114,8 @@ class ImageUpdate {
   bool readout_configured_ = false;  // a line delay configured (parameter or camchain): the readout's prior is known
   Vec3 last_gyro_mean_ = Vec3::Zero();
   double last_interval_s_ = 0.0;
+  // The rate change's mean square over the recent frames (rates_window_s; timingFor).
+  MeanSquareWindow rate_change_power_;
 };
 
 }  // namespace internal

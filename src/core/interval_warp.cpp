@@ -42,7 +42,7 @@ namespace internal {
 IntervalWarp::IntervalWarp(const State& x, const Vec3& gyro_mean_C, double dt_s, double state_lag_s) {
   dt = dt_s;
   lag = std::min(std::max(state_lag_s, 0.0), dt_s);
-  const Vec3 w = gyro_mean_C - x.b_w;  // rad/s
+  const Vec3 w = gyro_mean_C - x.b_w;   // rad/s
   E = expSO3(dt * w);
   Ea = expSO3(lag * w);
   const Mat3 Eb = expSO3((dt - lag) * w);
@@ -81,7 +81,8 @@ ObservedVec stateRateMap(const State& x, const Vec3& gyro_mean_C, const ImageTim
   const Vec3& th = x.vartheta;
   const Vec3 accel = stateRateAcceleration(x, in, expected);  // m/s^2
   Vec3 rate_change = in.rate_change_C;                        // rad/s
-  if (expected) rate_change = internal::expectedGivenReading(rate_change, in.rate_change_noise_var);
+  if (expected)
+    rate_change = internal::expectedGivenReadings(rate_change, in.rate_change_noise_var, in.rate_change_mean_sq);
   m.segment<3>(0) = x.alpha * accel - w.cross(th) + x.mu.vector().dot(th) * th;
   m.segment<2>(3) = -x.mu.N().transpose() * w;
   m.segment<3>(5) = -rate_change / dt_s;

@@ -497,6 +497,7 @@ const std::vector<Entry>& table() {
     t.push_back(real("max_readout_s", DIEKF_FIELD(double, max_readout_s), between(0.0, 1.0)));
     t.push_back(real("readout_start_sigma_time_offset_s", DIEKF_FIELD(double, readout_start_sigma_time_offset_s),
                      between(0.0, 1.0)));
+    t.push_back(real("rates_window_s", DIEKF_FIELD(double, rates_window_s), between(0.0, 100.0)));
     t.push_back(real("line_delay_s", DIEKF_FIELD(double, line_delay_s), between(0.0, 1e-3)));
     t.push_back(flag("estimate_focal_scale", DIEKF_FIELD(bool, estimate_focal_scale)));
     t.push_back(real("focal_start_sigma_time_offset_s", DIEKF_FIELD(double, focal_start_sigma_time_offset_s),

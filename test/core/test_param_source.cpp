@@ -132,6 +132,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          a.image_stamp == b.image_stamp && a.exposure_time_s == b.exposure_time_s &&
          a.estimate_readout == b.estimate_readout && a.max_readout_s == b.max_readout_s &&
          a.readout_start_sigma_time_offset_s == b.readout_start_sigma_time_offset_s &&
+         a.rates_window_s == b.rates_window_s &&
          a.estimate_focal_scale == b.estimate_focal_scale && a.max_focal_scale == b.max_focal_scale &&
          a.focal_start_sigma_time_offset_s == b.focal_start_sigma_time_offset_s &&
          a.focal_scale_consider == b.focal_scale_consider &&
