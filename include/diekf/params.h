@@ -333,9 +333,9 @@ struct EstimatorParams {
   /// With the time offset estimated: the readout is estimated once the offset's 1-sigma is below this, s; 0 (the
   /// default): from the offset's start, with it (docs/algorithm.md section 3.7)
   double readout_start_sigma_time_offset_s = 0.0;
-  /// The readout's and the offset's rates (the acceleration, the gyro rate and its change between the images) take
-  /// their expected values given their noise and the readings' mean square over this window, s; 0: each reading's
-  /// own square, and the gyro rate as read (before session 56; docs/algorithm.md section 3.7)
+  /// The readout's and the offset's columns take the gyro rate's change between the images at its expected value
+  /// given its noise and its readings' mean square over this window (exponential weights), s; 0: each reading's own
+  /// square (before session 56; docs/algorithm.md section 3.7, "The rates' expected values")
   double rates_window_s = 0.3;
   /// With estimate_focal_scale and the time offset estimated: the focal-length scale is estimated once the offset's
   /// 1-sigma is below this, s (docs/algorithm.md section 3.8)

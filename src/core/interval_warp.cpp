@@ -42,7 +42,7 @@ namespace internal {
 IntervalWarp::IntervalWarp(const State& x, const Vec3& gyro_mean_C, double dt_s, double state_lag_s) {
   dt = dt_s;
   lag = std::min(std::max(state_lag_s, 0.0), dt_s);
-  const Vec3 w = gyro_mean_C - x.b_w;   // rad/s
+  const Vec3 w = gyro_mean_C - x.b_w;  // rad/s
   E = expSO3(dt * w);
   Ea = expSO3(lag * w);
   const Mat3 Eb = expSO3((dt - lag) * w);
