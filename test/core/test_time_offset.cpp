@@ -104,6 +104,15 @@ TEST(TimeOffsetMap, ZeroWhenDisabled) {
   EXPECT_TRUE(timeOffsetMap(randomState(rng), Vec3(0.5, 0.1, 0.2), in, 0.03).isZero(0.0));
 }
 
+/// The timing of a pair whose offset is estimated, its rates to be filled.
+ImageTiming offsetTiming() {
+  ImageTiming in;
+  in.estimate_offset = true;
+  in.rates_valid = true;
+  in.gravity_mps2 = kG0;
+  return in;
+}
+
 // While the readout is estimated, the rows of a rolling shutter take the expected rates given their noisy readings
 // (docs/algorithm.md section 3.7), and so does the time offset's column (section 3.6): each component of the
 // acceleration a + g0 g and of the rate change shrunk by (1 - var / r^2), zero within the noise; the vartheta part
@@ -113,10 +122,7 @@ TEST(TimeOffsetMap, RowsTakeTheExpectedRatesGivenTheirNoise) {
   std::mt19937 rng(9);
   const State x = randomState(rng);
   const double dt = 1.0 / 30.0;
-  ImageTiming in;
-  in.estimate_offset = true;
-  in.rates_valid = true;
-  in.gravity_mps2 = kG0;
+  ImageTiming in = offsetTiming();
   const Vec3 accel(0.4, -0.02, 0.1);  // m/s^2: x well above the noise, y within it, z at twice its sigma
   in.accel_C = accel - kG0 * x.g.vector() + x.b_a;
   in.rate_change_C = Vec3(-0.01, 0.3, 0.0005);  // rad/s
@@ -144,10 +150,7 @@ TEST(TimeOffsetMap, TheRateChangeShrunkAgainstTheReadingsMeanSquare) {
   std::mt19937 rng(11);
   const State x = randomState(rng);
   const double dt = 1.0 / 30.0;
-  ImageTiming in;
-  in.estimate_offset = true;
-  in.rates_valid = true;
-  in.gravity_mps2 = kG0;
+  ImageTiming in = offsetTiming();
   in.accel_C = Vec3(0.3, -0.1, 9.7);
   in.rate_change_C = Vec3(0.004, -0.002, 0.0005);       // rad/s
   in.rate_change_noise_var = Vec3::Constant(1e-6);        // (rad/s)^2
