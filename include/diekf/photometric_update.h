@@ -102,7 +102,7 @@ struct ImageTiming {
   Vec3 accel_noise_var = Vec3::Zero();
   Vec3 rate_change_noise_var = Vec3::Zero();
   /// The rate change's mean square over the recent frames (rates_window_s; ImageUpdate), (rad/s)^2 per axis of C:
-  /// its expected value shrinks the reading by the share of that power its noise explains (expectedGivenReadings).
+  /// its expected value shrinks the reading by the share of that power its noise explains (expectedGivenReading).
   /// Zero: the reading's own square.
   Vec3 rate_change_mean_sq = Vec3::Zero();
   double gravity_mps2 = 9.81;         ///< magnitude of gravity, m/s^2

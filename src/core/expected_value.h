@@ -11,23 +11,13 @@
 namespace diekf {
 namespace internal {
 
-/// The expected value of a reading r with the noise variance v (per component): r max(0, 1 - v / r^2), the
-/// reading shrunk by the share of its square that the noise explains (zero where the noise explains all of it).
-inline Vec3 expectedGivenReading(const Vec3& r, const Vec3& v) {
-  Vec3 out;
-  for (int i = 0; i < 3; ++i) {
-    const double r2 = r(i) * r(i);
-    out(i) = r2 > v(i) ? r(i) * (1.0 - v(i) / r2) : 0.0;
-  }
-  return out;
-}
-
-/// The same with the readings' mean square over recent frames in place of the reading's own square (per component;
-/// a zero mean square: the reading's own): r max(0, 1 - v / mean_sq), the reading shrunk by the share of the
-/// readings' power that the noise explains. One reading's own square is noise too: in a hover whose true rates are
-/// near zero it leaves a third of the noise's variance in the shrunk reading, a regressor of noise that pulls a state
-/// fitted against it toward zero (docs/algorithm.md section 3.7, "The rates' expected values").
-inline Vec3 expectedGivenReadings(const Vec3& r, const Vec3& v, const Vec3& mean_sq) {
+/// The expected value of a reading r with the noise variance v (per component): r max(0, 1 - v / p), the reading
+/// shrunk by the share of the power p that the noise explains (zero where the noise explains all of it). p is the
+/// readings' mean square over recent frames where given (mean_sq > 0), else the reading's own square r^2. One
+/// reading's own square is noise too: in a hover whose true rates are near zero it leaves a third of the noise's
+/// variance in the shrunk reading, a regressor of noise that pulls a state fitted against it toward zero
+/// (docs/algorithm.md section 3.7, "The rates' expected values").
+inline Vec3 expectedGivenReading(const Vec3& r, const Vec3& v, const Vec3& mean_sq = Vec3::Zero()) {
   Vec3 out;
   for (int i = 0; i < 3; ++i) {
     const double p = mean_sq(i) > 0.0 ? mean_sq(i) : r(i) * r(i);

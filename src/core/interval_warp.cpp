@@ -82,7 +82,7 @@ ObservedVec stateRateMap(const State& x, const Vec3& gyro_mean_C, const ImageTim
   const Vec3 accel = stateRateAcceleration(x, in, expected);  // m/s^2
   Vec3 rate_change = in.rate_change_C;                        // rad/s
   if (expected)
-    rate_change = internal::expectedGivenReadings(rate_change, in.rate_change_noise_var, in.rate_change_mean_sq);
+    rate_change = internal::expectedGivenReading(rate_change, in.rate_change_noise_var, in.rate_change_mean_sq);
   m.segment<3>(0) = x.alpha * accel - w.cross(th) + x.mu.vector().dot(th) * th;
   m.segment<2>(3) = -x.mu.N().transpose() * w;
   m.segment<3>(5) = -rate_change / dt_s;
