@@ -330,6 +330,11 @@ struct EstimatorParams {
   /// convergence); false, or a line delay configured: estimated from the offset's start (docs/algorithm.md section
   /// 3.7, "From the first image")
   bool readout_from_first_image = true;
+  /// With readout_from_first_image: from convergence to the offset's start the readout is estimated with the
+  /// offset's column considered (the offset held, not the readout), and its variance is given back its prior at
+  /// convergence instead of at the offset's start; false: held with the offset until its start (before session 57;
+  /// docs/algorithm.md section 3.7, "From the first image")
+  bool readout_with_considered_offset = true;
   /// With the time offset estimated: the readout is estimated once the offset's 1-sigma is below this, s; 0 (the
   /// default): from the offset's start, with it (docs/algorithm.md section 3.7)
   double readout_start_sigma_time_offset_s = 0.0;

@@ -45,9 +45,10 @@ struct UpdateStats {
   bool gated = false;            ///< the innovation failed the gate: the update was down-weighted
   /// The update held these states as consider states (Schmidt: their mean and variance the prior's): the time
   /// offset, readout and focal scale together (an improbable frame, or the offset not yet estimated), or the
-  /// readout alone.
+  /// readout alone, or the offset and the focal scale with the readout estimated (offset_held).
   bool time_states_held = false;
   bool readout_held = false;
+  bool offset_held = false;
   /// Brightness change of the pair (PhotometricParams::brightness_model): the current image is modelled as
   /// brightness_gain I_r + brightness_offset (normalised units); 1 and 0 when not estimated.
   double brightness_gain = 1.0;
@@ -90,6 +91,9 @@ struct ImageTiming {
   /// The offset's column is in the update but x.t_d_s is held (a consider state, Schmidt): its uncertainty widens
   /// the innovation and its cross-covariance with the other states builds up before it is estimated.
   bool consider_offset = false;
+  /// While the offset is considered, the readout is estimated (with estimate_readout): the update holds the offset
+  /// and the focal scale only (readout_with_considered_offset); false: every time state with the offset.
+  bool readout_with_considered_offset = false;
   bool rates_valid = false;           ///< accel_C and rate_change_C are filled (stateRateMap is not zero)
   Vec3 accel_C = Vec3::Zero();        ///< filtered specific force at the state's time (bias not removed), m/s^2
   Vec3 rate_change_C = Vec3::Zero();  ///< filtered rate at the current image minus at the reference image, rad/s

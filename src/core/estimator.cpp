@@ -488,6 +488,7 @@ struct Estimator::Impl {
     // identity, the held time offset's grew from 0 until its reported 1-sigma was twice its prior's.
     if (stats.time_states_held) kh.segment<ErrIdx::kTimeStates>(ErrIdx::kTd).setZero();
     if (stats.readout_held) kh(ErrIdx::kRo) = 0.0;
+    if (stats.offset_held) kh(ErrIdx::kTd) = kh(ErrIdx::kFs) = 0.0;
     if (alpha_held) kh(ErrIdx::kAlpha) = 0.0;
     if (kh.allFinite()) s += kh;
   }
@@ -511,15 +512,17 @@ struct Estimator::Impl {
   }
 
   /// The readout estimated from the first image (readout_from_first_image) learned from the images while the time
-  /// offset was not in their model (before convergence) or held (until its start), and while the rows' rates were
-  /// uncertain (errors in the variables, a pull toward 0): a flight that hovers until 12 s read 8 +- 1.6 ms against
-  /// 16. When the offset's estimate starts the readout keeps its estimate but gets back its prior variance, without
-  /// its correlations (a principal block of P and a variance: P stays positive definite), and its carried focal
-  /// error is dropped with them (docs/algorithm.md section 3.7, "From the first image"). Once per convergence.
-  void reopenReadoutWithTheOffset(double t_img_s) {
+  /// offset was not in their model (before convergence), and while the rows' rates were uncertain (errors in the
+  /// variables, a pull toward 0): a flight that hovers until 12 s read 8 +- 1.6 ms against 16. At convergence, when
+  /// the offset's column enters the update (readout_with_considered_offset; else when the offset's estimate starts,
+  /// the readout held with the offset until then), the readout keeps its estimate but gets back its prior variance,
+  /// without its correlations (a principal block of P and a variance: P stays positive definite), and its carried
+  /// focal error is dropped with them (docs/algorithm.md section 3.7, "From the first image"). Once per convergence.
+  void reopenReadout(double t_img_s) {
     if (!health.converged()) readout_reopened = false;
-    if (readout_reopened || !update.readoutFromFirstImage() || !update.timeStatesSettled(t_img_s, health))
-      return;
+    const bool reopen_now = params.readout_with_considered_offset ? health.converged()
+                                                                  : update.timeStatesSettled(t_img_s, health);
+    if (readout_reopened || !update.readoutFromFirstImage() || !reopen_now) return;
     readout_reopened = true;
     const double prior_var_s2 = params.init.sigma_readout_s * params.init.sigma_readout_s;
     const double var_s2 = std::max(P(ErrIdx::kRo, ErrIdx::kRo), prior_var_s2);
@@ -684,7 +687,7 @@ struct Estimator::Impl {
       update.setReportImageVartheta(scale_init.phase() != internal::ScaleInitializer::Phase::kDone);
       // The focal-length scale's estimate starts with this update: its carried error folded into P first.
       if (!focal_folded && update.estimatesFocalScale(img.t_s, health, P)) foldFocalSensitivity();
-      reopenReadoutWithTheOffset(img.t_s);
+      reopenReadout(img.t_s);
       // The prior and the state's lag behind the image, for the focal length's carried error.
       const bool carry_focal = !focal_folded;
       const ErrorCov P_before = P;
@@ -1026,7 +1029,7 @@ struct Estimator::Impl {
   static constexpr double kFocalResampleStep = 0.002;
   bool have_reference = false;
   double configured_readout_s = 0.0;  // rolling shutter: line delay x (rows - 1) from the parameters, s
-  bool readout_reopened = false;      // reopenReadoutWithTheOffset: done since the last convergence
+  bool readout_reopened = false;      // reopenReadout: done since the last convergence
   double stamp_shift_s = 0.0;         // image stamp -> capture time of the middle row's mid-exposure, s
   std::string skip_reason;            // why the current frame's update was not applied
   double last_imu_gap_end_s = -HUGE_VAL;  // IMU-clock stamp of the first sample after the last bridged gap

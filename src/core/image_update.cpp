@@ -117,6 +117,10 @@ ImageTiming ImageUpdate::timingFor(double t_img_s, const ImuPropagator& imu, con
   // its estimate and variance are held, so a rolling shutter not yet modelled is not taken for motion.
   timing.consider_readout = params_.estimate_readout && params_.readout_consider && !timing.estimate_readout &&
                             health.converged();
+  // From convergence the offset's column widens the update: a readout estimated from the first image then goes on
+  // with it instead of being held with the offset (readout_with_considered_offset; docs/algorithm.md section 3.7).
+  timing.readout_with_considered_offset =
+      timing.consider_offset && timing.estimate_readout && params_.readout_with_considered_offset;
   timing.rates_valid = timing.estimate_offset || timing.consider_offset || timing.estimate_readout ||
                        timing.consider_readout || x.readout_s != 0.0;
   timing.estimate_focal_scale = estimatesFocalScale(t_img_s, health, P);

@@ -494,6 +494,7 @@ const std::vector<Entry>& table() {
     t.push_back(flag("estimate_readout", DIEKF_FIELD(bool, estimate_readout)));
     t.push_back(flag("readout_consider", DIEKF_FIELD(bool, readout_consider)));
     t.push_back(flag("readout_from_first_image", DIEKF_FIELD(bool, readout_from_first_image)));
+    t.push_back(flag("readout_with_considered_offset", DIEKF_FIELD(bool, readout_with_considered_offset)));
     t.push_back(real("max_readout_s", DIEKF_FIELD(double, max_readout_s), between(0.0, 1.0)));
     t.push_back(real("readout_start_sigma_time_offset_s", DIEKF_FIELD(double, readout_start_sigma_time_offset_s),
                      between(0.0, 1.0)));

@@ -1558,7 +1558,16 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   };
   const internal::IterationResult it = internal::iterateInformationForm(
       params_.max_passes, params_.stop_threshold, linearize_at, x, P);
-  if (it.ok && (time_states_frozen || timing.consider_offset)) {
+  if (it.ok && !time_states_frozen && timing.readout_with_considered_offset) {
+    // The offset (considered) and the focal scale held, the readout estimated: the held states' mean and their own
+    // block of the covariance the prior's, the readout's and every cross-covariance the Kalman update's (Schmidt).
+    x->t_d_s = t_d_prior_s;
+    x->focal_scale = focal_scale_before;
+    constexpr int kHeld[2] = {ErrIdx::kTd, ErrIdx::kFs};
+    for (int i : kHeld)
+      for (int j : kHeld) (*P)(i, j) = P_time_before(i - ErrIdx::kTd, j - ErrIdx::kTd);
+    stats.offset_held = true;
+  } else if (it.ok && (time_states_frozen || timing.consider_offset)) {
     // Without their columns the frame still moved the time states through their correlations with the observed
     // ones. Held instead as consider states (Schmidt): their gain rows zero, so their mean and their own block of
     // the covariance stay the prior's; the other states' update and the cross-covariances are the Kalman update's

@@ -128,6 +128,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          a.estimate_time_offset == b.estimate_time_offset && a.max_time_offset_s == b.max_time_offset_s &&
          a.time_offset_start_s == b.time_offset_start_s && a.time_offset_consider == b.time_offset_consider &&
          a.readout_consider == b.readout_consider && a.readout_from_first_image == b.readout_from_first_image &&
+         a.readout_with_considered_offset == b.readout_with_considered_offset &&
          a.line_delay_s == b.line_delay_s &&
          a.image_stamp == b.image_stamp && a.exposure_time_s == b.exposure_time_s &&
          a.estimate_readout == b.estimate_readout && a.max_readout_s == b.max_readout_s &&
