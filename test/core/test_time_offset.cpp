@@ -801,43 +801,53 @@ void printReadoutPhases(const char* name, const OffsetRun& global, const OffsetR
               1e3 * ph.sigma_ro_before_s, 1e3 * ph.sigma_ro_at_start_s);
 }
 
-TEST(RollingShutter, TheReadoutFromTheFirstImageGoesOnWithTheOffsetConsidered) {
+/// The global-shutter and the 16 ms rolling-shutter flight with a 15 ms offset and the readout estimated from the
+/// first image, and the rolling shutter's readout phases.
+struct ReadoutPhaseRuns {
+  OffsetRun global, rolling;
+  ReadoutPhases ph;
+};
+
+ReadoutPhaseRuns runReadoutPhases(bool readout_with_considered_offset, const char* name) {
   RunOptions o;
   o.true_offset_s = 0.015;
   o.estimate_readout = true;
-  const OffsetRun global = runFlight(o);
+  o.readout_with_considered_offset = readout_with_considered_offset;
+  ReadoutPhaseRuns runs;
+  runs.global = runFlight(o);
   o.readout_s = 0.016;
-  const OffsetRun rolling = runFlight(o);
-  const ReadoutPhases ph = readoutPhases(rolling);
-  printReadoutPhases("readout from the first image", global, rolling, ph);
+  runs.rolling = runFlight(o);
+  runs.ph = readoutPhases(runs.rolling);
+  printReadoutPhases(name, runs.global, runs.rolling, runs.ph);
+  return runs;
+}
+
+/// The readout estimated before convergence, the offset from after it.
+void assertPhasesInOrder(const ReadoutPhases& ph) {
   ASSERT_GT(ph.ro_start_s, 0.0);
   ASSERT_GT(ph.converged_s, 0.0);
   EXPECT_LT(ph.ro_start_s, ph.converged_s) << "the readout is estimated before convergence";
   ASSERT_GT(ph.td_start_s, ph.converged_s);
+}
+
+TEST(RollingShutter, TheReadoutFromTheFirstImageGoesOnWithTheOffsetConsidered) {
+  const ReadoutPhaseRuns runs = runReadoutPhases(true, "readout from the first image");
+  const ReadoutPhases& ph = runs.ph;
+  ASSERT_NO_FATAL_FAILURE(assertPhasesInOrder(ph));
   EXPECT_GT(ph.sigma_ro_after_converged_s, 1.3 * ph.sigma_ro_converged_s) << "the readout reopened at convergence";
   EXPECT_GT(ph.readout_moves, 10) << "the readout estimated while the offset is considered";
   EXPECT_LT(ph.sigma_ro_at_start_s, 1.1 * ph.sigma_ro_before_s) << "not reopened again at the offset's start";
-  expectBothTimeStatesFound(global, rolling);
+  expectBothTimeStatesFound(runs.global, runs.rolling);
 }
 
 TEST(RollingShutter, TheReadoutFromTheFirstImageHeldWithTheOffsetUntilItsStart) {
-  RunOptions o;
-  o.true_offset_s = 0.015;
-  o.estimate_readout = true;
-  o.readout_with_considered_offset = false;
-  const OffsetRun global = runFlight(o);
-  o.readout_s = 0.016;
-  const OffsetRun rolling = runFlight(o);
-  const ReadoutPhases ph = readoutPhases(rolling);
-  printReadoutPhases("readout held with the offset", global, rolling, ph);
-  ASSERT_GT(ph.ro_start_s, 0.0);
-  ASSERT_GT(ph.converged_s, 0.0);
-  EXPECT_LT(ph.ro_start_s, ph.converged_s) << "the readout is estimated before convergence";
-  ASSERT_GT(ph.td_start_s, ph.converged_s);
+  const ReadoutPhaseRuns runs = runReadoutPhases(false, "readout held with the offset");
+  const ReadoutPhases& ph = runs.ph;
+  ASSERT_NO_FATAL_FAILURE(assertPhasesInOrder(ph));
   EXPECT_EQ(ph.readout_moves, 0) << "the readout held with the offset";
   // Measured (session 56): 2.34 ms before, 3.83 ms after the first update with the offset (from 10 ms again).
   EXPECT_GT(ph.sigma_ro_at_start_s, 1.3 * ph.sigma_ro_before_s) << "the readout reopened with the offset's start";
-  expectBothTimeStatesFound(global, rolling);
+  expectBothTimeStatesFound(runs.global, runs.rolling);
 }
 
 }  // namespace
