@@ -2,6 +2,7 @@
 
 #include <algorithm>
 #include <cmath>
+#include <initializer_list>
 #include <limits>
 
 #include <Eigen/Eigenvalues>
@@ -1558,30 +1559,30 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
   };
   const internal::IterationResult it = internal::iterateInformationForm(
       params_.max_passes, params_.stop_threshold, linearize_at, x, P);
+  // Time states held as consider states (Schmidt): their means and their own block of the covariance put back to
+  // the prior's; the other states' update and every cross-covariance stay the Kalman update's (their gains do not
+  // involve the held states' rows).
+  auto hold = [&](std::initializer_list<int> held) {
+    for (int i : held) {
+      if (i == ErrIdx::kTd) x->t_d_s = t_d_prior_s;
+      if (i == ErrIdx::kRo) x->readout_s = readout_before_s;
+      if (i == ErrIdx::kFs) x->focal_scale = focal_scale_before;
+      for (int j : held) (*P)(i, j) = P_time_before(i - ErrIdx::kTd, j - ErrIdx::kTd);
+    }
+  };
   if (it.ok && !time_states_frozen && timing.readout_with_considered_offset) {
-    // The offset (considered) and the focal scale held, the readout estimated: the held states' mean and their own
-    // block of the covariance the prior's, the readout's and every cross-covariance the Kalman update's (Schmidt).
-    x->t_d_s = t_d_prior_s;
-    x->focal_scale = focal_scale_before;
-    constexpr int kHeld[2] = {ErrIdx::kTd, ErrIdx::kFs};
-    for (int i : kHeld)
-      for (int j : kHeld) (*P)(i, j) = P_time_before(i - ErrIdx::kTd, j - ErrIdx::kTd);
+    // The offset (considered) and the focal scale held, the readout estimated.
+    hold({ErrIdx::kTd, ErrIdx::kFs});
     stats.offset_held = true;
   } else if (it.ok && (time_states_frozen || timing.consider_offset)) {
     // Without their columns the frame still moved the time states through their correlations with the observed
-    // ones. Held instead as consider states (Schmidt): their gain rows zero, so their mean and their own block of
-    // the covariance stay the prior's; the other states' update and the cross-covariances are the Kalman update's
-    // (their gains do not involve the time states' rows). An offset not yet estimated (consider_offset) is held the
-    // same way, with its column in the update (the readout and the focal scale are not estimated then either).
-    x->t_d_s = t_d_prior_s;
-    x->readout_s = readout_before_s;
-    x->focal_scale = focal_scale_before;
-    P->block<ErrIdx::kTimeStates, ErrIdx::kTimeStates>(ErrIdx::kTd, ErrIdx::kTd) = P_time_before;
+    // ones: all three held. An offset not yet estimated (consider_offset) is held the same way, with its column in
+    // the update (the readout and the focal scale are not estimated then either, but for the readout above).
+    hold({ErrIdx::kTd, ErrIdx::kRo, ErrIdx::kFs});
     stats.time_states_held = true;
   } else if (it.ok && timing.consider_readout) {
-    // The readout alone held (Schmidt): its mean and variance the prior's, its cross-covariances the update's.
-    x->readout_s = readout_before_s;
-    (*P)(ErrIdx::kRo, ErrIdx::kRo) = P_time_before(ErrIdx::kRo - ErrIdx::kTd, ErrIdx::kRo - ErrIdx::kTd);
+    // The readout alone held.
+    hold({ErrIdx::kRo});
     stats.readout_held = true;
   }
   use_weight_map_ = false;
