@@ -124,6 +124,10 @@ struct ImageTiming {
   /// The readout's column is in the update (estimated or considered): the sweep needs the row moments.
   bool readoutColumn() const { return estimate_readout || consider_readout; }
   bool estimate_focal_scale = false;  ///< the update estimates x.focal_scale (its column: focalScaleMap)
+  /// The focal scale is a consider parameter (focal_scale_consider, Schmidt): its column widens the update while
+  /// estimate_focal_scale is set, but x.focal_scale and its own variance are held (its cross-covariances are the
+  /// update's), whether or not its column is in the update.
+  bool consider_focal_scale = false;
 };
 
 /// The rate of what the warp sees when the pair is taken later: an image pair taken delta later than assumed

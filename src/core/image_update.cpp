@@ -124,6 +124,7 @@ ImageTiming ImageUpdate::timingFor(double t_img_s, const ImuPropagator& imu, con
   timing.rates_valid = timing.estimate_offset || timing.consider_offset || timing.estimate_readout ||
                        timing.consider_readout || x.readout_s != 0.0;
   timing.estimate_focal_scale = estimatesFocalScale(t_img_s, health, P);
+  timing.consider_focal_scale = params_.focal_scale_consider;
   // The gyro's noise in the interval's rotation (docs/noise_model.md section 6), measured from its samples.
   timing.gyro_noise_density_sq = imu.gyroNoiseDensitySq();
   if (timing.rates_valid) {
@@ -179,12 +180,6 @@ UpdateStats ImageUpdate::apply(const PreprocessedFrame& ref, const PreprocessedF
     x.t_d_s = std::clamp(x.t_d_s, -params_.max_time_offset_s, params_.max_time_offset_s);
     x.readout_s = std::clamp(x.readout_s, -params_.max_readout_s, params_.max_readout_s);
     x.focal_scale = std::clamp(x.focal_scale, -params_.max_focal_scale, params_.max_focal_scale);
-    if (params_.focal_scale_consider) {
-      // Schmidt-Kalman: the other states' rows of the full update are the optimal gain with the focal scale as a
-      // consider parameter; its own mean and variance stay (the cross-covariances are the full update's).
-      x.focal_scale = x_prior.focal_scale;
-      P(ErrIdx::kFs, ErrIdx::kFs) = P_prior(ErrIdx::kFs, ErrIdx::kFs);
-    }
     // alpha's step in prior sigmas: d must never jump by many sigma in one frame.
     const double step_sigma =
         std::abs(x.alpha - x_prior.alpha) / std::sqrt(std::max(1e-300, P_prior(ErrIdx::kAlpha, ErrIdx::kAlpha)));

@@ -1585,6 +1585,10 @@ UpdateStats PhotometricUpdate::update(const PreprocessedFrame& ref, const Prepro
     hold({ErrIdx::kRo});
     stats.readout_held = true;
   }
+  // The focal scale as a consider parameter (Schmidt-Kalman): the other states' rows of the full update are the
+  // optimal gain with it considered; its own mean and variance put back, on their own (its cross-covariance with a
+  // time state held above stays that hold's).
+  if (it.ok && timing.consider_focal_scale) hold({ErrIdx::kFs});
   use_weight_map_ = false;
   active_map_ = nullptr;
   ref_map_ = nullptr;

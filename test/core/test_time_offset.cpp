@@ -512,7 +512,7 @@ TEST(FocalScale, AsAConsiderParameterItIsNotMovedButAllowedFor) {
   EXPECT_GE(consider.sigma_focal_end, prior);  // never shrunk (its random walk may grow it)
   EXPECT_LT(consider.sigma_focal_end, 1.01 * prior);
   EXPECT_GE(consider.coverage_d, ignored.coverage_d);
-  EXPECT_LT(consider.rmse_d_m, 0.5 * ignored.rmse_d_m);  // (measured: 0.30 against 1.81 cm)
+  EXPECT_LT(consider.rmse_d_m, 0.5 * ignored.rmse_d_m);  // (measured: 0.93 against 1.92 cm; 0.30 / 1.81 at first)
 }
 
 // The rows' capture times per second of readout: the pinhole mapping without distortion; with barrel
