@@ -195,25 +195,7 @@ diekf::EstimatorParams loadParams(const RunnerOptions& o, std::string* config_us
     requireReadable("IMU calibration", o.imu);
     diekf::loadKalibrImuYaml(o.imu, &params.imu);
   }
-  diekf::eval::ParamOverlay overrides(nullptr);
-  for (const std::string& kv : o.sets) overrides.addAssignment(kv);
-  if (!o.sets.empty()) {
-    diekf::loadEstimatorParams(overrides, &params);
-    const std::vector<std::string> unused = overrides.unusedOverrides();
-    if (!unused.empty()) {
-      std::string list;
-      for (const std::string& k : unused) list += (list.empty() ? "" : ", ") + k;
-      throw RunError("unknown parameter key(s) in --set: " + list + " (use the keys of config/estimator.yaml)");
-    }
-  }
-  if (!o.mode.empty()) params.mode = diekf::parseUpdateMode(o.mode);
-  if (o.width_px > 0) {
-    if (params.mode == diekf::UpdateMode::kFeature) {
-      params.feature.working_width_px = o.width_px;
-    } else {
-      params.preprocess.working_width_px = o.width_px;
-    }
-  }
+  diekf::eval::applyCommandLine(o.sets, o.mode, o.width_px, &params);
   return params;
 }
 

@@ -115,22 +115,7 @@ diekf::EstimatorParams loadParams(const Options& o) {
   diekf::EstimatorParams params;
   if (!o.config.empty()) diekf::loadEstimatorParams(diekf::YamlParamSource(o.config), &params);
   if (!o.imu.empty()) diekf::loadKalibrImuYaml(o.imu, &params.imu);
-  if (!o.sets.empty()) {
-    diekf::eval::ParamOverlay overrides(nullptr);
-    for (const std::string& kv : o.sets) overrides.addAssignment(kv);
-    diekf::loadEstimatorParams(overrides, &params);
-    if (!overrides.unusedOverrides().empty()) {
-      throw std::invalid_argument("unknown parameter key in --set: " + overrides.unusedOverrides().front());
-    }
-  }
-  if (!o.mode.empty()) params.mode = diekf::parseUpdateMode(o.mode);
-  if (o.width_px > 0) {
-    if (params.mode == diekf::UpdateMode::kFeature) {
-      params.feature.working_width_px = o.width_px;
-    } else {
-      params.preprocess.working_width_px = o.width_px;
-    }
-  }
+  diekf::eval::applyCommandLine(o.sets, o.mode, o.width_px, &params);
   return params;
 }
 

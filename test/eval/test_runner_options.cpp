@@ -127,6 +127,32 @@ TEST(ParamOverlay, WrongTypesThrowNamingTheKey) {
   EXPECT_THROW(overlay.addAssignment("nothing"), std::invalid_argument);
 }
 
+// The runners' overrides (diekf_bag_runner and diekf_replay share them): --set first, then --mode, then --width,
+// which goes to the working width of the mode in use; unknown keys are named, all of them.
+TEST(ApplyCommandLine, SetThenModeThenWidth) {
+  EstimatorParams p;
+  applyCommandLine({"photometric/max_passes=2", "preprocess/working_width_px=64"}, "", 0, &p);
+  EXPECT_EQ(p.photometric.max_passes, 2);
+  EXPECT_EQ(p.preprocess.working_width_px, 64);
+  applyCommandLine({}, "", 120, &p);
+  EXPECT_EQ(p.preprocess.working_width_px, 120);
+  const int feature_width = p.feature.working_width_px;
+  applyCommandLine({}, "lk", 80, &p);
+  EXPECT_EQ(p.mode, UpdateMode::kFeature);
+  EXPECT_EQ(p.feature.working_width_px, 80);
+  EXPECT_NE(feature_width, 80);
+  EXPECT_EQ(p.preprocess.working_width_px, 120);
+  try {
+    applyCommandLine({"no_such/key=1", "photometric/max_passes=3", "also/unknown=2"}, "", 0, &p);
+    FAIL() << "no exception";
+  } catch (const std::invalid_argument& e) {
+    const std::string what = e.what();
+    EXPECT_NE(what.find("no_such/key"), std::string::npos) << what;
+    EXPECT_NE(what.find("also/unknown"), std::string::npos) << what;
+  }
+  EXPECT_THROW(applyCommandLine({}, "no_such_mode", 0, &p), std::exception);
+}
+
 }  // namespace
 }  // namespace eval
 }  // namespace diekf

@@ -9,6 +9,7 @@
 #include <vector>
 
 #include "diekf/param_source.h"
+#include "diekf/params.h"
 
 namespace diekf {
 namespace eval {
@@ -38,6 +39,13 @@ class ParamOverlay : public ParamSource {
   std::map<std::string, std::string> overrides_;
   mutable std::set<std::string> used_;
 };
+
+/// The runners' command-line overrides (diekf_bag_runner, diekf_replay) on parameters already loaded from the
+/// config and IMU files, in this order: the `--set key=value` assignments (std::invalid_argument naming every key
+/// the loader does not know), then `--mode` (empty: unchanged), then `--width` (0: unchanged; the working width of
+/// the mode in use).
+void applyCommandLine(const std::vector<std::string>& sets, const std::string& mode, int width_px,
+                      EstimatorParams* params);
 
 }  // namespace eval
 }  // namespace diekf

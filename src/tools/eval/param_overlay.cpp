@@ -131,5 +131,29 @@ std::vector<std::string> ParamOverlay::unusedOverrides() const {
   return unused;
 }
 
+void applyCommandLine(const std::vector<std::string>& sets, const std::string& mode, int width_px,
+                      EstimatorParams* params) {
+  if (!sets.empty()) {
+    ParamOverlay overrides(nullptr);
+    for (const std::string& kv : sets) overrides.addAssignment(kv);
+    loadEstimatorParams(overrides, params);
+    const std::vector<std::string> unused = overrides.unusedOverrides();
+    if (!unused.empty()) {
+      std::string list;
+      for (const std::string& k : unused) list += (list.empty() ? "" : ", ") + k;
+      throw std::invalid_argument("unknown parameter key(s) in --set: " + list +
+                                  " (use the keys of config/estimator.yaml)");
+    }
+  }
+  if (!mode.empty()) params->mode = parseUpdateMode(mode);
+  if (width_px > 0) {
+    if (params->mode == UpdateMode::kFeature) {
+      params->feature.working_width_px = width_px;
+    } else {
+      params->preprocess.working_width_px = width_px;
+    }
+  }
+}
+
 }  // namespace eval
 }  // namespace diekf
