@@ -907,20 +907,21 @@ struct Estimator::Impl {
   }
 
   static void fillStats(const UpdateStats& stats, FrameResult* r) {
+    const auto finiteOr = [](double v, double fallback) { return std::isfinite(v) ? v : fallback; };
     r->update_applied = stats.applied;
     r->passes = stats.passes;
-    r->photometric_rms = std::isfinite(stats.rms_residual) ? stats.rms_residual : 0.0;
-    r->nis = std::isfinite(stats.nis) ? stats.nis : 0.0;
-    r->noise_sigma = std::isfinite(stats.noise_sigma) ? stats.noise_sigma : 0.0;
-    r->noise_correlation = std::isfinite(stats.noise_correlation) ? stats.noise_correlation : 0.0;
-    r->noise_floor_sigma = std::isfinite(stats.noise_floor_sigma) ? stats.noise_floor_sigma : 0.0;
-    r->gate_inflation = std::isfinite(stats.gate_inflation) ? stats.gate_inflation : 1.0;
-    r->nis_scale = std::isfinite(stats.nis_scale) ? stats.nis_scale : 1.0;
-    r->outlier_fraction = std::isfinite(stats.outlier_fraction) ? stats.outlier_fraction : 0.0;
-    r->valid_ratio = std::isfinite(stats.valid_ratio) ? stats.valid_ratio : 0.0;
-    r->brightness_gain = std::isfinite(stats.brightness_gain) ? stats.brightness_gain : 1.0;
-    r->brightness_offset = std::isfinite(stats.brightness_offset) ? stats.brightness_offset : 0.0;
-    r->row_banding = std::isfinite(stats.row_banding) ? stats.row_banding : 0.0;
+    r->photometric_rms = finiteOr(stats.rms_residual, 0.0);
+    r->nis = finiteOr(stats.nis, 0.0);
+    r->noise_sigma = finiteOr(stats.noise_sigma, 0.0);
+    r->noise_correlation = finiteOr(stats.noise_correlation, 0.0);
+    r->noise_floor_sigma = finiteOr(stats.noise_floor_sigma, 0.0);
+    r->gate_inflation = finiteOr(stats.gate_inflation, 1.0);
+    r->nis_scale = finiteOr(stats.nis_scale, 1.0);
+    r->outlier_fraction = finiteOr(stats.outlier_fraction, 0.0);
+    r->valid_ratio = finiteOr(stats.valid_ratio, 0.0);
+    r->brightness_gain = finiteOr(stats.brightness_gain, 1.0);
+    r->brightness_offset = finiteOr(stats.brightness_offset, 0.0);
+    r->row_banding = finiteOr(stats.row_banding, 0.0);
     r->row_bands_found = stats.row_bands_found;
     r->row_gains = stats.row_gains;
     r->light_change = stats.light_change;

@@ -167,21 +167,23 @@ int run(const Options& o) {
                  o.config.empty() ? "(built-in defaults)" : o.config.c_str());
   }
 
+  // The next event with its image read; false at the end or at --max-images.
+  long images_read = 0;
+  auto next_event = [&](Event* ev) {
+    if (!reader.next(&ev->e)) return false;
+    ev->image = cv::Mat();
+    if (ev->e.kind == diekf::eval::SequenceEvent::Kind::kImage) {
+      if (o.max_images >= 0 && images_read >= o.max_images) return false;
+      ev->image = diekf::eval::readPgm(ev->e.image_path);
+      ++images_read;
+    }
+    return true;
+  };
   // --preload: every event (up to --max-images) in memory first.
   std::vector<Event> preloaded;
-  long images_read = 0;
   if (o.preload) {
     Event ev;
-    while (reader.next(&ev.e)) {
-      if (ev.e.kind == diekf::eval::SequenceEvent::Kind::kImage) {
-        if (o.max_images >= 0 && images_read >= o.max_images) break;
-        ev.image = diekf::eval::readPgm(ev.e.image_path);
-        ++images_read;
-      } else {
-        ev.image = cv::Mat();
-      }
-      preloaded.push_back(ev);
-    }
+    while (next_event(&ev)) preloaded.push_back(ev);
     if (o.load_only) {
       if (!o.quiet) std::fprintf(stderr, "%s: read %zu events, %ld images\n", kProgram, preloaded.size(), images_read);
       return 0;
@@ -224,14 +226,7 @@ int run(const Options& o) {
     for (const Event& ev : preloaded) process(ev.e, ev.image);
   } else {
     Event ev;
-    while (reader.next(&ev.e)) {
-      if (ev.e.kind == diekf::eval::SequenceEvent::Kind::kImage) {
-        if (o.max_images >= 0 && images_read >= o.max_images) break;
-        ev.image = diekf::eval::readPgm(ev.e.image_path);
-        ++images_read;
-      }
-      process(ev.e, ev.image);
-    }
+    while (next_event(&ev)) process(ev.e, ev.image);
   }
   if (csv) csv->close();
   if (states != nullptr && std::fclose(states) != 0) throw std::runtime_error("cannot write states.csv");
