@@ -98,8 +98,13 @@ class FixedPattern {
   /// the cells of the ground's track (0 before the first sample).
   double independentGround() const { return var_factor_ > 0.0 ? 1.0 / var_factor_ : 0.0; }
   /// The same over cells of the local mean's window: how many different patches of ground (each a window of the
-  /// coarser scale) the mean holds.
-  double independentPatches() const { return coarse_var_factor_ > 0.0 ? 1.0 / coarse_var_factor_ : 0.0; }
+  /// coarser scale) the mean holds. Counted on two grids, the second shifted by half a cell along the track's four
+  /// axes, and the lesser count kept: ground that jitters about a cell's edge of one grid (a camera holding its
+  /// position, heading or height, which start on an edge of the first) lies inside a cell of the other.
+  double independentPatches() const {
+    const double v = std::max(coarse_var_factor_, coarse_shifted_var_factor_);
+    return v > 0.0 ? 1.0 / v : 0.0;
+  }
   /// Writes the image of the last apply() corrected with the current fields into I (grey levels), with its sum
   /// and sum of squares; false (I untouched) when there is none or the model is inactive.
   bool reapply(float* I, double* sum, double* sum_sq) const;
@@ -183,7 +188,8 @@ class FixedPattern {
   /// The ground cell of the ground's position (working px), turn (rad) and log scale: the turn and the scale in
   /// steps that move the image's RMS radius by one cell, each step offsetting the cells (a hash: the cells only
   /// count the ground).
-  int groundCell(const Vec2& position_px, const Vec2& turn_scale, double cell_px) const;
+  /// `shift`: the grid's offset in cells along every axis (0 or 0.5).
+  int groundCell(const Vec2& position_px, const Vec2& turn_scale, double cell_px, double shift = 0.0) const;
   /// Decays the weights g by kp, adds l to cell c and updates its variance factor (sum of the squared weights).
   static void addWeight(GroundWeights* g, double* var_factor, int c, double l, double kp);
   /// Half side (working px) of the local mean's window (computeDetail): 5 % of the width.
@@ -220,6 +226,8 @@ class FixedPattern {
   GroundWeights ground_;         // the mean's weight of each ground cell
   GroundWeights coarse_;         // ... and of each coarse cell (coarseCellPx)
   double coarse_var_factor_ = 0.0;  // the mean's variance per unit sample variance counted over the coarse cells
+  GroundWeights coarse_shifted_;  // ... over the coarse cells shifted by half a cell (independentPatches)
+  double coarse_shifted_var_factor_ = 0.0;
   double detail_noise_per_sample_ = 0.0;  // the detail's noise per unit sample variance, last measured (0: never)
   Vec2 position_ = Vec2::Zero(); // the ground's accumulated shift through the image (working px)
   Vec2 turn_scale_ = Vec2::Zero(); // and its accumulated turn about the optical axis (rad) and log scale

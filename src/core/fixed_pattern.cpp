@@ -118,6 +118,7 @@ FixedPattern::FixedPattern(const FixedPatternParams& params, int width, int heig
   const size_t cells = static_cast<size_t>(kGroundSide) * kGroundSide;
   ground_.cell.assign(cells, 0.0);
   coarse_.cell.assign(cells, 0.0);
+  coarse_shifted_.cell.assign(cells, 0.0);
   for (Snapshot& s : snapshots_) {
     s.detail.create(height, width, CV_32FC1);
     s.ground.cell.assign(cells, 0.0);
@@ -144,9 +145,12 @@ void FixedPattern::reset() {
   turn_scale_ = Vec2::Zero();
   std::fill(ground_.cell.begin(), ground_.cell.end(), 0.0);
   ground_.scale = 1.0;
-  std::fill(coarse_.cell.begin(), coarse_.cell.end(), 0.0);
-  coarse_.scale = 1.0;
+  for (GroundWeights* g : {&coarse_, &coarse_shifted_}) {
+    std::fill(g->cell.begin(), g->cell.end(), 0.0);
+    g->scale = 1.0;
+  }
   coarse_var_factor_ = 0.0;
+  coarse_shifted_var_factor_ = 0.0;
   frames_since_refresh_ = 0;
   last_valid_ = false;
   last_kept_ = false;
@@ -288,6 +292,8 @@ bool FixedPattern::learn(double motion_px, const Vec2& ground_shift_px, const Ve
       s.cov_factor = kp * s.cov_factor + (s.valid ? l * s.ground.at(c) : 0.0);
     addWeight(&ground_, &var_factor_, c, l, kp);
     addWeight(&coarse_, &coarse_var_factor_, groundCell(position_, turn_scale_, coarseCellPx()), l, kp);
+    addWeight(&coarse_shifted_, &coarse_shifted_var_factor_, groundCell(position_, turn_scale_, coarseCellPx(), 0.5),
+              l, kp);
   }
   ++frames_since_refresh_;
   if (!snapshots_[newest_].valid && samples_ >= 0.5 * params_.startup_samples) {
@@ -365,16 +371,17 @@ void FixedPattern::addWeight(GroundWeights* g, double* var_factor, int c, double
   g->cell[static_cast<size_t>(c)] += l / g->scale;
 }
 
-int FixedPattern::groundCell(const Vec2& position_px, const Vec2& turn_scale, double cell_px) const {
+int FixedPattern::groundCell(const Vec2& position_px, const Vec2& turn_scale, double cell_px, double shift) const {
   // A turn or a change of scale moves the pixels at the image's RMS radius sqrt((W^2 + H^2) / 12) by one cell
   // per step.
   const double rms_radius_px =
       std::sqrt((static_cast<double>(width_) * width_ + static_cast<double>(height_) * height_) / 12.0);
-  Vec2 step = (turn_scale * (rms_radius_px / cell_px)).array().floor();
+  Vec2 step = (turn_scale * (rms_radius_px / cell_px)).array() + shift;
+  step = step.array().floor();
   if (!step.allFinite()) step.setZero();
   const double kx = 97.0 * step.x() + 29.0 * step.y(), ky = 61.0 * step.x() + 113.0 * step.y();
-  auto wrap = [](double v) {
-    const double k = std::floor(v);
+  auto wrap = [shift](double v) {
+    const double k = std::floor(v + shift);
     if (!std::isfinite(k)) return 0;
     const long long i = static_cast<long long>(std::fmod(k, static_cast<double>(kGroundSide)));
     return static_cast<int>(i < 0 ? i + kGroundSide : i);
