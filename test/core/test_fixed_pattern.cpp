@@ -34,6 +34,18 @@ cv::Mat ground(cv::RNG* rng) {
   return g;
 }
 
+/// A wide piece of ground to crop moving views from: smooth random texture (seed `seed`), mean 100 grey levels,
+/// spread 25.
+cv::Mat wideGround(int rows, int cols, uint64_t seed) {
+  cv::RNG rng(seed);
+  cv::Mat big(rows, cols, CV_32FC1);
+  rng.fill(big, cv::RNG::NORMAL, 0.0, 1.0);
+  cv::GaussianBlur(big, big, cv::Size(0, 0), 1.5);
+  cv::Scalar m, sd;
+  cv::meanStdDev(big, m, sd);
+  return (big - m[0]) * (25.0 / sd[0]) + 100.0;
+}
+
 /// The pattern of the tests: a soft shadow (gain 0.45 in its core) at the left and bright dots (offset +60).
 void pattern(cv::Mat* gain, cv::Mat* offset) {
   *gain = cv::Mat(kH, kW, CV_32FC1, cv::Scalar(1.f));
@@ -196,13 +208,7 @@ TEST(FixedPattern, HoldingAPositionIsNotAPattern) {
   // samples add up, but the mean holds only a few patches of ground (cells of the local mean's window; 3.3). Its
   // structure is fixed in the image like a pattern; the fields are not computed from it. The same images with a
   // slow drift (the camera flying on) hold new ground and the model starts.
-  cv::RNG rng(23);
-  cv::Mat big(kH + 200, kW + 400, CV_32FC1);
-  rng.fill(big, cv::RNG::NORMAL, 0.0, 1.0);
-  cv::GaussianBlur(big, big, cv::Size(0, 0), 1.5);
-  cv::Scalar m, sd;
-  cv::meanStdDev(big, m, sd);
-  big = (big - m[0]) * (25.0 / sd[0]) + 100.0;
+  const cv::Mat big = wideGround(kH + 200, kW + 400, 23);
   const auto run = [&](double drift_px, bool waived = false) {
     FixedPattern fp(params(), kW, kH);
     fp.waivePatchCondition(waived);
@@ -247,13 +253,7 @@ TEST(FixedPattern, AHoldAboutTheStartIsOnePatchOfGround) {
   // one patch (two while the drift crosses an edge; on the first grid alone 6.7, and the model started). The images
   // wobble by up to 2 px (the ground's shift per image is at most 0.4 px, so each image counts as a fifth of a sample
   // at most).
-  cv::RNG rng(29);
-  cv::Mat big(kH + 100, kW + 100, CV_32FC1);
-  rng.fill(big, cv::RNG::NORMAL, 0.0, 1.0);
-  cv::GaussianBlur(big, big, cv::Size(0, 0), 1.5);
-  cv::Scalar m, sd;
-  cv::meanStdDev(big, m, sd);
-  big = (big - m[0]) * (25.0 / sd[0]) + 100.0;
+  const cv::Mat big = wideGround(kH + 100, kW + 100, 29);
   FixedPattern fp(params(), kW, kH);
   double s = 0, s2 = 0;
   Vec2 previous(0.0, 0.0), previous_turn_scale(0.0, 0.0);
