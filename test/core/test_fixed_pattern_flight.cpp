@@ -424,12 +424,6 @@ HoldOutcome holdPosition(int width_px, double seconds) {
   return o;
 }
 
-// A camera holding its position over one spot (the benchmark's periodic flight: 1 m above a textured plane, a
-// closed curve of a few cm, 1 s period, images repeating every 30 frames) sees the same patch of ground again and
-// again: its temporal mean is fixed in the image like a pattern. Counted by the samples alone (the path flown) the
-// statistics held 150 independent samples; the ground's structure was then taken for a pattern (16 % of the
-// contrast at 2 s, 43 % at 8 s: the raw images opened as if a projector were on; the distance 2.4 % low at 20 s
-// at 180 px). The fields are computed only from enough different patches of ground (fixed_pattern/min_ground_patches).
 /// The hold's ground never taken for a pattern, the distance within `max_error_m` from 5 s, tracking at the end.
 void expectNoPattern(const HoldOutcome& o, int min_results, double max_error_m) {
   EXPECT_GT(o.results, min_results);
@@ -439,6 +433,12 @@ void expectNoPattern(const HoldOutcome& o, int min_results, double max_error_m) 
   EXPECT_EQ(o.last.status, FilterStatus::kTracking);
 }
 
+// A camera holding its position over one spot (the benchmark's periodic flight: 1 m above a textured plane, a
+// closed curve of a few cm, 1 s period, images repeating every 30 frames) sees the same patch of ground again and
+// again: its temporal mean is fixed in the image like a pattern. Counted by the samples alone (the path flown) the
+// statistics held 150 independent samples; the ground's structure was then taken for a pattern (16 % of the
+// contrast at 2 s, 43 % at 8 s: the raw images opened as if a projector were on; the distance 2.4 % low at 20 s
+// at 180 px). The fields are computed only from enough different patches of ground (fixed_pattern/min_ground_patches).
 TEST(FixedPatternFlight, HoldingAPositionIsNotAPattern) { expectNoPattern(holdPosition(180, 20.0), 550, 0.01); }
 
 // The same hold for 100 s at 90 px. The patches of ground were counted on one grid of cells, on whose edges the
