@@ -123,6 +123,9 @@ struct PhotometricParams {
   /// the Huber scale only; without, the fixed noise of every pixel, taken as independent (the paper's model).
   double intensity_noise_sigma = 0.3;
   bool gradient_weighting = false;              ///< weight pixels by gradient magnitude
+  /// Degree of the B-spline that interpolates the reference image: 3 (cubic, 4x4 taps) or 5 (quintic, 6x6 taps;
+  /// docs/algorithm.md section 3.3).
+  int spline_degree = 3;
   double huber_threshold = 0.0;                 ///< Huber threshold on residual / sigma (0 = off)
   double min_valid_ratio = 0.3;                 ///< skip the update if fewer pixels stay in view
   int pixel_stride = 1;                         ///< use every n-th pixel in x and y

@@ -303,7 +303,7 @@ class PhotometricUpdate {
   /// The pair's brightness model before its light-change test: the parameter's, auto resolved (kRows while bands
   /// of the rows are found, else kLevels), kLevels as kNormalised for images that are not standardised.
   BrightnessModel pairModel() const;
-  /// The reference of the sweeps: its cubic B-spline coefficients (ref_coeff_) and its level (ref_level_offset_).
+  /// The reference of the sweeps: its B-spline coefficients (ref_coeff_) and its level (ref_level_offset_).
   void setReference(const PreprocessedFrame& ref);
   /// The bands of the rows after an update (UpdateStats::row_gain_rms, row_banding, row_bands_found) from the last
   /// linearisation's residual and the fitted row gains `brightness` (when estimated); dt_s: the pair's interval.
@@ -331,7 +331,8 @@ class PhotometricUpdate {
   cv::Mat ref_x_, ref_y_;  ///< CV_32FC1 where the last linearisation's warp lands in the reference (-1: nowhere)
   cv::Mat parallax_sums_;       ///< CV_32FC2 per cell: carried window sums of a r and a^2 (a = dr / d rho)
   cv::Mat parallax_sums_prev_;  ///< the same of the previous image (swapped)
-  cv::Mat ref_coeff_;   ///< CV_32FC1 cubic B-spline coefficients of the reference's intensity, reused between calls
+  cv::Mat ref_coeff_;   ///< CV_32FC1 B-spline coefficients of the reference's intensity, reused between calls
+  int ref_coeff_degree_ = 3;  ///< degree of ref_coeff_'s B-spline (PhotometricParams::spline_degree: 3 or 5)
   std::vector<float> spline_scratch_;  ///< the spline prefilter's row block (4 x width), reused between calls
   cv::Mat scratch_;     ///< CV_32FC1 13 x (width rounded up to 4): row buffers of the sweep
   // Brightness model kRows (prepareRowKnots, SweepConfig::row_gain):

@@ -357,6 +357,7 @@ const std::vector<Entry>& table() {
     t.push_back(real("photometric/intensity_noise_sigma", DIEKF_FIELD(double, photometric.intensity_noise_sigma),
                      positive()));
     t.push_back(flag("photometric/gradient_weighting", DIEKF_FIELD(bool, photometric.gradient_weighting)));
+    t.push_back(integer("photometric/spline_degree", DIEKF_FIELD(int, photometric.spline_degree), between(3, 5)));
     t.push_back(real("photometric/huber_threshold", DIEKF_FIELD(double, photometric.huber_threshold),
                      nonNegative()));
     t.push_back(real("photometric/min_valid_ratio", DIEKF_FIELD(double, photometric.min_valid_ratio),
@@ -522,6 +523,10 @@ void checkConsistency(const ParamSource& s, const EstimatorParams& p) {
     return s.get(a, &unused) ? a : b;
   };
   const ImuParams& imu = p.imu;
+  if (p.photometric.spline_degree != 3 && p.photometric.spline_degree != 5) {
+    failKey(s.origin(), "photometric/spline_degree",
+            "value " + std::to_string(p.photometric.spline_degree) + " must be 3 (cubic) or 5 (quintic)");
+  }
   if (imu.lowpass_order % 2 != 0) {
     failKey(s.origin(), "imu/lowpass_order",
             "value " + std::to_string(imu.lowpass_order) + " must be even (0 disables the filter)");

@@ -309,7 +309,7 @@ void accumulateRow(float* const* T, const float* valid, int n_pad, const int* se
 /// caller rescales), weight; the results go to the row buffers; (2) the row's Gram sums.
 /// The residual r, dr / d rho and the reference position per pixel go to `out` (PixelOutputs). The weighting
 /// options are template parameters.
-template <bool kHuber, bool kGradientWeighting, bool kWeightMap>
+template <bool kHuber, bool kGradientWeighting, bool kWeightMap, int kTaps>
 void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWarp& wp, const SweepConfig& cfg,
            RowBuffers buf, SweepSums* sums, const PixelOutputs& out) {
   using namespace cv;
@@ -320,10 +320,13 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
   const float* RW = cfg.reference_weights != nullptr ? cfg.reference_weights->ptr<float>(0) : nullptr;
   const int sW = cfg.reference_weights != nullptr ? static_cast<int>(cfg.reference_weights->step1()) : 0;
   const bool same_stride = sW == sC;
-  // The reference sample's 4x4 spline taps x0 - 1 ... x0 + 2 stay inside the image, as did the 2x2
-  // neighbourhood of bilinear sampling inside the 1-px border: x0 = floor(rx) in [1, W-3]  <=>  rx in [1, W-2).
-  const v_float32x4 rx_lo = v_setall_f32(1.0f), rx_hi = v_setall_f32(static_cast<float>(W - 2));
-  const v_float32x4 ry_lo = v_setall_f32(1.0f), ry_hi = v_setall_f32(static_cast<float>(H - 2));
+  // The reference sample's spline taps x0 - lead ... x0 + lead + 1 stay inside the image: x0 = floor(rx) in
+  // [lead, W - lead - 2]  <=>  rx in [lead, W - lead - 1). Cubic (4 taps): lead 1, as the 2x2 neighbourhood of
+  // bilinear sampling inside the 1-px border; quintic (6 taps): lead 2.
+  static_assert(kTaps == 4 || kTaps == 6, "cubic or quintic spline");
+  constexpr int kLead = kTaps / 2 - 1;
+  const v_float32x4 rx_lo = v_setall_f32(kLead), rx_hi = v_setall_f32(static_cast<float>(W - kLead - 1));
+  const v_float32x4 ry_lo = v_setall_f32(kLead), ry_hi = v_setall_f32(static_cast<float>(H - kLead - 1));
   const v_float32x4 one = v_setall_f32(1.0f), zero = v_setzero_f32();
   const auto splat = [](float v) { return v_setall_f32(v); };  // constants of the spline weights
   const v_float32x4 fx = v_setall_f32(wp.fx), fy = v_setall_f32(wp.fy);
@@ -369,7 +372,6 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
       for (int l = 0; l < 4; ++l) sums->tile_acc[t][i][l] = 0.0f;
   alignas(16) int32_t idx[4];
   alignas(16) int32_t widx[4];
-  const v_int32x4 one_i = v_setall_s32(1);
   const v_int32x4 lane_ramp(0, 1, 2, 3);
   alignas(16) float xs_init[4];
   for (int l = 0; l < 4; ++l) xs_init[l] = static_cast<float>(cfg.border + l * cfg.stride);
@@ -532,7 +534,8 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
       const v_float32x4 rxs = v_select(valid, rx, rx_lo), rys = v_select(valid, ry, ry_lo);
       const v_int32x4 x0 = v_floor(rxs), y0 = v_floor(rys);
       const v_float32x4 ax = rxs - v_cvt_f32(x0), ay = rys - v_cvt_f32(y0);
-      const v_int32x4 idx_v = (y0 - one_i) * v_setall_s32(sC) + (x0 - one_i);  // the lanes' top-left taps
+      const v_int32x4 lead_i = v_setall_s32(kLead);
+      const v_int32x4 idx_v = (y0 - lead_i) * v_setall_s32(sC) + (x0 - lead_i);  // the lanes' top-left taps
       v_store_aligned(idx, idx_v);
       // Most groups sample 4 consecutive reference columns of one row (the warp is near a shift along the
       // row): lane l's taps start at idx[0] + l, so tap m of the 4 lanes is one load at idx[0] + m.
@@ -540,33 +543,49 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
       // The reference's value and gradient: per tap row, the 4 taps of the 4 lanes as tap planes, and
       // the row's value and x-derivative at ax (row_i, row_d); the rows are then combined with the vertical
       // weights (value, d/dx) and their derivatives (d/dy).
-      v_float32x4 wx[4], dwx[4], wy[4], dwy[4];
-      internal::cubicBSplineWeights(ax, wx, dwx, splat);
-      internal::cubicBSplineWeights(ay, wy, dwy, splat);
-      v_float32x4 row_i[4], row_d[4];
-      for (int j = 0; j < 4; ++j) {
+      v_float32x4 wx[kTaps], dwx[kTaps], wy[kTaps], dwy[kTaps];
+      if constexpr (kTaps == 4) {
+        internal::cubicBSplineWeights(ax, wx, dwx, splat);
+        internal::cubicBSplineWeights(ay, wy, dwy, splat);
+      } else {
+        internal::quinticBSplineWeights(ax, wx, dwx, splat);
+        internal::quinticBSplineWeights(ay, wy, dwy, splat);
+      }
+      v_float32x4 row_i[kTaps], row_d[kTaps];
+      for (int j = 0; j < kTaps; ++j) {
         const int off = j * sC;
-        v_float32x4 c0, c1, c2, c3;
+        v_float32x4 c[kTaps];
         if (consecutive) {
           const float* p = C + idx[0] + off;
-          c0 = v_load(p);
-          c1 = v_load(p + 1);
-          c2 = v_load(p + 2);
-          c3 = v_load(p + 3);
+          for (int m = 0; m < kTaps; ++m) c[m] = v_load(p + m);
         } else {
-          const v_float32x4 p0 = v_load(C + idx[0] + off), p1 = v_load(C + idx[1] + off);
-          const v_float32x4 p2 = v_load(C + idx[2] + off), p3 = v_load(C + idx[3] + off);
-          v_transpose4x4(p0, p1, p2, p3, c0, c1, c2, c3);
+          // Taps 0-3, and for the quintic 2-5 (the last two kept): 4 floats from each lane's start.
+          for (int g = 0; g < kTaps; g += 4) {
+            const int at = g == 0 ? 0 : kTaps - 4;
+            const v_float32x4 p0 = v_load(C + idx[0] + off + at), p1 = v_load(C + idx[1] + off + at);
+            const v_float32x4 p2 = v_load(C + idx[2] + off + at), p3 = v_load(C + idx[3] + off + at);
+            v_float32x4 t0, t1, t2, t3;
+            v_transpose4x4(p0, p1, p2, p3, t0, t1, t2, t3);
+            c[at] = t0;
+            c[at + 1] = t1;
+            c[at + 2] = t2;
+            c[at + 3] = t3;
+          }
         }
-        row_i[j] = v_muladd(wx[3], c3, v_muladd(wx[2], c2, v_muladd(wx[1], c1, wx[0] * c0)));
-        row_d[j] = v_muladd(dwx[3], c3, v_muladd(dwx[2], c2, v_muladd(dwx[1], c1, dwx[0] * c0)));
+        v_float32x4 ri = wx[0] * c[0], rd = dwx[0] * c[0];
+        for (int m = 1; m < kTaps; ++m) {
+          ri = v_muladd(wx[m], c[m], ri);
+          rd = v_muladd(dwx[m], c[m], rd);
+        }
+        row_i[j] = ri;
+        row_d[j] = rd;
       }
-      const v_float32x4 ref_i =
-          v_muladd(wy[3], row_i[3], v_muladd(wy[2], row_i[2], v_muladd(wy[1], row_i[1], wy[0] * row_i[0])));
-      const v_float32x4 ref_gx =
-          v_muladd(wy[3], row_d[3], v_muladd(wy[2], row_d[2], v_muladd(wy[1], row_d[1], wy[0] * row_d[0])));
-      const v_float32x4 ref_gy =
-          v_muladd(dwy[3], row_i[3], v_muladd(dwy[2], row_i[2], v_muladd(dwy[1], row_i[1], dwy[0] * row_i[0])));
+      v_float32x4 ref_i = wy[0] * row_i[0], ref_gx = wy[0] * row_d[0], ref_gy = dwy[0] * row_i[0];
+      for (int j = 1; j < kTaps; ++j) {
+        ref_i = v_muladd(wy[j], row_i[j], ref_i);
+        ref_gx = v_muladd(wy[j], row_d[j], ref_gx);
+        ref_gy = v_muladd(dwy[j], row_i[j], ref_gy);
+      }
       const v_float32x4 gxc = v_load(Gxc + k), gyc = v_load(Gyc + k);
       // The reference through the pair's brightness model, gain I_r + offset (section 12; off: I_r itself).
       v_float32x4 model = ref_i, model_gx = ref_gx, model_gy = ref_gy;
@@ -914,7 +933,8 @@ BrightnessModel PhotometricUpdate::pairModel() const {
 }
 
 void PhotometricUpdate::setReference(const PreprocessedFrame& ref) {
-  internal::cubicBSplineCoefficients(ref.intensity, &ref_coeff_, &spline_scratch_);
+  ref_coeff_degree_ = params_.spline_degree == 5 ? 5 : 3;
+  internal::bSplineCoefficients(ref.intensity, ref_coeff_degree_, &ref_coeff_, &spline_scratch_);
   ref_level_offset_ = ref.level_offset;
   ref_grey_per_unit_ = ref.grey_per_unit;
 }
@@ -1060,22 +1080,30 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
   for (int i = 0; i < 3; ++i) buf.cur[i] = scratch_.ptr<float>(kGramCols + 1 + i);
   buf.wmap = scratch_.ptr<float>(kGramCols + 4);
   const bool huber = cfg.huber_abs > 0.0f;
-  auto run = [&](auto weight_map) {
+  auto run = [&](auto weight_map, auto taps) {
     constexpr bool kMap = decltype(weight_map)::value;
+    constexpr int kTaps = decltype(taps)::value;
     if (huber && cfg.gradient_weighting) {
-      sweep<true, true, kMap>(ref_coeff_, cur, wp, cfg, buf, &sums, outputs);
+      sweep<true, true, kMap, kTaps>(ref_coeff_, cur, wp, cfg, buf, &sums, outputs);
     } else if (huber) {
-      sweep<true, false, kMap>(ref_coeff_, cur, wp, cfg, buf, &sums, outputs);
+      sweep<true, false, kMap, kTaps>(ref_coeff_, cur, wp, cfg, buf, &sums, outputs);
     } else if (cfg.gradient_weighting) {
-      sweep<false, true, kMap>(ref_coeff_, cur, wp, cfg, buf, &sums, outputs);
+      sweep<false, true, kMap, kTaps>(ref_coeff_, cur, wp, cfg, buf, &sums, outputs);
     } else {
-      sweep<false, false, kMap>(ref_coeff_, cur, wp, cfg, buf, &sums, outputs);
+      sweep<false, false, kMap, kTaps>(ref_coeff_, cur, wp, cfg, buf, &sums, outputs);
+    }
+  };
+  auto run_taps = [&](auto weight_map) {
+    if (ref_coeff_degree_ == 5) {
+      run(weight_map, std::integral_constant<int, 6>{});
+    } else {
+      run(weight_map, std::integral_constant<int, 4>{});
     }
   };
   if (cfg.confidence_map != nullptr || cfg.reference_weights != nullptr) {
-    run(std::true_type{});
+    run_taps(std::true_type{});
   } else {
-    run(std::false_type{});
+    run_taps(std::false_type{});
   }
 
   // Scale: the sweep's rows are 2/dt times the true S (gradient sum instead of mean, Jacobian without dt);

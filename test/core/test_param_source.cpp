@@ -88,6 +88,7 @@ bool sameParams(const EstimatorParams& a, const EstimatorParams& b) {
          ra.normalize_brightness == rb.normalize_brightness &&
          ra.border_px == rb.border_px && ra.dot_removal_px == rb.dot_removal_px && ha.max_passes == hb.max_passes && ha.stop_threshold == hb.stop_threshold &&
          ha.intensity_noise_sigma == hb.intensity_noise_sigma && ha.gradient_weighting == hb.gradient_weighting &&
+         ha.spline_degree == hb.spline_degree &&
          ha.huber_threshold == hb.huber_threshold && ha.min_valid_ratio == hb.min_valid_ratio &&
          ha.pixel_stride == hb.pixel_stride && ha.adaptive_noise == hb.adaptive_noise &&
          ha.sensor_noise_grey == hb.sensor_noise_grey && ha.noise_tiles_x == hb.noise_tiles_x &&
@@ -258,6 +259,7 @@ std::string perturbed(const std::string& key, const YAML::Node& def) {
   if (key == "fixed_pattern/vignetting_file") return "flat_field.png";  // a path (read by the estimator, not here)
   if (key == "fixed_pattern/dot_detect_levels") return "1";  // (1..3)
   if (key == "input/stamp_smoothing_frames") return "64";  // (8..128)
+  if (key == "photometric/spline_degree") return "5";  // (3, 5)
   if (def.IsSequence()) return "[0.1, 0.2, 0.9]";
   const std::string s = def.Scalar();
   if (s == "true") return "false";
@@ -317,6 +319,7 @@ TEST(EstimatorParams, ValidationErrorsNameOriginAndKey) {
       {"photometric:\n  max_passes: 0\n", "photometric/max_passes"},
       {"photometric:\n  min_valid_ratio: 1.5\n", "photometric/min_valid_ratio"},
       {"photometric:\n  brightness_model: linear\n", "photometric/brightness_model"},
+      {"photometric:\n  spline_degree: 4\n", "photometric/spline_degree"},
       {"divergence:\n  max_distance_m: 0.01\n", "divergence/max_distance_m"},
       {"max_queued_images: 0\n", "max_queued_images"},
       {"preprocess: 5\n", "preprocess/"},

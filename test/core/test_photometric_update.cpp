@@ -256,21 +256,62 @@ class SplineReference {
   std::vector<double> c_;
 };
 
+/// The reference as a quintic B-spline: the coefficients of src/core/bspline.cpp (tested against the samples in
+/// test_bspline.cpp), the value and gradient from the basis function beta5 in double precision over the 6 x 6 taps.
+class QuinticReference {
+ public:
+  explicit QuinticReference(const cv::Mat& f) {
+    cv::Mat c;
+    internal::bSplineCoefficients(f, 5, &c);
+    c.convertTo(c_, CV_64FC1);
+  }
+  double value(double x, double y, Vec2* grad) const {
+    double v = 0.0, gx = 0.0, gy = 0.0;
+    const int x0 = static_cast<int>(std::floor(x)), y0 = static_cast<int>(std::floor(y));
+    for (int j = y0 - 2; j <= y0 + 3; ++j) {
+      for (int i = x0 - 2; i <= x0 + 3; ++i) {
+        const double c = c_.at<double>(j, i);
+        v += c * beta5(x - i) * beta5(y - j);
+        gx += c * dbeta5(x - i) * beta5(y - j);
+        gy += c * beta5(x - i) * dbeta5(y - j);
+      }
+    }
+    *grad = Vec2(gx, gy);
+    return v;
+  }
+
+ private:
+  /// beta5(x) = sum_k (-1)^k C(6, k) (x + 3 - k)_+^5 / 120, and its derivative.
+  static double beta5(double x) { return powers(x, 5) / 120.0; }
+  static double dbeta5(double x) { return 5.0 * powers(x, 4) / 120.0; }
+  static double powers(double x, int n) {
+    const double binom[7] = {1, 6, 15, 20, 15, 6, 1};
+    double s = 0.0;
+    for (int k = 0; k <= 6; ++k) s += (k % 2 ? -1.0 : 1.0) * binom[k] * std::pow(std::max(0.0, x + 3.0 - k), n);
+    return s;
+  }
+  cv::Mat c_;
+};
+
 void referenceLinearization(const TwoViewScene& s, const State& x, const Vec3& gyro, double sigma,
-                            double huber_k, ObservedInfo* A, ObservedVec* b, int* valid, double lag = 0.0) {
+                            double huber_k, ObservedInfo* A, ObservedVec* b, int* valid, double lag = 0.0,
+                            int degree = 3) {
   A->setZero();
   b->setZero();
   *valid = 0;
   const int W = s.cur.intensity.cols, H = s.cur.intensity.rows;
   const SplineReference spline(s.ref.intensity);
+  const QuinticReference quintic(s.ref.intensity);
+  const double lead = degree / 2;  // the taps' reach below floor(x): 1 (cubic) or 2 (quintic)
   for (int y = 1; y < H - 1; ++y) {
     for (int xp = 1; xp < W - 1; ++xp) {
       WarpJacobian J;
       const Vec2 pr = warpToReference(x, s.K, gyro, s.dt_s, xp, y, &J, lag);
-      if (!(pr.x() >= 1.0 && pr.x() < W - 2.0 && pr.y() >= 1.0 && pr.y() < H - 2.0)) continue;
+      if (!(pr.x() >= lead && pr.x() < W - 1.0 - lead && pr.y() >= lead && pr.y() < H - 1.0 - lead)) continue;
       ++*valid;
       Vec2 g_ref;
-      const double r = s.cur.intensity.at<float>(y, xp) - spline.value(pr.x(), pr.y(), &g_ref);
+      const double I_r = degree == 5 ? quintic.value(pr.x(), pr.y(), &g_ref) : spline.value(pr.x(), pr.y(), &g_ref);
+      const double r = s.cur.intensity.at<float>(y, xp) - I_r;
       const Vec2 g(0.5 * (s.cur.grad_x.at<float>(y, xp) + g_ref.x()), 0.5 * (s.cur.grad_y.at<float>(y, xp) + g_ref.y()));
       const Eigen::Matrix<double, 1, 8> S = g.transpose() * J;
       double w = 1.0 / (sigma * sigma);
@@ -379,18 +420,25 @@ TwoViewScene* PhotometricScene::scene_ = nullptr;
 TEST_F(PhotometricScene, PixelLoopMatchesDoublePrecisionReference) {
   // The state at the current image with the scene's rate, and at the interval's midpoint with a fast rate
   // (every term of the b_w row of PixelWarp non-negligible).
+  // The quintic spline's 6 x 6 taps too (photometric/spline_degree 5), both the consecutive-column loads and
+  // the gathered ones (the fast rates turn the image).
   struct Case {
     double huber, lag_s;
     Vec3 gyro;
+    int degree;
   };
   const double dt = scene_->dt_s;
-  const Case cases[] = {{0.0, 0.0, scene_->w_C},
-                        {1.0, 0.0, scene_->w_C},
-                        {0.0, 0.5 * dt, scene_->w_C + Vec3(1.2, -0.9, 0.6)},
-                        {1.0, 0.3 * dt, scene_->w_C + Vec3(-0.7, 1.1, -0.4)}};
+  const Case cases[] = {{0.0, 0.0, scene_->w_C, 3},
+                        {1.0, 0.0, scene_->w_C, 3},
+                        {0.0, 0.5 * dt, scene_->w_C + Vec3(1.2, -0.9, 0.6), 3},
+                        {1.0, 0.3 * dt, scene_->w_C + Vec3(-0.7, 1.1, -0.4), 3},
+                        {0.0, 0.0, scene_->w_C, 5},
+                        {1.0, 0.3 * dt, scene_->w_C + Vec3(-0.7, 1.1, -0.4), 5}};
   for (const Case& c : cases) {
+    SCOPED_TRACE("spline degree " + std::to_string(c.degree));
     PhotometricParams params;
     params.huber_threshold = c.huber;
+    params.spline_degree = c.degree;
     PreprocessParams pre;
     pre.border_px = 1;
     PhotometricUpdate update(params, pre);
@@ -401,7 +449,14 @@ TEST_F(PhotometricScene, PixelLoopMatchesDoublePrecisionReference) {
     const int valid = update.linearize(scene_->ref, scene_->cur, scene_->K, c.gyro, dt, x, &A, &b, &candidates,
                                        c.lag_s);
     referenceLinearization(*scene_, x, c.gyro, params.intensity_noise_sigma, c.huber, &A_ref, &b_ref, &valid_ref,
-                           c.lag_s);
+                           c.lag_s, c.degree);
+    if (c.degree == 5) {  // the two splines differ by more than the tolerances below on this texture
+      ObservedInfo A3;
+      ObservedVec b3;
+      int valid3 = 0;
+      referenceLinearization(*scene_, x, c.gyro, params.intensity_noise_sigma, c.huber, &A3, &b3, &valid3, c.lag_s, 3);
+      EXPECT_GT((b3 - b_ref).norm(), 1e-2 * b_ref.norm());
+    }
     EXPECT_EQ(candidates, 178 * 114);
     EXPECT_NEAR(valid, valid_ref, 2);  // float vs double at the exact bounds
     EXPECT_LT((A - A_ref).norm(), 1e-3 * A_ref.norm()) << "huber " << c.huber << " lag " << c.lag_s;
