@@ -48,13 +48,13 @@ inline void cubicBSplineWeights(const T& t, T* w, T* dw, Constant c) {
 /// The six quintic B-spline weights of the taps at floor(x) - 2 ... floor(x) + 3 for t = x - floor(x) in [0, 1),
 /// and their derivatives d w / d x. The centred quintic B-spline is (66 - 60 x^2 + 30 x^4 - 10 |x|^5) / 120 for
 /// |x| < 1, (51 + 75 |x| - 210 x^2 + 150 |x|^3 - 45 x^4 + 5 |x|^5) / 120 for 1 <= |x| < 2 and (3 - |x|)^5 / 120
-/// for 2 <= |x| < 3; tap j weighs B5(t - j).
+/// for 2 <= |x| < 3; the tap at floor(x) + j (j = -2 ... 3, in w[j + 2]) weighs B5(t - j).
 template <class T, class Constant>
 inline void quinticBSplineWeights(const T& t, T* w, T* dw, Constant c) {
   const T s = c(1.0f) - t;
   const T t2 = t * t, s2 = s * s;
   const T t4 = t2 * t2, s4 = s2 * s2;
-  // |x| < 1 at x = t (tap 0) and x = s (tap 1); 1 <= |x| < 2 at x = 1 + t (tap -1) and x = 1 + s (tap 2).
+  // |x| < 1 at x = t (j = 0) and x = s (j = 1); 1 <= |x| < 2 at x = 1 + t (j = -1) and x = 1 + s (j = 2).
   const auto inner = [&](const T& x, const T& x2) {
     return c(66.0f / 120.0f) + x2 * (c(-60.0f / 120.0f) + x2 * (c(30.0f / 120.0f) - c(10.0f / 120.0f) * x));
   };
