@@ -303,6 +303,8 @@ class PhotometricUpdate {
   /// The pair's brightness model before its light-change test: the parameter's, auto resolved (kRows while bands
   /// of the rows are found, else kLevels), kLevels as kNormalised for images that are not standardised.
   BrightnessModel pairModel() const;
+  /// The degree of ref_coeff_'s B-spline: PhotometricParams::spline_degree, 5 or else 3.
+  int splineDegree() const { return params_.spline_degree == 5 ? 5 : 3; }
   /// The reference of the sweeps: its B-spline coefficients (ref_coeff_) and its level (ref_level_offset_).
   void setReference(const PreprocessedFrame& ref);
   /// The bands of the rows after an update (UpdateStats::row_gain_rms, row_banding, row_bands_found) from the last
@@ -332,7 +334,6 @@ class PhotometricUpdate {
   cv::Mat parallax_sums_;       ///< CV_32FC2 per cell: carried window sums of a r and a^2 (a = dr / d rho)
   cv::Mat parallax_sums_prev_;  ///< the same of the previous image (swapped)
   cv::Mat ref_coeff_;   ///< CV_32FC1 B-spline coefficients of the reference's intensity, reused between calls
-  int ref_coeff_degree_ = 3;  ///< degree of ref_coeff_'s B-spline (PhotometricParams::spline_degree: 3 or 5)
   std::vector<float> spline_scratch_;  ///< the spline prefilter's row block (4 x width), reused between calls
   cv::Mat scratch_;     ///< CV_32FC1 13 x (width rounded up to 4): row buffers of the sweep
   // Brightness model kRows (prepareRowKnots, SweepConfig::row_gain):

@@ -373,6 +373,7 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
   alignas(16) int32_t idx[4];
   alignas(16) int32_t widx[4];
   const v_int32x4 lane_ramp(0, 1, 2, 3);
+  const v_int32x4 lead_i = v_setall_s32(kLead);
   alignas(16) float xs_init[4];
   for (int l = 0; l < 4; ++l) xs_init[l] = static_cast<float>(cfg.border + l * cfg.stride);
   const v_float32x4 x_step = v_setall_f32(static_cast<float>(4 * cfg.stride));
@@ -534,7 +535,6 @@ void sweep(const cv::Mat& ref_coeff, const PreprocessedFrame& cur, const PixelWa
       const v_float32x4 rxs = v_select(valid, rx, rx_lo), rys = v_select(valid, ry, ry_lo);
       const v_int32x4 x0 = v_floor(rxs), y0 = v_floor(rys);
       const v_float32x4 ax = rxs - v_cvt_f32(x0), ay = rys - v_cvt_f32(y0);
-      const v_int32x4 lead_i = v_setall_s32(kLead);
       const v_int32x4 idx_v = (y0 - lead_i) * v_setall_s32(sC) + (x0 - lead_i);  // the lanes' top-left taps
       v_store_aligned(idx, idx_v);
       // Most groups sample 4 consecutive reference columns of one row (the warp is near a shift along the
@@ -933,8 +933,7 @@ BrightnessModel PhotometricUpdate::pairModel() const {
 }
 
 void PhotometricUpdate::setReference(const PreprocessedFrame& ref) {
-  ref_coeff_degree_ = params_.spline_degree == 5 ? 5 : 3;
-  internal::bSplineCoefficients(ref.intensity, ref_coeff_degree_, &ref_coeff_, &spline_scratch_);
+  internal::bSplineCoefficients(ref.intensity, splineDegree(), &ref_coeff_, &spline_scratch_);
   ref_level_offset_ = ref.level_offset;
   ref_grey_per_unit_ = ref.grey_per_unit;
 }
@@ -1094,7 +1093,7 @@ int PhotometricUpdate::accumulate(const PreprocessedFrame& cur, const PinholeK& 
     }
   };
   auto run_taps = [&](auto weight_map) {
-    if (ref_coeff_degree_ == 5) {
+    if (splineDegree() == 5) {
       run(weight_map, std::integral_constant<int, 6>{});
     } else {
       run(weight_map, std::integral_constant<int, 4>{});

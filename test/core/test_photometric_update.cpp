@@ -2,6 +2,7 @@
 #include <array>
 #include <cmath>
 #include <functional>
+#include <optional>
 #include <random>
 #include <vector>
 
@@ -300,8 +301,13 @@ void referenceLinearization(const TwoViewScene& s, const State& x, const Vec3& g
   b->setZero();
   *valid = 0;
   const int W = s.cur.intensity.cols, H = s.cur.intensity.rows;
-  const SplineReference spline(s.ref.intensity);
-  const QuinticReference quintic(s.ref.intensity);
+  std::optional<SplineReference> cubic;  // only the spline evaluated is built
+  std::optional<QuinticReference> quintic;
+  if (degree == 5) {
+    quintic.emplace(s.ref.intensity);
+  } else {
+    cubic.emplace(s.ref.intensity);
+  }
   const double lead = degree / 2;  // the taps' reach below floor(x): 1 (cubic) or 2 (quintic)
   for (int y = 1; y < H - 1; ++y) {
     for (int xp = 1; xp < W - 1; ++xp) {
@@ -310,7 +316,7 @@ void referenceLinearization(const TwoViewScene& s, const State& x, const Vec3& g
       if (!(pr.x() >= lead && pr.x() < W - 1.0 - lead && pr.y() >= lead && pr.y() < H - 1.0 - lead)) continue;
       ++*valid;
       Vec2 g_ref;
-      const double I_r = degree == 5 ? quintic.value(pr.x(), pr.y(), &g_ref) : spline.value(pr.x(), pr.y(), &g_ref);
+      const double I_r = quintic ? quintic->value(pr.x(), pr.y(), &g_ref) : cubic->value(pr.x(), pr.y(), &g_ref);
       const double r = s.cur.intensity.at<float>(y, xp) - I_r;
       const Vec2 g(0.5 * (s.cur.grad_x.at<float>(y, xp) + g_ref.x()), 0.5 * (s.cur.grad_y.at<float>(y, xp) + g_ref.y()));
       const Eigen::Matrix<double, 1, 8> S = g.transpose() * J;
