@@ -257,9 +257,10 @@ TEST(QuinticBSpline, DerivativeOfTheInterpolantMatchesFiniteDifferences) {
 /// interpolation of the reference (gradient: bilinear of its central differences, as before the spline) or the
 /// cubic B-spline (gradient: the spline's derivative). A sinusoid of frequency w (rad/px) moved by `shift` px.
 double estimatedShift(double w, double shift, bool spline, int degree = 3) {
+  // Seven equal rows, the middle one evaluated: the quintic's six taps reach rows 1-6 (the cubic's 2-5).
   const int n = 160;
-  cv::Mat ref(5, n, CV_32FC1), cur(5, n, CV_32FC1);
-  for (int y = 0; y < 5; ++y) {
+  cv::Mat ref(7, n, CV_32FC1), cur(7, n, CV_32FC1);
+  for (int y = 0; y < 7; ++y) {
     for (int x = 0; x < n; ++x) {
       ref.at<float>(y, x) = static_cast<float>(std::sin(w * x + 0.3));
       cur.at<float>(y, x) = static_cast<float>(std::sin(w * (x + shift) + 0.3));  // cur(x) = ref(x + shift)
@@ -267,7 +268,7 @@ double estimatedShift(double w, double shift, bool spline, int degree = 3) {
   }
   cv::Mat c;
   bSplineCoefficients(ref, degree, &c);
-  auto central = [](const cv::Mat& m, int x) { return 0.5 * (m.at<float>(2, x + 1) - m.at<float>(2, x - 1)); };
+  auto central = [](const cv::Mat& m, int x) { return 0.5 * (m.at<float>(3, x + 1) - m.at<float>(3, x - 1)); };
   double u = 0.0;
   for (int it = 0; it < 30; ++it) {
     double num = 0.0, den = 0.0;
@@ -275,15 +276,15 @@ double estimatedShift(double w, double shift, bool spline, int degree = 3) {
       double v, d;
       const double xr = x + u;
       if (spline) {
-        evaluate(c, xr, 2.0, &v, &d, degree);
+        evaluate(c, xr, 3.0, &v, &d, degree);
       } else {
         const int x0 = static_cast<int>(std::floor(xr));
         const double a = xr - x0;
-        v = (1 - a) * ref.at<float>(2, x0) + a * ref.at<float>(2, x0 + 1);
+        v = (1 - a) * ref.at<float>(3, x0) + a * ref.at<float>(3, x0 + 1);
         d = (1 - a) * central(ref, x0) + a * central(ref, x0 + 1);
       }
       const double g = 0.5 * (central(cur, x) + d);
-      const double r = cur.at<float>(2, x) - v;
+      const double r = cur.at<float>(3, x) - v;
       num += g * r;
       den += g * g;
     }
