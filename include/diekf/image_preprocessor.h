@@ -144,18 +144,21 @@ class ImagePreprocessor {
   // float column weights, evaluated with OpenCV's portable 128-bit universal intrinsics.
   static constexpr int kMaxRows = 8;
   static constexpr int kMaxWindow = 16;
+  // The footprint's vertical sigma (raw px, at the image's middle) from which the fast path reads row pairs: about
+  // one pair in sigma on the pairs (image_preprocessor.cpp).
+  static constexpr double kPairRowsMinSigmaRaw = 2.0;
   struct alignas(16) ColumnWeights {
     float w[kMaxWindow] = {};  // weight of raw column base + i (already divided by the Q14 row scale)
   };
   struct alignas(16) RowTaps {
     int16_t wpair[kMaxRows / 2][8] = {};  // (w_2k, w_2k+1) repeated 4x, Q14 (sum over rows = 16384)
-    int32_t off[kMaxRows] = {};           // byte offset of row j from the pixel's base
+    int32_t off[kMaxRows] = {};           // offset of row j from the pixel's base, in source elements
     int n = 0;                            // rows (even)
   };
   struct FastPixel {
     int32_t dst = 0;   // index into the (blur-padded) float buffer
     int32_t out8 = 0;  // index into gray8 (row-major)
-    int32_t base = 0;  // byte offset of the first tap in the (continuous) raw image
+    int32_t base = 0;  // offset of the first tap in the source: the raw image, or the row pairs (row_pairs_)
     uint16_t cols = 0, rows = 0;  // ColumnWeights / RowTaps indices
   };
   struct FastGroup {
@@ -179,7 +182,7 @@ class ImagePreprocessor {
   void buildResampling();
   /// dot_fill_coverage_ from fill_mask_ through the current table.
   void updateFillCoverage();
-  void resampleTable(const uint8_t* src, float* dst, uint8_t* g8) const;
+  void resampleTable(const uint8_t* src, float* dst, uint8_t* g8);
   /// Steps 3 and 4 of process(): brightness normalisation from the moments of intensity - pivot, gradients.
   void normalizeAndGradients(double sum, double sum_sq, float pivot, PreprocessedFrame* out) const;
 
@@ -194,6 +197,10 @@ class ImagePreprocessor {
   std::vector<FastGroup> fast_groups_;  // with slow_pixels_, every working pixel appears exactly once
   std::vector<TapSet> tapsets_;
   std::vector<SlowPixel> slow_pixels_;
+  // Whether the fast path reads the raw rows summed in pairs (row_pairs_: row k = raw rows 2k and 2k + 1, 16 bit)
+  // instead of the raw rows: for footprints several raw rows tall (buildResampling).
+  bool pair_rows_ = false;
+  cv::Mat row_pairs_;               // CV_16UC1, ceil(h / 2) x w: the source of the fast path when pair_rows_
   std::vector<float> blur_kernel_;  // symmetric Gaussian, taps 0..radius (empty: no blur)
   double noise_variance_gain_ = 1.0;
   double noise_correlation_area_px_ = 1.0;

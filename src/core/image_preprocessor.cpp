@@ -11,17 +11,22 @@
 //     to c (e: what truncation left; for the box all of c - m), keeping sum w_i = 1.
 //   Along x: n <= 16 CONTIGUOUS raw columns, read as one window of 8 or 16 bytes (180 px: F_x ~ 4.2, 7 taps).
 //   Along y: n <= 8 rows, contiguous while n covers the footprint (7 rows at 180 px), else 8 rows spread evenly
-//     over it (90 px: 2 raw px apart over +-7 px); padded to an even count with a zero-weight row; Q14.
+//     over it; padded to an even count with a zero-weight row; Q14. Footprints at least 2 raw px tall in sigma
+//     (at 752 raw px: working widths up to about 146 px) read ROW PAIRS instead: the raw rows summed in pairs once
+//     per image (16 bit), the taps on the pairs with the Gaussian narrowed to sqrt(s^2 - 1/4) (a pair is a box
+//     of two rows), so the footprint's variance and centroid are the same: at 90 px 8 contiguous pairs (16 raw
+//     rows over +-2 sigma) where 8 single rows 2 raw px apart were read.
 //   Why a Gaussian: texture between the working and the raw Nyquist frequencies folds to low working
 //   frequencies, where the photometric update reads it as motion the wrong way (pulling the flow toward whole
 //   pixels). A box passes it through its sidelobes with the sign flipped; sparse rows (2 rows 2 raw px apart,
 //   as before) pass raw texture of 4 px period almost unattenuated (docs/results.md "Anti-aliasing").
 // With n = 2 taps 1 px apart this is bilinear interpolation. Per frame the resampling is one pass over a table
 // of (destination, base offset, column-weight set, row set), 16 bytes per working pixel. Per pixel and pair of
-// rows: two 8-byte loads widened to 16 bit, interleaved, and one 16-bit dot product per 4 columns against the
-// two rows' Q14 weights (OpenCV universal intrinsics: SSE2 / NEON / scalar emulation); the column weights are
-// applied in float at the end. Footprints wider than 16 raw px (working images narrower than ~47 px at
-// 752 raw px) or raw images narrower than 16 px use a scalar path with up to 8 x 8 taps (the same rules).
+// rows: two 8-byte loads widened to 16 bit (row pairs: two 16-byte loads), interleaved, and one 16-bit dot
+// product per 4 columns against the two rows' Q14 weights (OpenCV universal intrinsics: SSE2 / NEON / scalar
+// emulation); the column weights are applied in float at the end. Footprints wider than 16 raw px (working
+// images narrower than ~47 px at 752 raw px) or raw images narrower than 16 px use a scalar path with up to
+// 8 x 8 taps of single rows (the same rules).
 //
 // Then, at working resolution: separable Gaussian blur (radius ceil(3 sigma), replicated border; the
 // resampler writes into a buffer with the border columns pre-allocated), brightness normalisation (zero mean,
@@ -63,19 +68,32 @@ inline uint8_t toGray8(float v) {
 
 constexpr int kQ14 = 1 << 14;
 
+// The 8 columns at `p` of a source row as 16-bit lanes: raw bytes widened, or the row pairs' sums as they are.
+inline cv::v_uint16x8 loadRow8(const uint8_t* p) { return cv::v_load_expand(p); }
+inline cv::v_uint16x8 loadRow8(const uint16_t* p) { return cv::v_load(p); }
+// The 16 columns at `p` as two 16-bit halves.
+inline void loadRow16(const uint8_t* p, cv::v_uint16x8& lo, cv::v_uint16x8& hi) {
+  cv::v_expand(cv::v_load(p), lo, hi);
+}
+inline void loadRow16(const uint16_t* p, cv::v_uint16x8& lo, cv::v_uint16x8& hi) {
+  lo = cv::v_load(p);
+  hi = cv::v_load(p + 8);
+}
+
 // Fast resampling: the 4 partial sums (float lanes) of one pixel, WIN contiguous columns (8 or 16), NY rows
-// (even), see the file comment.
-template <int WIN, int NY, typename Pix, typename Cols, typename Rows>
-inline cv::v_float32x4 fastPixel(const Pix& p, const Cols* cols, const Rows* rows, const uint8_t* src) {
+// (even), see the file comment. The source: raw bytes, or the raw rows summed in pairs (at most 510: the 16-bit
+// products with the Q14 weights and their sums stay within 32 bits).
+template <int WIN, int NY, typename Src, typename Pix, typename Cols, typename Rows>
+inline cv::v_float32x4 fastPixel(const Pix& p, const Cols* cols, const Rows* rows, const Src* src) {
   using namespace cv;
   const float* cw = cols[p.cols].w;
   const Rows& rt = rows[p.rows];
-  const uint8_t* b = src + p.base;
+  const Src* b = src + p.base;
   if constexpr (WIN == 8) {
     v_int32x4 s0 = v_setzero_s32(), s1 = v_setzero_s32();
     for (int j = 0; j < NY; j += 2) {
-      const v_uint16x8 r0 = v_load_expand(b + rt.off[j]);
-      const v_uint16x8 r1 = v_load_expand(b + rt.off[j + 1]);
+      const v_uint16x8 r0 = loadRow8(b + rt.off[j]);
+      const v_uint16x8 r1 = loadRow8(b + rt.off[j + 1]);
       v_uint16x8 z0, z1;
       v_zip(r0, r1, z0, z1);  // (r0[c], r1[c]) pairs: columns 0-3 in z0, 4-7 in z1
       const v_int16x8 w = v_load(rt.wpair[j / 2]);
@@ -87,8 +105,8 @@ inline cv::v_float32x4 fastPixel(const Pix& p, const Cols* cols, const Rows* row
     v_int32x4 s0 = v_setzero_s32(), s1 = v_setzero_s32(), s2 = v_setzero_s32(), s3 = v_setzero_s32();
     for (int j = 0; j < NY; j += 2) {
       v_uint16x8 a0, a1, c0, c1;
-      v_expand(v_load(b + rt.off[j]), a0, a1);
-      v_expand(v_load(b + rt.off[j + 1]), c0, c1);
+      loadRow16(b + rt.off[j], a0, a1);
+      loadRow16(b + rt.off[j + 1], c0, c1);
       v_uint16x8 z0, z1, z2, z3;
       v_zip(a0, c0, z0, z1);
       v_zip(a1, c1, z2, z3);
@@ -105,8 +123,8 @@ inline cv::v_float32x4 fastPixel(const Pix& p, const Cols* cols, const Rows* row
 }
 
 // Fast resampling kernel: pixels in batches of 4 (one horizontal reduction and one rounding for 4 pixels).
-template <int WIN, int NY, typename Pix, typename Cols, typename Rows>
-void fastKernel(const Pix* pix, std::size_t count, const Cols* cols, const Rows* rows, const uint8_t* src,
+template <int WIN, int NY, typename Src, typename Pix, typename Cols, typename Rows>
+void fastKernel(const Pix* pix, std::size_t count, const Cols* cols, const Rows* rows, const Src* src,
                 float* dst, uint8_t* g8) {
   using namespace cv;
   std::size_t k = 0;
@@ -131,22 +149,41 @@ void fastKernel(const Pix* pix, std::size_t count, const Cols* cols, const Rows*
   }
 }
 
-template <int WIN, int NY, typename Pix, typename Cols, typename Rows>
+template <int WIN, int NY, typename Src, typename Pix, typename Cols, typename Rows>
 bool tryFast(int win, int ny, const Pix* pix, std::size_t count, const Cols* cols, const Rows* rows,
-             const uint8_t* src, float* dst, uint8_t* g8) {
+             const Src* src, float* dst, uint8_t* g8) {
   if (win != WIN || ny != NY) return false;
   fastKernel<WIN, NY>(pix, count, cols, rows, src, dst, g8);
   return true;
 }
 
 // The kernels of one window width for every even row count up to kMaxRows (8).
-template <int WIN, typename Pix, typename Cols, typename Rows>
+template <int WIN, typename Src, typename Pix, typename Cols, typename Rows>
 bool tryFastRows(int win, int ny, const Pix* pix, std::size_t count, const Cols* cols, const Rows* rows,
-                 const uint8_t* src, float* dst, uint8_t* g8) {
+                 const Src* src, float* dst, uint8_t* g8) {
   return tryFast<WIN, 2>(win, ny, pix, count, cols, rows, src, dst, g8) ||
          tryFast<WIN, 4>(win, ny, pix, count, cols, rows, src, dst, g8) ||
          tryFast<WIN, 6>(win, ny, pix, count, cols, rows, src, dst, g8) ||
          tryFast<WIN, 8>(win, ny, pix, count, cols, rows, src, dst, g8);
+}
+
+// Raw rows summed in pairs: out row k = rows 2k and 2k + 1, k < h / 2 (an odd last row left out), 16 bit.
+void sumRowPairs(const uint8_t* src, int w, int h, uint16_t* out) {
+  using namespace cv;
+  for (int k = 0; k < h / 2; ++k) {
+    const uint8_t* a = src + static_cast<std::size_t>(2 * k) * w;
+    const uint8_t* b = a + w;
+    uint16_t* o = out + static_cast<std::size_t>(k) * w;
+    int x = 0;
+    for (; x + 16 <= w; x += 16) {
+      v_uint16x8 a0, a1, b0, b1;
+      v_expand(v_load(a + x), a0, a1);
+      v_expand(v_load(b + x), b0, b1);
+      v_store(o + x, a0 + b0);
+      v_store(o + x + 8, a1 + b1);
+    }
+    for (; x < w; ++x) o[x] = static_cast<uint16_t>(a[x] + b[x]);
+  }
 }
 
 // Horizontal blur of one row with a symmetric kernel of radius R (compile time): in[-R .. W-1+R] readable.
@@ -381,14 +418,21 @@ void ImagePreprocessor::buildResampling() {
   };
   std::vector<double> K_x(w, 0.0), T_x(w, 0.0), K_y(h, 0.0), T_y(h, 0.0);
   double c_lo_x = 0.0, c_hi_x = 0.0, c_lo_y = 0.0, c_hi_y = 0.0;  // raw centres of the span's ends
-  auto collect = [&](bool is_x, int index, int mid, double c, int first, int n, int step, const double* wts) {
+  // `pairs`: the taps are row pairs (tap t: raw rows 2t and 2t + 1, half its weight each).
+  auto collect = [&](bool is_x, int index, int mid, double c, int first, int n, int step, const double* wts,
+                     bool pairs = false) {
     std::vector<double>& K = is_x ? K_x : K_y;
     std::vector<double>& T = is_x ? T_x : T_y;
     const int size = is_x ? W : H;
     const double kb = std::abs(index - mid) <= blur_r ? blurWeight(index - mid) : 0.0;
     for (int i = 0; i < n; ++i) {
-      T[first + i * step] += wts[i];
-      K[first + i * step] += kb * wts[i];
+      const int t = first + i * step;
+      for (int r = 0; r < (pairs ? 2 : 1); ++r) {
+        const int at = pairs ? 2 * t + r : t;
+        const double wt = pairs ? 0.5 * wts[i] : wts[i];
+        T[at] += wt;
+        K[at] += kb * wt;
+      }
     }
     if (index == mid - std::max(2, size / 16)) (is_x ? c_lo_x : c_lo_y) = c;
     if (index == mid + std::max(2, size / 16)) (is_x ? c_hi_x : c_hi_y) = c;
@@ -428,6 +472,20 @@ void ImagePreprocessor::buildResampling() {
   // portable x86-64, and exact downscale factors (376 or 94 px from 752) put centres exactly on rounding ties.
   // Snapping to 1/4096 raw px makes such ties exact on every platform (test LinearRampGradients).
   auto snap = [](double x) { return std::round(x * 4096.0) / 4096.0; };
+  // Row pairs: where the Gaussian footprint is many raw rows tall (sigma >= kPairRowsMinSigmaRaw at the image's
+  // middle: working widths up to about 146 px from 752 raw px), the fast path reads the raw rows summed in pairs
+  // and puts the footprint's taps on the pairs: each pair summed once per image instead of once per footprint that
+  // covers it, and twice the rows within the same taps (90 px: 16 contiguous raw rows instead of 8 rows 2 px
+  // apart). A pair is a box of two rows (variance 1/4 raw px^2), so the taps' Gaussian is narrowed to
+  // sigma' = sqrt(sigma^2 - 1/4): the footprint's variance, centroid and weights' sum stay the unpaired one's
+  // (docs/noise_model.md section 2). Narrower footprints keep single rows: on pairs their shape would change with
+  // their centre's phase against the pairs, a pattern fixed in the image (measured at 180 px: docs/results.md).
+  {
+    const Vec2 dv = toRaw(u_mid, v_mid + 0.5) - toRaw(u_mid, v_mid - 0.5);
+    const double Fy = std::hypot(dv.x(), dv.y());
+    pair_rows_ = aa > 0.0 && w >= kMaxWindow && h >= 8 && std::isfinite(Fy) && aa * Fy >= kPairRowsMinSigmaRaw;
+  }
+  const int pair_rows = h / 2;
   for (int v = 0; v < H; ++v) {
     for (int u = 0; u < W; ++u) {
       const Vec2 c = toRaw(u, v).unaryExpr(snap);
@@ -470,7 +528,8 @@ void ImagePreprocessor::buildResampling() {
       if (cit == col_index.end()) {
         checkCount(columns_.size());
         ColumnWeights cw;
-        for (int i = 0; i < nx; ++i) cw.w[lane + i] = static_cast<float>(wx[i] / kQ14);
+        // (Row pairs are sums of two rows: half the weight.)
+        for (int i = 0; i < nx; ++i) cw.w[lane + i] = static_cast<float>(wx[i] / (pair_rows_ ? 2 * kQ14 : kQ14));
         cit = col_index.emplace(ckey, static_cast<uint16_t>(columns_.size())).first;
         columns_.push_back(cw);
       }
@@ -479,9 +538,20 @@ void ImagePreprocessor::buildResampling() {
       // summing exactly to 2^14.
       double wy[kMaxRows];
       int dqy = 0;
-      const auto [ny0, step_y0] = tapsFor(Fy, kMaxRows);
-      const auto [first_y, ny, step_y] = taps1d(cyr, ny0, step_y0, h, sigmaFor(Fy), wy, &dqy);
-      if (u == u_mid) collect(false, v, v_mid, cyr, first_y, ny, step_y, wy);
+      int first_y = 0, ny = 0, step_y = 1;
+      if (pair_rows_) {
+        // In pair coordinates (pair k centred on raw row 2k + 1/2): centre (c - 1/2) / 2, sigma' / 2.
+        const double s_raw = sigmaFor(Fy);
+        const double s_pair = 0.5 * std::sqrt(std::max(s_raw * s_raw - 0.25, 0.25));
+        const int wanted = std::max(2, static_cast<int>(std::ceil(4.0 * s_pair - 1e-9)));
+        const int n0 = std::min(wanted, kMaxRows);
+        const int step0 = wanted > kMaxRows ? std::max(1, static_cast<int>(std::lround(4.0 * s_pair / n0))) : 1;
+        std::tie(first_y, ny, step_y) = taps1d(0.5 * (cyr - 0.5), n0, step0, pair_rows, s_pair, wy, &dqy);
+      } else {
+        const auto [ny0, step_y0] = tapsFor(Fy, kMaxRows);
+        std::tie(first_y, ny, step_y) = taps1d(cyr, ny0, step_y0, h, sigmaFor(Fy), wy, &dqy);
+      }
+      if (u == u_mid) collect(false, v, v_mid, cyr, first_y, ny, step_y, wy, pair_rows_);
       const int ny_even = (ny + 1) / 2 * 2;
       const auto rkey = std::make_tuple(ny, step_y, dqy, footprintKey(Fy));
       auto rit = row_index.find(rkey);
@@ -546,14 +616,24 @@ void ImagePreprocessor::buildResampling() {
   noise_correlation_area_px_ = std::max(1.0, area_x * area_y);
 }
 
-void ImagePreprocessor::resampleTable(const uint8_t* src, float* dst, uint8_t* g8) const {
+void ImagePreprocessor::resampleTable(const uint8_t* src, float* dst, uint8_t* g8) {
+  const uint16_t* pairs = nullptr;
+  if (pair_rows_ && !fast_groups_.empty()) {
+    const int w = raw_K_.width, h = raw_K_.height;
+    ensure(row_pairs_, h / 2, w, CV_16UC1);  // allocates once
+    pairs = row_pairs_.ptr<uint16_t>();
+    sumRowPairs(src, w, h, row_pairs_.ptr<uint16_t>());
+  }
   for (const FastGroup& g : fast_groups_) {
     const FastPixel* pix = g.pixels.data();
     const std::size_t n = g.pixels.size();
     const ColumnWeights* cols = columns_.data();
     const RowTaps* rows = rows_.data();
-    const bool done = tryFastRows<8>(g.window, g.rows, pix, n, cols, rows, src, dst, g8) ||
-                      tryFastRows<16>(g.window, g.rows, pix, n, cols, rows, src, dst, g8);
+    const bool done = pairs != nullptr
+                          ? tryFastRows<8>(g.window, g.rows, pix, n, cols, rows, pairs, dst, g8) ||
+                                tryFastRows<16>(g.window, g.rows, pix, n, cols, rows, pairs, dst, g8)
+                          : tryFastRows<8>(g.window, g.rows, pix, n, cols, rows, src, dst, g8) ||
+                                tryFastRows<16>(g.window, g.rows, pix, n, cols, rows, src, dst, g8);
     if (!done) throw std::logic_error("ImagePreprocessor: resampling group outside the fast kernels");
   }
   for (const SlowPixel& p : slow_pixels_) {

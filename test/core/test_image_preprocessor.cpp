@@ -206,6 +206,28 @@ TEST(ImagePreprocessor, GaussianFootprintSuppressesAliasesAt180) {
   EXPECT_LT(worst[1], 0.6 * worst[0]);
 }
 
+// At 90 px (sigma 3.35 raw px) the footprint's rows are read as row pairs, 16 contiguous raw rows over +-2 sigma
+// (until session 62: 8 single rows 2 raw px apart, which sampled texture along y at 2 px and folded stripes of a
+// period just above 2 raw px to low frequencies: measured 0.26 of the amplitude, now 0.05). Stripes along y near the
+// raw Nyquist period must come out nearly uniform. (The pairs' centroid: LinearRampGradients and
+// ResamplingMatchesSmoothImageAtMappedCentre.)
+TEST(ImagePreprocessor, RowPairsAt90PxAverageEveryRawRow) {
+  const CameraModel cam = myntEyeCamera();
+  PreprocessParams p;
+  p.working_width_px = 90;
+  p.normalize_brightness = false;
+  ImagePreprocessor pre(cam, p);
+  PreprocessedFrame f;
+  const double in_std = 100.0 / std::sqrt(2.0);
+  double worst = 0.0;
+  for (double period : {2.1, 2.2, 2.4, 2.7}) {
+    pre.process(stripes(period, M_PI / 2), 0.0, &f);
+    worst = std::max(worst, 255.0 * stdDev(f.intensity, 2) / in_std);
+  }
+  ::testing::Test::RecordProperty("worst_row_alias_90", std::to_string(worst));
+  EXPECT_LT(worst, 0.1);
+}
+
 // The noise figures the update's noise floor and correlation area come from (noiseVarianceGain,
 // noiseCorrelationAreaPx, derived from the resampling tables and the blur) against a Monte-Carlo measurement on
 // white raw noise, within 10 % and 15 %: the variance of a working pixel, and the sum of its autocorrelation
