@@ -200,7 +200,7 @@ class ImagePreprocessor {
   // Whether the fast path reads the raw rows summed in pairs (row_pairs_: row k = raw rows 2k and 2k + 1, 16 bit)
   // instead of the raw rows: for footprints several raw rows tall (buildResampling).
   bool pair_rows_ = false;
-  cv::Mat row_pairs_;               // CV_16UC1, ceil(h / 2) x w: the source of the fast path when pair_rows_
+  cv::Mat row_pairs_;               // CV_16UC1, (h / 2) x w: the source of the fast path when pair_rows_
   std::vector<float> blur_kernel_;  // symmetric Gaussian, taps 0..radius (empty: no blur)
   double noise_variance_gain_ = 1.0;
   double noise_correlation_area_px_ = 1.0;

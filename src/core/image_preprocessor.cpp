@@ -485,7 +485,7 @@ void ImagePreprocessor::buildResampling() {
     const double Fy = std::hypot(dv.x(), dv.y());
     pair_rows_ = aa > 0.0 && w >= kMaxWindow && h >= 8 && std::isfinite(Fy) && aa * Fy >= kPairRowsMinSigmaRaw;
   }
-  const int pair_rows = h / 2;
+  const int n_pairs = h / 2;
   for (int v = 0; v < H; ++v) {
     for (int u = 0; u < W; ++u) {
       const Vec2 c = toRaw(u, v).unaryExpr(snap);
@@ -543,10 +543,8 @@ void ImagePreprocessor::buildResampling() {
         // In pair coordinates (pair k centred on raw row 2k + 1/2): centre (c - 1/2) / 2, sigma' / 2.
         const double s_raw = sigmaFor(Fy);
         const double s_pair = 0.5 * std::sqrt(std::max(s_raw * s_raw - 0.25, 0.25));
-        const int wanted = std::max(2, static_cast<int>(std::ceil(4.0 * s_pair - 1e-9)));
-        const int n0 = std::min(wanted, kMaxRows);
-        const int step0 = wanted > kMaxRows ? std::max(1, static_cast<int>(std::lround(4.0 * s_pair / n0))) : 1;
-        std::tie(first_y, ny, step_y) = taps1d(0.5 * (cyr - 0.5), n0, step0, pair_rows, s_pair, wy, &dqy);
+        const auto [n0, step0] = tapsFor(s_pair / aa, kMaxRows);  // the taps of a footprint of sigma s_pair
+        std::tie(first_y, ny, step_y) = taps1d(0.5 * (cyr - 0.5), n0, step0, n_pairs, s_pair, wy, &dqy);
       } else {
         const auto [ny0, step_y0] = tapsFor(Fy, kMaxRows);
         std::tie(first_y, ny, step_y) = taps1d(cyr, ny0, step_y0, h, sigmaFor(Fy), wy, &dqy);
@@ -621,19 +619,19 @@ void ImagePreprocessor::resampleTable(const uint8_t* src, float* dst, uint8_t* g
   if (pair_rows_ && !fast_groups_.empty()) {
     const int w = raw_K_.width, h = raw_K_.height;
     ensure(row_pairs_, h / 2, w, CV_16UC1);  // allocates once
-    pairs = row_pairs_.ptr<uint16_t>();
     sumRowPairs(src, w, h, row_pairs_.ptr<uint16_t>());
+    pairs = row_pairs_.ptr<uint16_t>();
   }
   for (const FastGroup& g : fast_groups_) {
     const FastPixel* pix = g.pixels.data();
     const std::size_t n = g.pixels.size();
     const ColumnWeights* cols = columns_.data();
     const RowTaps* rows = rows_.data();
-    const bool done = pairs != nullptr
-                          ? tryFastRows<8>(g.window, g.rows, pix, n, cols, rows, pairs, dst, g8) ||
-                                tryFastRows<16>(g.window, g.rows, pix, n, cols, rows, pairs, dst, g8)
-                          : tryFastRows<8>(g.window, g.rows, pix, n, cols, rows, src, dst, g8) ||
-                                tryFastRows<16>(g.window, g.rows, pix, n, cols, rows, src, dst, g8);
+    const auto run = [&](const auto* source) {
+      return tryFastRows<8>(g.window, g.rows, pix, n, cols, rows, source, dst, g8) ||
+             tryFastRows<16>(g.window, g.rows, pix, n, cols, rows, source, dst, g8);
+    };
+    const bool done = pairs != nullptr ? run(pairs) : run(src);
     if (!done) throw std::logic_error("ImagePreprocessor: resampling group outside the fast kernels");
   }
   for (const SlowPixel& p : slow_pixels_) {
